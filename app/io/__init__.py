@@ -1,0 +1,1 @@
+"""Bytes to samples and back: line protocol, sources, recorder. Never imports widgets."""

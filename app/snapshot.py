@@ -1,0 +1,141 @@
+"""What the engine hands the GUI once per display frame, and the commands the GUI sends back.
+
+Plain data only (numpy arrays, dataclasses): no Qt, no sockets, so both the engine thread
+and the widgets can import it, and tests can build snapshots by hand.
+
+Frames and units: quaternions are w-first, sensor -> ENU, w >= 0. Times are the phone's
+clock in milliseconds (after clock alignment). Angles in degrees unless the name says rad.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+SENSORS = ("gyr", "acc", "mag")
+
+
+@dataclass
+class FilterStatus:
+    """The status lights and their reasons, for the main estimator."""
+
+    sensors_enabled: dict[str, bool] = field(
+        default_factory=lambda: {"gyr": True, "acc": True, "mag": True})
+    acc_rejected: bool = False
+    mag_rejected: bool = False
+    at_rest: bool = False
+    acc_norm: float = float("nan")      # ||a|| of the latest accelerometer sample, m/s^2
+    g: float = 9.81                     # expected ||a||, m/s^2
+    acc_gate: float = float("nan")      # the gate that was applied, m/s^2 (|‖a‖ - g| > gate -> rejected)
+    mag_norm: float = float("nan")      # ||m|| of the latest magnetometer sample, uT
+    mag_expected: float = float("nan")  # AR(1) field-strength estimate L_k, uT
+    mag_gate: float = float("nan")      # the gate applied, uT (|‖m‖ - L| > gate -> rejected)
+    estimator: str = "ekf"
+
+
+@dataclass
+class Comparison:
+    """One estimator run side by side on the same stream (task 12, live)."""
+
+    name: str
+    quat: np.ndarray | None
+    angle_to_phone_deg: float = float("nan")
+    rmse_deg: float = float("nan")
+
+
+@dataclass
+class StreamHealth:
+    connection_state: str = "waiting"        # "waiting" | "connected" | "disconnected" | "replaying" | "finished"
+    peer: str | None = None                  # "192.168.1.23:51234" when connected
+    listen_addresses: list[str] = field(default_factory=list)  # the PC's LAN IPv4 addresses
+    port: int | None = None
+    rates_hz: dict[str, float] = field(default_factory=dict)   # per tag
+    lines_per_s: float = 0.0
+    lines_total: int = 0
+    damaged: int = 0
+    unknown: int = 0
+    too_long: int = 0
+    out_of_order: int = 0
+    clock_quirks: list[str] = field(default_factory=list)     # human-readable, e.g. "ACC clock +131072000 ms (aligned)"
+    warnings: list[str] = field(default_factory=list)         # rate-limited messages for the status bar
+
+
+@dataclass
+class PlotChunk:
+    """New samples since the previous snapshot (each array may be empty).
+
+    t_* are phone times in seconds (float64). Rejected masks are per sample.
+    """
+
+    t_acc: np.ndarray = field(default_factory=lambda: np.empty(0))
+    acc: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
+    acc_rejected: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
+    t_gyr: np.ndarray = field(default_factory=lambda: np.empty(0))
+    gyr: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
+    t_mag: np.ndarray = field(default_factory=lambda: np.empty(0))
+    mag: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
+    mag_rejected: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
+    t_est: np.ndarray = field(default_factory=lambda: np.empty(0))
+    own_euler_deg: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))    # unwrapped
+    phone_euler_deg: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))  # unwrapped, NaN where no ORI yet
+    angle_deg: np.ndarray = field(default_factory=lambda: np.empty(0))              # angle OWN vs PHONE
+
+
+@dataclass
+class Snapshot:
+    seq: int = 0
+    t_ms: int | None = None                   # latest phone time processed
+    own_quat: np.ndarray | None = None        # (4,)
+    own_cov: np.ndarray | None = None         # covariance of the quaternion state (4,4)
+    phone_quat: np.ndarray | None = None      # (4,) latest ORI
+    status: FilterStatus = field(default_factory=FilterStatus)
+    comparisons: list[Comparison] = field(default_factory=list)
+    plot: PlotChunk = field(default_factory=PlotChunk)
+    health: StreamHealth = field(default_factory=StreamHealth)
+    replay: dict[str, Any] | None = None      # {"position_s", "duration_s", "speed", "paused", "loop"} when replaying
+
+
+# ---- commands: GUI (or CLI) -> engine; applied before the next sample ----------------------
+
+@dataclass(frozen=True)
+class SetSensorEnabled:
+    sensor: str        # "gyr" | "acc" | "mag"
+    enabled: bool
+
+
+@dataclass(frozen=True)
+class SetEstimator:
+    name: str          # "ekf" | "course" | "complementary" | "gyro" | "accmag" (see ekf.ESTIMATORS)
+
+
+@dataclass(frozen=True)
+class SetSettings:
+    settings: Any      # ekf.EKFSettings
+
+
+@dataclass(frozen=True)
+class ResetFilter:
+    pass
+
+
+@dataclass(frozen=True)
+class AlignHeading:
+    """Turn OWN's world about up so its heading matches PHONE's."""
+
+
+@dataclass(frozen=True)
+class SetComparisonsEnabled:
+    enabled: bool
+
+
+@dataclass(frozen=True)
+class ReplayControl:
+    """Replay only: any field left None is unchanged."""
+
+    paused: bool | None = None
+    speed: float | None = None
+    loop: bool | None = None
+    seek_s: float | None = None   # position from the start of the log, seconds
+    step: int | None = None       # advance N samples while paused

@@ -1,0 +1,1 @@
+"""Widgets: draw snapshots, forward user intent as engine commands."""
