@@ -234,6 +234,8 @@ class OrientationEKF:
         omega = _as3(gyr)
         self._omega = omega
         self._omega_t = t
+        if not self._initialised and not (self._enabled["acc"] or self._enabled["mag"]):
+            self._initialise(t)   # gyroscope alone: nothing absolute, start at identity (flat)
         self._detect_rest_gyr(t, omega)
         if self._n == 7 and self._initialised and self.status.at_rest:
             self._zero_rate_update(omega)
@@ -533,6 +535,8 @@ class OrientationEKF:
         self._x[:4] = _rotate_world_about_up(q, -psi)
         Sq = quat.S_bar(self._x[:4])
         self._P[:4, :4] = 0.25 * self.settings.initial_attitude_std ** 2 * (Sq @ Sq.T)
+        self._P[:4, 4:] = 0.0   # a fresh attitude is uncorrelated with the bias estimate
+        self._P[4:, :4] = 0.0
         self._heading_from_mag = True
         if self._m0 is None:
             self._set_m0_from(y)
