@@ -224,9 +224,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 # ---- simulate -----------------------------------------------------------------------------------
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    import gzip
     from ekf.simulate import simulate
-    from app.io.protocol import Sample, format_line
+    from app.io.demo import write_session
     if args.duration <= 0:
         raise UsageError("--duration must be positive")
     if args.rate <= 0:
@@ -234,11 +233,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     rates = {"gyr": args.rate, "acc": args.rate, "mag": args.mag_rate or args.rate / 2, "ori": args.rate}
     session = simulate(duration_s=args.duration, rates_hz=rates, seed=args.seed,
                        gyro_bias=tuple(args.gyro_bias))
-    opener = gzip.open if args.output.endswith(".gz") else open
     try:
-        with opener(args.output, "wt", newline="\n") as f:
-            for t_ms, tag, values in session.to_rows():
-                f.write(format_line(Sample(int(t_ms), tag, tuple(float(v) for v in values))) + "\n")
+        write_session(session, args.output)   # float32 text like the phone's; .gz compresses
     except OSError as e:
         raise UsageError(f"cannot write {args.output}: {e.strerror or e}") from None
     return 0

@@ -118,8 +118,11 @@ def _fit_script(script: list[Segment], duration_s: float) -> list[Segment]:
     """Fit a script (initial rest, body, final rest) to `duration_s`.
 
     Longer: repeat the body as often as it fits whole, then stretch every rest evenly.
-    Shorter: compress the rests (to no less than 3/4, which keeps the initial rest >= 3 s),
-    and if that is not enough, the session simply ends part-way (the script is truncated).
+    Shorter, in stages until it fits: (1) shrink all rests to no less than 3/4 (the initial rest
+    stays >= 3 s); (2) keep the initial rest at 3 s and shrink the other rests to no less than 1/4;
+    (3) speed up the motions and events, down to half their length (rates up to 2x, same angles,
+    same burst cycles); (4) below that (about 34 s for the standard script) the session ends
+    part-way through the script.
     """
     first, body, last = script[0], script[1:-1], script[-1]
     body_len = sum(s.duration_s for s in body)
@@ -127,14 +130,35 @@ def _fit_script(script: list[Segment], duration_s: float) -> list[Segment]:
     if duration_s >= nominal and body_len > 0:
         repeats = int((duration_s - first.duration_s - last.duration_s) // body_len)
         segments = [first, *(body * max(repeats, 1)), last]
+        rest_total = sum(s.duration_s for s in segments if s.kind == "rest")
+        factor = (duration_s - sum(s.duration_s for s in segments if s.kind != "rest")) / rest_total
+        return [replace(s, duration_s=s.duration_s * factor) if s.kind == "rest" else s
+                for s in segments]
+
+    initial = first.duration_s
+    other_rest = sum(s.duration_s for s in script[1:] if s.kind == "rest")
+    motion = sum(s.duration_s for s in script if s.kind != "rest")
+    initial_scale = rest_scale = motion_scale = 1.0
+    if initial * 0.75 + other_rest * 0.75 + motion <= duration_s:                    # stage 1
+        initial_scale = rest_scale = (duration_s - motion) / (initial + other_rest)
     else:
-        segments = list(script)
-    rest_total = sum(s.duration_s for s in segments if s.kind == "rest")
-    fixed_total = sum(s.duration_s for s in segments if s.kind != "rest")
-    if rest_total <= 0:
-        return segments
-    factor = max((duration_s - fixed_total) / rest_total, 0.75)
-    return [replace(s, duration_s=s.duration_s * factor) if s.kind == "rest" else s for s in segments]
+        initial_scale = min(1.0, 3.0 / initial) if initial > 0 else 1.0
+        fixed = initial * initial_scale
+        if fixed + other_rest * 0.25 + motion <= duration_s:                        # stage 2
+            rest_scale = min((duration_s - fixed - motion) / other_rest, 0.75)
+        else:
+            rest_scale = 0.25
+            fixed += other_rest * rest_scale
+            motion_scale = max((duration_s - fixed) / motion, 0.5) if motion > 0 else 1.0  # 3, 4
+    out = []
+    for i, s in enumerate(script):
+        if s.kind == "rest":
+            scale = initial_scale if i == 0 else rest_scale
+            out.append(replace(s, duration_s=s.duration_s * scale))
+        else:
+            out.append(replace(s, duration_s=s.duration_s * motion_scale,
+                               mag_ramp_s=s.mag_ramp_s * motion_scale))
+    return out
 
 
 def _intervals(starts: np.ndarray, ends: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
@@ -180,7 +204,8 @@ class _Trajectory:
 
     def _locate(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Segment index and the (clipped) time into it, for each time."""
-        index = np.clip(np.searchsorted(self.starts, t_s, side="right") - 1, 0, len(self.starts) - 1)
+        index = np.searchsorted(self.starts, t_s, side="right") - 1
+        index = np.clip(index, 0, len(self.starts) - 1)
         tau = np.clip(t_s - self.starts[index], 0.0, self.durations[index])
         return index, tau
 
@@ -189,7 +214,8 @@ class _Trajectory:
         u = tau / self.durations[index]
         # θ(τ) = angle (u - sin(2πu)/(2π)): the integral of the sin² rate profile.
         theta = self.angles[index] * (u - np.sin(2 * np.pi * u) / (2 * np.pi))
-        step = np.column_stack([np.cos(0.5 * theta), np.sin(0.5 * theta)[:, None] * self.axes[index]])
+        step = np.column_stack([np.cos(0.5 * theta),
+                                np.sin(0.5 * theta)[:, None] * self.axes[index]])
         return normalize(multiply(self.q_start[index], step))
 
     def angular_velocity(self, t_s: np.ndarray) -> np.ndarray:
@@ -223,7 +249,8 @@ def _noise_cholesky(spec: Any) -> np.ndarray:
         if not np.any(a):
             return np.zeros((3, 3))
         return np.linalg.cholesky(a)
-    raise ValueError(f"noise must be a std (scalar or 3 values) or a 3x3 covariance, got shape {a.shape}")
+    raise ValueError("noise must be a std (scalar or 3 values) or a 3x3 covariance, "
+                     f"got shape {a.shape}")
 
 
 @dataclass
@@ -340,7 +367,7 @@ def _sample_times(rate_hz: float, phase_ms: float, duration_ms: float) -> np.nda
     n = int(np.floor((duration_ms - phase_ms) / period)) + 1
     t = np.round(phase_ms + period * np.arange(max(n, 0))).astype(np.int64)
     t = t[t <= duration_ms]
-    # Above 1 kHz rounding could repeat a millisecond: keep each ms once (each tag strictly increases).
+    # Above 1 kHz rounding could repeat a millisecond: keep each ms once (times strictly increase).
     keep = np.concatenate([[True], np.diff(t) > 0]) if len(t) else np.zeros(0, dtype=bool)
     return t[keep]
 
@@ -368,7 +395,8 @@ def simulate(
     t0_ms: phone time of script time 0 [ms].
     script: "standard" (rests, slow and fast turns about every axis, acceleration bursts, a
         magnetic disturbance) or "rest" (the phone lies still the whole time).
-    initial_quat: orientation at t0 (4,), w-first; default flat, screen up, x axis 30° north of east.
+    initial_quat: orientation at t0 (4,), w-first; default flat, screen up, x axis 30° north of
+        east.
     g, m0: gravity magnitude [m/s^2] and Earth field (3,) in ENU [uT].
     """
     if not duration_s > 0:
@@ -402,7 +430,8 @@ def simulate(
     rng = np.random.default_rng(seed)
     # Asynchronous sensors: each starts at its own phase within its first period.
     phases = {k: (rng.uniform(0.0, 1000.0 / r) if r > 0 else 0.0) for k, r in rates.items()}
-    times = {k: _sample_times(rates[k], phases[k], duration_ms) for k in ("gyr", "acc", "mag", "ori")}
+    times = {k: _sample_times(rates[k], phases[k], duration_ms)
+             for k in ("gyr", "acc", "mag", "ori")}
 
     def noise_for(sensor: str, n: int) -> np.ndarray:
         return rng.standard_normal((n, 3)) @ chol[sensor].T

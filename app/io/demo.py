@@ -1,0 +1,96 @@
+"""The built-in demo session: a simulated recording in the phone's own log format.
+
+`write_demo_session` turns `ekf.simulate.simulate` into phone lines (PROTOCOL.md, values as the
+phone's float32 Java text, ORI = the true orientation) and gzips them reproducibly. The committed
+file `resources/demo_session.txt.gz` is its output with the defaults; a test keeps the two equal.
+Regenerate it with ``python -m app.io.demo``.
+"""
+
+from __future__ import annotations
+
+import gzip
+import io
+import sys
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from app.io.protocol import Sample, format_line
+from ekf.simulate import SENSOR_TAGS, SimulatedSession, simulate
+
+DEMO_SESSION_PATH = Path(__file__).resolve().parents[2] / "resources" / "demo_session.txt.gz"
+"""Where the committed demo session lives (repository's resources/)."""
+
+DEMO_RATES_HZ: dict[str, float] = {"gyr": 100.0, "acc": 100.0, "mag": 50.0, "ori": 100.0}
+DEMO_GYRO_BIAS = (0.003, -0.002, 0.004)
+"""A small gyroscope bias [rad/s], so plain gyro integration visibly drifts (about 28° over
+the demo) while the filters hold."""
+
+
+def session_lines(session: SimulatedSession) -> Iterator[str]:
+    """A simulated session's phone lines (without LF), in time order, ties GYR, ACC, MAG, ORI.
+
+    Values are rounded to float32 first, as the phone sends them, and handed to the formatter as
+    the float64 of the float32's shortest digits (what parsing the phone's text gives), so the
+    text has the phone's digits (``9.784376``, not ``9.78437614440918``).
+    """
+    t_ms, sensor, row = session.merged_order()
+    values32 = [[[float(str(v)) for v in values]
+                 for values in session.series(tag).values.astype(np.float32)]
+                for tag in SENSOR_TAGS]
+    for t, s, r in zip(t_ms.tolist(), sensor.tolist(), row.tolist()):
+        yield format_line(Sample(t, SENSOR_TAGS[s], tuple(values32[s][r])))
+
+
+def write_session(session: SimulatedSession, path: str | Path) -> Path:
+    """Write a simulated session as a phone log (LF line ends, only known tags, no header: the
+    course's MATLAB reader accepts it). A path ending in ``.gz`` is gzipped reproducibly (no time
+    stamp or name in the header, so equal sessions give identical bytes). Returns the path."""
+    path = Path(path)
+    data = "".join(line + "\n" for line in session_lines(session)).encode("ascii")
+    if path.suffix == ".gz":
+        buffer = io.BytesIO()
+        with gzip.GzipFile(filename="", mode="wb", fileobj=buffer, mtime=0, compresslevel=9) as gz:
+            gz.write(data)
+        data = buffer.getvalue()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(data)
+    return path
+
+
+def demo_session(seed: int = 7, duration_s: float = 90.0,
+                 rates_hz: Mapping[str, float] | None = None,
+                 gyro_bias: Sequence[float] = DEMO_GYRO_BIAS) -> SimulatedSession:
+    """The demo's simulated session (the standard script: rests, fast and slow turns about every
+    axis, two linear-acceleration bursts, a magnetic disturbance), with its ground truth."""
+    return simulate(duration_s=duration_s, rates_hz=dict(rates_hz or DEMO_RATES_HZ), seed=seed,
+                    gyro_bias=gyro_bias, script="standard")
+
+
+def demo_session_lines(seed: int = 7, duration_s: float = 90.0,
+                       rates_hz: Mapping[str, float] | None = None,
+                       gyro_bias: Sequence[float] = DEMO_GYRO_BIAS) -> list[str]:
+    """The demo's phone lines (without LF); see :func:`session_lines`."""
+    return list(session_lines(demo_session(seed, duration_s, rates_hz, gyro_bias)))
+
+
+def write_demo_session(path: str | Path, seed: int = 7, duration_s: float = 90.0,
+                       rates_hz: Mapping[str, float] | None = None,
+                       gyro_bias: Sequence[float] = DEMO_GYRO_BIAS) -> Path:
+    """Write the demo session as phone text to `path` (gzipped, reproducibly, when it ends in
+    ``.gz``, as resources/demo_session.txt.gz does). Returns the path written."""
+    return write_session(demo_session(seed, duration_s, rates_hz, gyro_bias), path)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m app.io.demo [PATH]``: (re)write the demo session (default: DEMO_SESSION_PATH)."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    target = Path(args[0]) if args else DEMO_SESSION_PATH
+    written = write_demo_session(target)
+    print(f"wrote {written} ({written.stat().st_size} bytes)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
