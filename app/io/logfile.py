@@ -1,0 +1,200 @@
+"""Read a whole log file (the phone's "log to file" output, or our ``raw.txt``) into ordered samples.
+
+The same :class:`~app.io.protocol.LineParser` and :class:`~app.io.ordering.TimeOrderer` the live
+stream uses, so a file and the stream it was recorded from give the same samples.
+"""
+
+from __future__ import annotations
+
+import gzip
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from app.io.ordering import OrderStats, TimeOrderer
+from app.io.protocol import FILTER_TAGS, LineParser, ParseStats, Sample
+
+_CHUNK_BYTES = 1 << 20
+
+
+class LogError(Exception):
+    """A file that cannot be used as a log: missing, unreadable, empty, binary, no samples."""
+
+
+@dataclass
+class LogStats:
+    """What reading a log found. ``parse`` counts lines, ``order`` the time ordering."""
+
+    path: str
+    parse: ParseStats
+    order: OrderStats
+
+    @property
+    def damaged(self) -> int:
+        return self.parse.damaged
+
+    @property
+    def unknown(self) -> int:
+        return self.parse.unknown
+
+    @property
+    def too_long(self) -> int:
+        return self.parse.too_long
+
+    @property
+    def out_of_order(self) -> int:
+        return self.order.out_of_order
+
+    @property
+    def clock_quirks(self) -> list[str]:
+        return self.order.clock_quirks
+
+    @property
+    def first_bad_line_number(self) -> int | None:
+        return self.parse.first_bad_line_number
+
+    def summary(self) -> str:
+        """One line for stderr, e.g. ``log.txt: 6212 lines (ACC 1767, ...), 2 damaged (first at
+        line 1191: ...), 420 out of order, clock quirks: ...``."""
+        parse, order = self.parse, self.order
+        tags = ", ".join(f"{tag} {count}" for tag, count in sorted(parse.per_tag.items()))
+        parts = [f"{Path(self.path).name}: {parse.lines} lines ({tags or 'no samples'})"]
+        if parse.damaged:
+            parts.append(f"{parse.damaged} damaged")
+        if parse.unknown:
+            names = ", ".join(sorted(parse.unknown_tags)) or "?"
+            parts.append(f"{parse.unknown} unknown-tag ({names})")
+        if parse.too_long:
+            parts.append(f"{parse.too_long} too long")
+        if parse.first_bad_line_number is not None:
+            parts.append(f"first bad line {parse.first_bad_line_number}: {parse.first_bad_message}")
+        if order.out_of_order:
+            parts.append(f"{order.out_of_order} out of order (dropped)")
+        if order.restarts:
+            parts.append(f"{order.restarts} time-base restarts")
+        if order.clock_quirks:
+            parts.append("clock quirks: " + "; ".join(order.clock_quirks))
+        return ", ".join(parts)
+
+
+@dataclass
+class LogArrays:
+    """Filter-tag samples on a common time axis.
+
+    t_ms: (N,) int64 distinct sorted aligned phone times, ms. gyr (rad/s), acc (m/s^2),
+    mag (uT): (N, 3) float64; ori: (N, 4) float64 w-first. A row is NaN where that tag has no
+    sample at that time; when a tag has two samples at one time the last is kept.
+    """
+
+    t_ms: np.ndarray
+    gyr: np.ndarray
+    acc: np.ndarray
+    mag: np.ndarray
+    ori: np.ndarray
+
+    @property
+    def t_s(self) -> np.ndarray:
+        return self.t_ms.astype(np.float64) / 1000.0
+
+
+@dataclass
+class LogData:
+    """samples: the filter tags (GYR, ACC, MAG, ORI) in release order with aligned times;
+    other: every other tag's samples in file order, times untouched."""
+
+    path: str
+    samples: list[Sample]
+    other: list[Sample]
+    stats: LogStats
+    _arrays: LogArrays | None = field(default=None, repr=False)
+
+    @property
+    def first_bad_line_number(self) -> int | None:
+        return self.stats.first_bad_line_number
+
+    @property
+    def duration_s(self) -> float:
+        if not self.samples:
+            return 0.0
+        return (self.samples[-1].t_ms - self.samples[0].t_ms) / 1000.0
+
+    def to_arrays(self) -> LogArrays:
+        """The samples as arrays on the distinct times (see :class:`LogArrays`). Cached."""
+        if self._arrays is None:
+            self._arrays = samples_to_arrays(self.samples)
+        return self._arrays
+
+
+def samples_to_arrays(samples: list[Sample]) -> LogArrays:
+    """Ordered filter-tag samples -> :class:`LogArrays` (other tags ignored)."""
+    times = np.fromiter((s.t_ms for s in samples if s.tag in _WIDTH), dtype=np.int64)
+    t_ms = np.unique(times)
+    columns = {tag: np.full((len(t_ms), width), np.nan) for tag, width in _WIDTH.items()}
+    for tag, width in _WIDTH.items():
+        chosen = [s for s in samples if s.tag == tag]
+        if not chosen:
+            continue
+        tag_times = np.fromiter((s.t_ms for s in chosen), dtype=np.int64, count=len(chosen))
+        values = np.array([s.values for s in chosen], dtype=np.float64).reshape(-1, width)
+        rows = np.searchsorted(t_ms, tag_times)
+        columns[tag][rows] = values   # fancy assignment: the last of duplicate rows wins
+    return LogArrays(t_ms, columns["GYR"], columns["ACC"], columns["MAG"], columns["ORI"])
+
+
+_WIDTH = {"GYR": 3, "ACC": 3, "MAG": 3, "ORI": 4}
+
+
+def open_log_bytes(path: str | Path):
+    """Open a .txt or .txt.gz log for binary reading; LogError when it cannot be."""
+    path = Path(path)
+    if not path.exists():
+        raise LogError(f"{path}: no such file")
+    if path.is_dir():
+        raise LogError(f"{path}: is a directory, not a log file")
+    try:
+        with open(path, "rb") as probe:
+            magic = probe.read(2)
+        if magic == b"\x1f\x8b":
+            return gzip.open(path, "rb")
+        return open(path, "rb")
+    except OSError as error:
+        raise LogError(f"{path}: cannot read ({error.strerror or error})") from None
+
+
+def read_log(path: str | Path, orderer: TimeOrderer | None = None) -> LogData:
+    """Read a log file into ordered samples. Damaged lines are counted, never fatal.
+
+    Raises LogError when the file is missing, unreadable, empty, looks binary, or holds no
+    line of the phone's format at all.
+    """
+    path = Path(path)
+    parser = LineParser()
+    orderer = orderer or TimeOrderer()
+    samples: list[Sample] = []
+    other: list[Sample] = []
+    total = 0
+    filter_tags = set(FILTER_TAGS)
+    try:
+        with open_log_bytes(path) as stream:
+            while True:
+                chunk = stream.read(_CHUNK_BYTES)
+                if not chunk:
+                    break
+                if total == 0 and b"\x00" in chunk[:8192]:
+                    raise LogError(f"{path}: binary data (NUL bytes at the start), not a text log")
+                total += len(chunk)
+                for sample in orderer.push_many(parser.feed(chunk)):
+                    (samples if sample.tag in filter_tags else other).append(sample)
+    except (OSError, EOFError, gzip.BadGzipFile) as error:
+        raise LogError(f"{path}: cannot read ({error})") from None
+    for sample in orderer.push_many(parser.finish()) + orderer.flush():
+        (samples if sample.tag in filter_tags else other).append(sample)
+    stats = LogStats(str(path), parser.stats, orderer.stats)
+    if total == 0:
+        raise LogError(f"{path}: empty file")
+    if parser.stats.good == 0:
+        where = parser.stats.first_bad_line_number
+        detail = f" (line {where}: {parser.stats.first_bad_message})" if where else ""
+        raise LogError(f"{path}: no line in the phone's format{detail}")
+    return LogData(str(path), samples, other, stats)

@@ -1,0 +1,307 @@
+"""The phone's line protocol (see ../shared/PROTOCOL.md): parse and format one line, and an
+incremental byte-stream parser.
+
+A line is ``<time>\\t<TAG>\\t<v1>\\t...\\t<vn>`` ending in LF (CRLF accepted). Fields are split
+on TAB only (Wi-Fi names contain spaces). Numbers are Java float text (``3.2043457E-4``,
+``-0.0``). Times are integer milliseconds on the phone's clock.
+
+Bad lines are never fatal: :func:`parse_line` raises :class:`ParseError` with a ``kind``
+("damaged", "unknown_tag", "empty", "too_long") and :class:`LineParser` counts them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+
+#: Number of values per numeric tag. ORI also accepts 3 (w reconstructed); see ``_ORI_COUNTS``.
+NUMERIC_TAG_COUNTS: dict[str, int] = {
+    "ACC": 3, "GYR": 3, "MAG": 3, "ORI": 4, "GPS": 3, "PRS": 1, "LGT": 1, "PRX": 1,
+    "TMP": 1, "BAT": 3, "RAWGYR": 6, "RAWMAG": 6,
+}
+#: Number of text fields per text tag (kept as strings).
+TEXT_TAG_COUNTS: dict[str, int] = {"RSSWIFI": 4, "RSSCELL": 6, "RSSBLE": 3}
+KNOWN_TAGS: frozenset[str] = frozenset(NUMERIC_TAG_COUNTS) | frozenset(TEXT_TAG_COUNTS)
+#: The tags the orientation filters use, in the order they are fed at equal times.
+FILTER_TAGS: tuple[str, ...] = ("GYR", "ACC", "MAG", "ORI")
+TAG_PRIORITY: dict[str, int] = {tag: index for index, tag in enumerate(FILTER_TAGS)}
+
+MAX_LINE_BYTES = 4096          # longer lines are discarded (bounded memory whatever a client sends)
+PARSE_ERROR_KINDS = ("damaged", "unknown_tag", "empty", "too_long")
+
+
+class Sample(NamedTuple):
+    """One parsed line.
+
+    t_ms: phone time in ms (after :class:`app.io.ordering.TimeOrderer`, the aligned time).
+    tag: "ACC", "GYR", ...; values: floats (ORI always 4 values w, x, y, z with w >= 0;
+    empty for text tags); text: the string fields of RSSWIFI/RSSCELL/RSSBLE, else None.
+    """
+
+    t_ms: int
+    tag: str
+    values: tuple[float, ...]
+    text: tuple[str, ...] | None = None
+
+
+class ParseError(ValueError):
+    """A line that is not a usable sample. ``kind`` is one of :data:`PARSE_ERROR_KINDS`."""
+
+    def __init__(self, kind: str, message: str) -> None:
+        super().__init__(message)
+        self.kind = kind
+        self.message = message
+
+
+def _is_tag_word(tag: str) -> bool:
+    # What a future app version's tag could look like; anything else is a damaged line.
+    return bool(tag) and tag.isascii() and tag.replace("_", "").isalnum() and tag.upper() == tag
+
+
+def _ori_values(values: tuple[float, ...]) -> tuple[float, float, float, float]:
+    if len(values) == 3:
+        x, y, z = values
+        w = math.sqrt(max(0.0, 1.0 - (x * x + y * y + z * z)))
+        return (w, x, y, z)
+    w, x, y, z = values
+    if w < 0.0:  # q and -q are the same rotation; keep the house convention w >= 0
+        return (-w, -x, -y, -z)
+    return (w, x, y, z)
+
+
+def _preview(line: str, limit: int = 80) -> str:
+    return repr(line if len(line) <= limit else line[:limit] + "...")
+
+
+def parse_line(line: str) -> Sample:
+    """Parse one line (without or with its LF/CRLF terminator) into a :class:`Sample`.
+
+    Raises ParseError("empty") for a blank line, ("unknown_tag") for a well-formed line with a
+    tag this program does not know, ("damaged") for a bad time, a wrong value count for a known
+    tag, or a value that is not a finite number.
+    """
+    if line.endswith("\n"):
+        line = line[:-1]
+    if line.endswith("\r"):
+        line = line[:-1]
+    if not line.strip():
+        raise ParseError("empty", "empty line")
+    fields = line.split("\t")
+    if len(fields) < 2:
+        raise ParseError("damaged", f"no TAB-separated tag in {_preview(line)}")
+    time_text, tag = fields[0], fields[1]
+    if not (time_text.isascii() and time_text.isdigit()):
+        raise ParseError("damaged", f"bad time {_preview(time_text)}")
+    t_ms = int(time_text)
+    count = NUMERIC_TAG_COUNTS.get(tag)
+    if count is None:
+        text_count = TEXT_TAG_COUNTS.get(tag)
+        if text_count is None:
+            if _is_tag_word(tag):
+                raise ParseError("unknown_tag", f"unknown tag {_preview(tag)}")
+            raise ParseError("damaged", f"bad tag {_preview(tag)}")
+        if len(fields) - 2 != text_count:
+            raise ParseError("damaged", f"{tag} needs {text_count} fields, got {len(fields) - 2}")
+        return Sample(t_ms, tag, (), tuple(fields[2:]))
+    number_count = len(fields) - 2
+    if number_count != count and not (tag == "ORI" and number_count == 3):
+        raise ParseError("damaged", f"{tag} needs {count} values, got {number_count}")
+    try:
+        values = tuple(_to_float(text) for text in fields[2:])
+    except ValueError as error:
+        raise ParseError("damaged", f"{tag}: {error}") from None
+    if tag == "ORI":
+        values = _ori_values(values)
+    return Sample(t_ms, tag, values)
+
+
+def _to_float(text: str) -> float:
+    # float() also accepts "1_0", " 1", "inf", "nan": Java never writes those, and a
+    # non-finite value would poison a filter.
+    value = float(text)
+    if not math.isfinite(value) or "_" in text or text != text.strip():
+        raise ValueError(f"bad number {_preview(text)}")
+    return value
+
+
+def java_float_text(value: float) -> str:
+    """Text for a float the way Java's Float.toString / Double.toString write it.
+
+    The shortest digits that parse back to the same float64 (for a value parsed from the
+    phone's text these are the phone's own digits: ``3.2043457E-4``). Plain notation for
+    1e-3 <= |x| < 1e7, else ``d.dddE<exp>``.
+    """
+    if math.isnan(value):
+        return "NaN"
+    if math.isinf(value):
+        return "Infinity" if value > 0 else "-Infinity"
+    if value == 0.0:
+        return "-0.0" if math.copysign(1.0, value) < 0 else "0.0"
+    mantissa, exponent_text = np.format_float_scientific(
+        np.float64(value), unique=True, trim="-").split("e")
+    sign = "-" if mantissa.startswith("-") else ""
+    digits = mantissa.lstrip("-").replace(".", "")
+    exponent = int(exponent_text)
+    if -3 <= exponent < 7:
+        if exponent >= 0:
+            integer = digits[: exponent + 1].ljust(exponent + 1, "0")
+            fraction = digits[exponent + 1:] or "0"
+        else:
+            integer = "0"
+            fraction = "0" * (-exponent - 1) + digits
+        return f"{sign}{integer}.{fraction}"
+    return f"{sign}{digits[0]}.{digits[1:] or '0'}E{exponent}"
+
+
+def format_line(sample: Sample) -> str:
+    """The protocol line for a sample, without the trailing LF. Parsing it gives the sample back."""
+    if sample.text is not None:
+        fields = sample.text
+    else:
+        fields = [java_float_text(float(v)) for v in sample.values]
+    return f"{int(sample.t_ms)}\t{sample.tag}\t" + "\t".join(fields)
+
+
+@dataclass
+class ParseStats:
+    """Counters of an incremental parse. ``lines`` counts every line seen (good or bad)."""
+
+    lines: int = 0
+    good: int = 0
+    damaged: int = 0
+    unknown: int = 0
+    too_long: int = 0
+    empty: int = 0
+    bytes: int = 0
+    per_tag: dict[str, int] = field(default_factory=dict)
+    unknown_tags: dict[str, int] = field(default_factory=dict)   # at most 32 names kept
+    first_bad_line_number: int | None = None
+    first_bad_message: str | None = None
+    bad_examples: list[tuple[int, str, str]] = field(default_factory=list)  # (line number, kind, msg)
+
+    def copy(self) -> ParseStats:
+        return ParseStats(self.lines, self.good, self.damaged, self.unknown, self.too_long,
+                          self.empty, self.bytes, dict(self.per_tag), dict(self.unknown_tags),
+                          self.first_bad_line_number, self.first_bad_message,
+                          list(self.bad_examples))
+
+
+_MAX_BAD_EXAMPLES = 20
+
+
+class LineParser:
+    """Incremental parser: bytes in any chunking -> Samples, identical whatever the chunking.
+
+    Lines split across reads are reassembled; LF or CRLF; invalid UTF-8 is tolerated (a line it
+    breaks is counted as damaged); a line longer than MAX_LINE_BYTES is discarded without
+    buffering more than that (counted as too_long).
+
+    raw_sink, when given, is called with the verbatim bytes (terminator included; LF added when
+    :meth:`finish` flushes a line without one) of every line whose tag is known, good or
+    damaged: a recording of them replays to the same samples and the same damage counts.
+    """
+
+    def __init__(self, raw_sink: Callable[[bytes], None] | None = None,
+                 max_line_bytes: int = MAX_LINE_BYTES) -> None:
+        self.stats = ParseStats()
+        self.raw_sink = raw_sink
+        self.max_line_bytes = max_line_bytes
+        self._pending = b""
+        self._discarding = False
+
+    def reset_line(self) -> None:
+        """Drop a partial line (the connection it came from is gone). Not counted."""
+        self._pending = b""
+        self._discarding = False
+
+    def feed(self, data: bytes) -> list[Sample]:
+        """Parse the complete lines in pending + data; keep the unfinished tail (bounded)."""
+        self.stats.bytes += len(data)
+        samples: list[Sample] = []
+        if not data:
+            return samples
+        if self._discarding:
+            newline = data.find(b"\n")
+            if newline < 0:
+                return samples
+            self._discarding = False
+            self._pending = b""
+            self._count_bad("too_long", "line longer than %d bytes discarded" % self.max_line_bytes)
+            data = data[newline + 1:]
+        buffer = self._pending + data if self._pending else data
+        lines = buffer.split(b"\n")
+        tail = lines.pop()
+        for raw in lines:
+            self._line(raw, True, samples)
+        if len(tail) > self.max_line_bytes + 1:   # +1: the tail may end in the CR of a CRLF
+            self._pending = b""
+            self._discarding = True
+        else:
+            self._pending = tail
+        return samples
+
+    def finish(self) -> list[Sample]:
+        """End of stream: parse a final line that has no newline; count a discarded long one."""
+        samples: list[Sample] = []
+        if self._discarding:
+            self._discarding = False
+            self._count_bad("too_long", "line longer than %d bytes discarded" % self.max_line_bytes)
+        elif self._pending:
+            raw, self._pending = self._pending, b""
+            self._line(raw, False, samples)
+        return samples
+
+    # -- internals -------------------------------------------------------------------------
+
+    def _count_bad(self, kind: str, message: str) -> None:
+        stats = self.stats
+        stats.lines += 1
+        if kind == "damaged":
+            stats.damaged += 1
+        elif kind == "unknown_tag":
+            stats.unknown += 1
+        elif kind == "too_long":
+            stats.too_long += 1
+        else:
+            stats.empty += 1
+        if kind == "empty":
+            return
+        if stats.first_bad_line_number is None:
+            stats.first_bad_line_number = stats.lines
+            stats.first_bad_message = f"{kind}: {message}"
+        if len(stats.bad_examples) < _MAX_BAD_EXAMPLES:
+            stats.bad_examples.append((stats.lines, kind, message))
+
+    def _line(self, raw: bytes, had_newline: bool, out: list[Sample]) -> None:
+        # raw excludes the LF (a CR of a CRLF stays); the sink gets raw + LF either way, so a
+        # final line without newline still ends a recording cleanly.
+        content = raw[:-1] if raw.endswith(b"\r") else raw
+        if len(content) > self.max_line_bytes:
+            self._count_bad("too_long", f"line of {len(content)} bytes discarded")
+            return
+        text = content.decode("utf-8", "replace")
+        try:
+            sample = parse_line(text)
+        except ParseError as error:
+            self._count_bad(error.kind, error.message)
+            if error.kind == "unknown_tag":
+                tag = text.split("\t", 2)[1]
+                names = self.stats.unknown_tags
+                if tag in names or len(names) < 32:
+                    names[tag] = names.get(tag, 0) + 1
+            elif error.kind == "damaged" and self.raw_sink is not None:
+                fields = text.split("\t", 2)
+                if len(fields) >= 2 and fields[1] in KNOWN_TAGS:
+                    self.raw_sink(raw + b"\n")
+            return
+        stats = self.stats
+        stats.lines += 1
+        stats.good += 1
+        stats.per_tag[sample.tag] = stats.per_tag.get(sample.tag, 0) + 1
+        if self.raw_sink is not None:
+            self.raw_sink(raw + b"\n")
+        out.append(sample)

@@ -1,0 +1,85 @@
+"""read_log: real logs, gz, errors, arrays."""
+
+from __future__ import annotations
+
+import gzip
+
+import numpy as np
+import pytest
+
+from app.io.logfile import LogError, read_log
+
+EXPECTED_DAMAGED = {"sensorLog_20221024T182616_standstill.txt": 2}
+
+
+def test_every_real_log_reads_with_damage_counted(realphone_dir):
+    logs = sorted(realphone_dir.glob("*.txt"))
+    assert len(logs) >= 7
+    for path in logs:
+        log = read_log(path)
+        assert log.stats.damaged == EXPECTED_DAMAGED.get(path.name, 0), path.name
+        assert log.stats.unknown == 0 and log.stats.too_long == 0
+        lines = path.read_bytes().count(b"\n")
+        assert log.stats.parse.lines == lines
+        assert path.name in log.stats.summary()
+
+
+def test_standstill_damage_and_out_of_order_block(realphone_dir):
+    log = read_log(realphone_dir / "sensorLog_20221024T182616_standstill.txt")
+    assert log.first_bad_line_number == 1191
+    assert log.stats.out_of_order == 420     # the 0.9 s block written late: 187 ACC, 187 GYR, 46 MAG
+    assert [e[0] for e in log.stats.parse.bad_examples] == [1191, 1866]
+    assert {s.tag for s in log.other} == {"RAWGYR", "RAWMAG", "GPS"}
+    summary = log.stats.summary()
+    assert "2 damaged" in summary and "first bad line 1191" in summary and "420 out of order" in summary
+
+
+def test_clock_offset_log_is_aligned(realphone_dir):
+    log = read_log(realphone_dir / "sensorLog_20221020T074342.txt")
+    assert log.stats.clock_quirks == ["GYR clock -131072000 ms vs ACC (aligned)",
+                                      "MAG clock -131072000 ms vs ACC (aligned)"]
+    arrays = log.to_arrays()
+    assert 27.0 < log.duration_s < 28.0           # not 36 hours
+    has_acc = ~np.isnan(arrays.acc[:, 0])
+    both = has_acc & ~np.isnan(arrays.gyr[:, 0])
+    assert both.sum() / has_acc.sum() > 0.9       # ACC and GYR share instants after alignment
+
+
+def test_to_arrays_rows_and_duplicates(tmp_path):
+    path = tmp_path / "log.txt"
+    path.write_text("10\tACC\t1\t2\t3\n10\tGYR\t4\t5\t6\n10\tGYR\t7\t8\t9\n20\tMAG\t1\t1\t1\n"
+                    "20\tORI\t1\t0\t0\t0\n30\tACC\t0\t0\t9.8\n35\tRSSWIFI\ta\tb\t1\t2\n")
+    arrays = read_log(path).to_arrays()
+    assert arrays.t_ms.tolist() == [10, 20, 30]
+    assert arrays.gyr[0].tolist() == [7, 8, 9]            # last duplicate kept
+    assert np.isnan(arrays.gyr[1:]).all()
+    assert arrays.ori[1].tolist() == [1, 0, 0, 0] and np.isnan(arrays.ori[0]).all()
+    assert arrays.t_s.tolist() == [0.01, 0.02, 0.03]
+
+
+def test_gzip_and_final_line_without_newline(tmp_path):
+    path = tmp_path / "log.txt.gz"
+    with gzip.open(path, "wb") as stream:
+        stream.write(b"10\tACC\t1\t2\t3\r\n20\tACC\t1\t2\t3")
+    log = read_log(path)
+    assert [s.t_ms for s in log.samples] == [10, 20]
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"", "empty file"),
+    (b"\x00\x01\x02binary\x00" * 100, "binary"),
+    (b"hello world\nthis is not a log\n", "no line in the phone's format (line 1"),
+])
+def test_unusable_files_raise_log_error_naming_the_file(tmp_path, content, message):
+    path = tmp_path / "bad.txt"
+    path.write_bytes(content)
+    with pytest.raises(LogError) as caught:
+        read_log(path)
+    assert str(path) in str(caught.value) and message in str(caught.value)
+
+
+def test_missing_file_and_directory(tmp_path):
+    with pytest.raises(LogError, match="no such file"):
+        read_log(tmp_path / "missing.txt")
+    with pytest.raises(LogError, match="directory"):
+        read_log(tmp_path)
