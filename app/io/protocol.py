@@ -193,6 +193,7 @@ class ParseStats:
 _MAX_BAD_EXAMPLES = 20
 
 
+
 class LineParser:
     """Incremental parser: bytes in any chunking -> Samples, identical whatever the chunking.
 

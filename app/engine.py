@@ -1,0 +1,458 @@
+"""The background engine: source -> parser -> time ordering -> estimators -> snapshots.
+
+One plain ``threading`` thread (no Qt) runs the filter at the sample rate; the GUI (or the
+``serve`` command) calls :meth:`Engine.poll` at its own frame rate and gets the latest
+estimates, status and stream health plus every plot sample since its previous poll, merged into
+one :class:`~app.snapshot.PlotChunk`. Neither side waits for the other; buffers are bounded.
+Commands (app/snapshot.py) go in with :meth:`Engine.send` and are applied before the next sample.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+from collections import deque
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+
+import ekf
+from app.io.ordering import TimeOrderer
+from app.io.protocol import LineParser, Sample
+from app.io.recorder import Recorder
+from app.io.sources import Source
+from app.io.tcp_server import Chunk, SourceEvent
+from app.pipeline import SENSORS, EstimatorRunner, Rows
+from app.snapshot import (AlignHeading, Comparison, FilterStatus, PlotChunk, ReplayControl,
+                          ResetFilter, SetComparisonsEnabled, SetEstimator, SetSensorEnabled,
+                          SetSettings, Snapshot, StreamHealth)
+
+RATE_WINDOW_MS = 2000          # per-tag rates are measured over this much phone time
+PUBLISH_IDLE_S = 0.25          # publish health at least this often without data
+WARNING_INTERVAL_S = 5.0       # one warning of a kind per this many seconds
+
+
+def _unwrap_continuing(angles_deg: np.ndarray, previous: np.ndarray | None) -> np.ndarray:
+    """Unwrap (N, 3) degree rows along time, continuing from `previous` (3,); NaN rows stay NaN
+    and do not break the continuity of the rows around them."""
+    out = np.array(angles_deg, dtype=np.float64, copy=True)
+    finite = np.isfinite(out).all(axis=1)
+    if not finite.any():
+        return out
+    out[finite] = ekf.quaternion.unwrap_deg(out[finite], previous)
+    return out
+
+
+class _PlotBuffer:
+    """PlotChunk pieces waiting for the next poll, bounded by a number of estimate rows."""
+
+    def __init__(self, max_rows: int) -> None:
+        self.max_rows = max_rows
+        self.pieces: deque[PlotChunk] = deque()
+        self.rows = 0
+        self.dropped = 0
+
+    def add(self, piece: PlotChunk) -> None:
+        self.pieces.append(piece)
+        self.rows += max(len(piece.t_est), len(piece.t_acc), len(piece.t_gyr))
+        while self.rows > self.max_rows and len(self.pieces) > 1:
+            old = self.pieces.popleft()
+            size = max(len(old.t_est), len(old.t_acc), len(old.t_gyr))
+            self.rows -= size
+            self.dropped += size
+
+    def take(self) -> PlotChunk:
+        pieces = list(self.pieces)
+        self.pieces.clear()
+        self.rows = 0
+        if not pieces:
+            return PlotChunk()
+        if len(pieces) == 1:
+            return pieces[0]
+        return PlotChunk(**{name: np.concatenate([getattr(p, name) for p in pieces])
+                            for name in PlotChunk.__dataclass_fields__})
+
+
+class Engine:
+    """Run a source through the estimators in a background thread.
+
+    source: any :class:`app.io.sources.Source`; settings: ekf.EKFSettings (None: default
+    preset); estimator: name from ekf.ESTIMATORS; comparisons: run the 7 EKF sensor
+    combinations too; recorder: an :class:`app.io.recorder.Recorder` that gets every received
+    known-tag line; record_rows: keep every estimate row in :attr:`rows_log` (tests/benchmarks:
+    unbounded memory).
+    """
+
+    def __init__(self, source: Source, settings: ekf.EKFSettings | None = None,
+                 estimator: str = "ekf", comparisons: bool = True,
+                 sensors: Iterable[str] = SENSORS, recorder: Recorder | None = None,
+                 record_rows: bool = False, max_plot_rows: int = 60_000,
+                 orderer_options: dict[str, Any] | None = None) -> None:
+        if estimator not in ekf.ESTIMATORS:
+            raise ValueError(f"unknown estimator {estimator!r}; choose from "
+                             f"{', '.join(ekf.ESTIMATORS)}")
+        self.source = source
+        self.recorder = recorder
+        self.record_rows = record_rows
+        self.rows_log: list[Rows] = []
+        self._orderer_options = dict(orderer_options or {})
+        self._runner = EstimatorRunner(estimator, settings, sensors, comparisons,
+                                       collect_plot=True, max_rows=max_plot_rows)
+        self._parser = self._new_parser()
+        self._orderer = TimeOrderer(**self._orderer_options)
+        self._commands: queue.SimpleQueue = queue.SimpleQueue()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+        self._plot = _PlotBuffer(max_plot_rows)
+        self._seq = 0
+        self._polled_seq = -1
+        self._latest = Snapshot()
+        self._connection_state = "waiting"
+        self._peer: str | None = None
+        self._warnings: deque[str] = deque(maxlen=5)
+        self._warned_at: dict[str, float] = {}
+        self._tag_times: dict[str, deque[int]] = {}
+        self._line_rate_marks: deque[tuple[float, int]] = deque()
+        self._previous_own_euler: np.ndarray | None = None
+        self._previous_phone_euler: np.ndarray | None = None
+        self._last_publish = 0.0
+        self._pending_host_times: list[float] = []
+        self.latencies_s: deque[float] = deque(maxlen=200_000)   # chunk arrival -> published
+        self.error: str | None = None
+        # monotonic time since which the source has had nothing for the engine (None: busy)
+        self.waiting_since: float | None = None
+        self.samples_processed = 0
+        self._parser_retired = [0, 0, 0, 0, 0]   # counts of parsers replaced by a seek
+        self._order_retired = 0
+
+    # -- lifecycle --------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Start the source (may raise OSError/LogError, e.g. port taken) and the thread."""
+        if self._thread is not None:
+            return
+        self.source.start()
+        self._thread = threading.Thread(target=self._run, name="engine", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop the thread, the source and the recorder. Idempotent."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=10.0)
+            self._thread = None
+        self.source.stop()
+        if self.recorder is not None and not self.recorder.closed:
+            self.recorder.set_stats(self._stats_dict())
+            self.recorder.close()
+
+    def __enter__(self) -> Engine:
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    # -- GUI side -----------------------------------------------------------------------------------
+
+    def send(self, command: Any) -> None:
+        """Queue a command (app.snapshot); the engine applies it before its next sample."""
+        self._commands.put(command)
+
+    def poll(self) -> Snapshot | None:
+        """The latest state and the plot samples since the previous poll, or None when nothing
+        changed. Non-blocking (a short lock), thread-safe."""
+        with self._lock:
+            if self._seq == self._polled_seq:
+                return None
+            return self._take_snapshot()
+
+    def snapshot_now(self) -> Snapshot:
+        """The latest state, always (for tests): unlike poll() it leaves the plot samples and
+        the "changed" mark for the next poll (its plot is empty)."""
+        with self._lock:
+            latest = self._latest
+            return Snapshot(seq=self._seq, t_ms=latest.t_ms, own_quat=latest.own_quat,
+                            own_cov=latest.own_cov, phone_quat=latest.phone_quat,
+                            status=latest.status, comparisons=latest.comparisons,
+                            plot=PlotChunk(), health=latest.health, replay=latest.replay)
+
+    def _take_snapshot(self) -> Snapshot:
+        self._polled_seq = self._seq
+        latest = self._latest
+        return Snapshot(seq=self._seq, t_ms=latest.t_ms, own_quat=latest.own_quat,
+                        own_cov=latest.own_cov, phone_quat=latest.phone_quat,
+                        status=latest.status, comparisons=latest.comparisons,
+                        plot=self._plot.take(), health=latest.health, replay=latest.replay)
+
+    # -- engine thread ----------------------------------------------------------------------------
+
+    def _new_parser(self) -> LineParser:
+        sink = self.recorder.write_line if self.recorder is not None else None
+        return LineParser(raw_sink=sink)
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                self._apply_commands()
+                items = self.source.read(0.02)
+                if items:
+                    self.waiting_since = None
+                elif self.waiting_since is None:
+                    self.waiting_since = time.monotonic()
+                changed = False
+                for item in items:
+                    self._apply_commands()
+                    if isinstance(item, Chunk):
+                        self._on_chunk(item)
+                    else:
+                        self._on_event(item)
+                    changed = True
+                now = time.perf_counter()
+                if changed or now - self._last_publish >= PUBLISH_IDLE_S:
+                    self._publish(now)
+                if self.recorder is not None:
+                    self.recorder.tick()
+        except Exception as error:   # report in the health panel instead of dying silently
+            self.error = f"engine failed: {error!r}"
+            self._warn("engine", self.error, force=True)
+            self._publish(time.perf_counter())
+            raise
+
+    def _feed(self, samples: list[Sample]) -> None:
+        if samples:
+            self._runner.feed_many(samples)
+            self.samples_processed += len(samples)
+
+    def _on_chunk(self, chunk: Chunk) -> None:
+        parser = self._parser
+        damaged_before = parser.stats.damaged + parser.stats.too_long
+        samples = parser.feed(chunk.data)
+        self._track_rates(samples)
+        self._feed(self._orderer.push_many(samples))
+        self._pending_host_times.append(chunk.t_host)
+        if parser.stats.damaged + parser.stats.too_long > damaged_before:
+            message = parser.stats.bad_examples[-1][2] if parser.stats.bad_examples else ""
+            self._warn("damaged", f"damaged line skipped ({message})")
+
+    def _on_event(self, event: SourceEvent) -> None:
+        kind = event.kind
+        if kind == "connected":
+            self._end_of_stream(partial_line_damaged=True)
+            self._feed(self._orderer.restart())
+            self._connection_state = "replaying" if self.source.kind != "tcp" else "connected"
+            self._peer = event.peer
+            self._record_event("connected", peer=event.peer)
+        elif kind == "disconnected":
+            self._end_of_stream(partial_line_damaged=True)
+            self._connection_state = "disconnected"
+            self._warn("disconnected", f"phone disconnected ({event.detail})")
+            self._record_event("disconnected", peer=event.peer, reason=event.detail)
+        elif kind == "loop":
+            self._end_of_stream(partial_line_damaged=False)
+            self._feed(self._orderer.restart())
+        elif kind == "seek":
+            # Re-run the filter from the start of the log up to the target (the source sends
+            # those lines unpaced): the estimate there is exactly what playing would give.
+            self._end_of_stream(partial_line_damaged=False)
+            self._runner.take_rows()
+            self._runner.take_plot_samples()
+            self._runner.reset()
+            self._runner.phone_quat = None
+            self._retire_parser()
+            self._order_retired += self._orderer.stats.out_of_order
+            self._orderer = TimeOrderer(**self._orderer_options)
+            self._previous_own_euler = self._previous_phone_euler = None
+        elif kind == "finished":
+            self._end_of_stream(partial_line_damaged=False)
+            self._connection_state = "finished"
+        elif kind == "error":
+            self._warn("error", event.detail, force=True)
+
+    def _retire_parser(self) -> None:
+        stats = self._parser.stats
+        for index, value in enumerate((stats.lines, stats.damaged, stats.unknown,
+                                       stats.too_long, stats.good)):
+            self._parser_retired[index] += value
+        self._parser = self._new_parser()
+
+    def _end_of_stream(self, partial_line_damaged: bool) -> None:
+        """The current stream ended: a partial line is dropped (a line cut by a disconnect is
+        damaged), pending samples are released, the last row is committed."""
+        parser = self._parser
+        if partial_line_damaged:
+            if parser._pending or parser._discarding:
+                kind = "too_long" if parser._discarding else "damaged"
+                parser._count_bad(kind, "line cut off by the end of the connection")
+            parser.reset_line()
+        else:
+            self._track_rates(parser.finish())
+        self._feed(self._orderer.flush())
+        self._runner.finish()
+
+    def _apply_commands(self) -> None:
+        while True:
+            try:
+                command = self._commands.get_nowait()
+            except queue.Empty:
+                return
+            self._apply(command)
+
+    def _apply(self, command: Any) -> None:
+        runner = self._runner
+        if isinstance(command, SetSensorEnabled):
+            runner.set_sensor_enabled(command.sensor, command.enabled)
+            self._record_event("sensor", sensor=command.sensor, enabled=command.enabled)
+        elif isinstance(command, SetEstimator):
+            if command.name not in ekf.ESTIMATORS:
+                self._warn("command", f"unknown estimator {command.name!r}", force=True)
+                return
+            runner.set_estimator(command.name)
+            self._record_event("estimator", name=command.name)
+        elif isinstance(command, SetSettings):
+            runner.set_settings(command.settings)
+            if self.recorder is not None:
+                self.recorder.set_settings(command.settings)
+            self._record_event("settings")
+        elif isinstance(command, ResetFilter):
+            runner.reset()
+            self._record_event("reset")
+        elif isinstance(command, AlignHeading):
+            if runner.align_heading():
+                self._record_event("align_heading")
+            else:
+                self._warn("align", "align heading: no PHONE orientation (ORI) yet", force=True)
+        elif isinstance(command, SetComparisonsEnabled):
+            runner.set_comparisons_enabled(command.enabled)
+        elif isinstance(command, ReplayControl):
+            self.source.control(command)
+        else:
+            self._warn("command", f"unknown command {command!r}", force=True)
+
+    def _record_event(self, kind: str, **data: Any) -> None:
+        if self.recorder is not None:
+            self.recorder.add_event(kind, self._runner.latest_t_ms, **data)
+
+    def _warn(self, kind: str, message: str, force: bool = False) -> None:
+        now = time.monotonic()
+        if not force and now - self._warned_at.get(kind, -math.inf) < WARNING_INTERVAL_S:
+            return
+        self._warned_at[kind] = now
+        self._warnings.append(message)
+
+    def _track_rates(self, samples: list[Sample]) -> None:
+        times = self._tag_times
+        for sample in samples:
+            queue_ = times.get(sample.tag)
+            if queue_ is None:
+                queue_ = times[sample.tag] = deque()
+            queue_.append(sample.t_ms)
+
+    def _rates(self) -> dict[str, float]:
+        rates = {}
+        for tag, times in self._tag_times.items():
+            if not times:
+                continue
+            newest = times[-1]
+            while times and (times[0] < newest - RATE_WINDOW_MS or times[0] > newest):
+                times.popleft()
+            if len(times) >= 2 and times[-1] > times[0]:
+                rates[tag] = round((len(times) - 1) * 1000.0 / (times[-1] - times[0]), 1)
+        return rates
+
+    def _lines_per_s(self, now: float, lines: int) -> float:
+        marks = self._line_rate_marks
+        marks.append((now, lines))
+        while len(marks) > 2 and now - marks[1][0] >= 1.0:
+            marks.popleft()
+        first_time, first_lines = marks[0]
+        if now - first_time <= 0:
+            return 0.0
+        return (lines - first_lines) / (now - first_time)
+
+    def _stats_dict(self) -> dict[str, Any]:
+        health = self._latest.health
+        return {"lines": health.lines_total, "damaged": health.damaged,
+                "unknown": health.unknown, "too_long": health.too_long,
+                "out_of_order": health.out_of_order, "clock_quirks": list(health.clock_quirks),
+                "rates_hz": dict(health.rates_hz)}
+
+    def _publish(self, now: float) -> None:
+        runner = self._runner
+        rows = runner.take_rows()
+        plot = runner.take_plot_samples()
+        if self.record_rows and len(rows):
+            self.rows_log.append(rows)
+        own_euler = _unwrap_continuing(np.degrees(ekf.quaternion.to_euler(rows.quat))
+                                       if len(rows) else np.empty((0, 3)),
+                                       self._previous_own_euler)
+        phone_euler = _unwrap_continuing(np.degrees(ekf.quaternion.to_euler(rows.phone_quat))
+                                         if len(rows) else np.empty((0, 3)),
+                                         self._previous_phone_euler)
+        if len(rows):
+            self._previous_own_euler = own_euler[-1]
+            finite = np.isfinite(phone_euler).all(axis=1)
+            if finite.any():
+                self._previous_phone_euler = phone_euler[finite][-1]
+        piece = PlotChunk(
+            t_acc=plot["t_acc"] / 1000.0, acc=plot["acc"], acc_rejected=plot["acc_rejected"],
+            t_gyr=plot["t_gyr"] / 1000.0, gyr=plot["gyr"],
+            t_mag=plot["t_mag"] / 1000.0, mag=plot["mag"], mag_rejected=plot["mag_rejected"],
+            t_est=rows.t_s, own_euler_deg=own_euler, phone_euler_deg=phone_euler,
+            angle_deg=rows.angle_deg)
+
+        main = runner.main
+        status = main.status
+        enabled = main.enabled
+        filter_status = FilterStatus(
+            sensors_enabled=enabled, acc_rejected=bool(status.acc_rejected),
+            mag_rejected=bool(status.mag_rejected), at_rest=bool(status.at_rest),
+            acc_norm=float(status.acc_norm), g=float(status.g), acc_gate=float(status.acc_gate),
+            mag_norm=float(status.mag_norm), mag_expected=float(status.mag_expected),
+            mag_gate=float(status.mag_gate), estimator=runner.estimator_name)
+        cov = main.cov
+        own_cov = None if cov is None else np.array(cov)[:4, :4]
+        comparisons = [Comparison(c.name, c.estimator.quat, c.angle_to_phone_deg, c.rmse_deg)
+                       for c in runner.comparisons]
+
+        parse = self._parser.stats
+        retired = self._parser_retired
+        lines_total = parse.lines + retired[0]
+        info = self.source.info()
+        state = info.get("connection_state", "waiting")
+        if self.source.kind == "tcp":
+            state = self._connection_state if state != "waiting" else "waiting"
+        warnings = list(self._warnings)
+        health = StreamHealth(
+            connection_state=state, peer=info.get("peer") or self._peer,
+            listen_addresses=list(info.get("listen_addresses") or []), port=info.get("port"),
+            rates_hz=self._rates(), lines_per_s=round(self._lines_per_s(now, lines_total), 1),
+            lines_total=lines_total, damaged=parse.damaged + retired[1],
+            unknown=parse.unknown + retired[2], too_long=parse.too_long + retired[3],
+            out_of_order=self._orderer.stats.out_of_order + self._order_retired,
+            clock_quirks=list(self._orderer.stats.clock_quirks), warnings=warnings)
+        phone = runner.phone_quat
+        snapshot = Snapshot(
+            t_ms=runner.latest_t_ms, own_quat=main.quat, own_cov=own_cov,
+            phone_quat=None if phone is None else np.array(phone), status=filter_status,
+            comparisons=comparisons, health=health, replay=info.get("replay"))
+        published = time.perf_counter()
+        with self._lock:
+            self._plot.add(piece)
+            self._latest = snapshot
+            self._seq += 1
+            snapshot.seq = self._seq
+        for t_host in self._pending_host_times:
+            self.latencies_s.append(published - t_host)
+        self._pending_host_times.clear()
+        self._last_publish = now
+        if self.recorder is not None:
+            self.recorder.set_stats(self._stats_dict())

@@ -1,0 +1,281 @@
+"""Where samples come from: the phone over TCP, a log file replayed, or the simulator.
+
+Every source has the same small interface (:class:`Source`): ``start()``, ``stop()``,
+``read(timeout)`` -> a list of :class:`~app.io.tcp_server.Chunk` (raw bytes of protocol lines)
+and :class:`~app.io.tcp_server.SourceEvent` items, ``control(ReplayControl)`` and ``info()``.
+Replays hand over the file's lines verbatim, so everything downstream (parser, time ordering,
+estimators, recorder) is identical whichever source feeds it.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+from app.io.logfile import LogError
+from app.io.netinfo import lan_ipv4_addresses
+from app.io.tcp_server import DEFAULT_PORT, Chunk, SourceEvent, TcpServer
+
+_MAX_LINES_PER_CHUNK = 4096
+DEMO_SESSION = Path(__file__).resolve().parents[2] / "resources" / "demo_session.txt.gz"
+
+
+class Source:
+    """Interface of every sample source. ``kind``: "tcp" | "replay" | "simulator"."""
+
+    kind = "source"
+
+    def start(self) -> None:
+        """Begin producing (bind the port, open the file...). May raise OSError/LogError."""
+
+    def stop(self) -> None:
+        """Release everything. Idempotent."""
+
+    def read(self, timeout: float = 0.05) -> list[Chunk | SourceEvent]:
+        """What arrived since the previous call; waits at most `timeout` s when nothing has."""
+        raise NotImplementedError
+
+    def control(self, command: Any) -> None:
+        """Apply a ReplayControl (replays only; other sources ignore it)."""
+
+    def info(self) -> dict[str, Any]:
+        """Health fields: connection_state, peer, port, listen_addresses, replay (dict or None)."""
+        return {"connection_state": "waiting", "peer": None, "port": None,
+                "listen_addresses": [], "replay": None}
+
+
+class TcpSource(Source):
+    """The phone over TCP (see :class:`~app.io.tcp_server.TcpServer`)."""
+
+    kind = "tcp"
+
+    def __init__(self, host: str = "0.0.0.0", port: int = DEFAULT_PORT,
+                 max_queued: int = 256) -> None:
+        self.server = TcpServer(host, port, max_queued=max_queued)
+        self._addresses: list[str] = []
+
+    def start(self) -> None:
+        self.server.start()
+        if self.server.host in ("0.0.0.0", ""):
+            self._addresses = lan_ipv4_addresses()
+        else:
+            self._addresses = [self.server.host]
+
+    def stop(self) -> None:
+        self.server.stop()
+
+    @property
+    def port(self) -> int | None:
+        return self.server.port
+
+    def read(self, timeout: float = 0.05) -> list[Chunk | SourceEvent]:
+        return self.server.get(timeout)
+
+    def info(self) -> dict[str, Any]:
+        state = self.server.state
+        return {"connection_state": "waiting" if state == "stopped" else state,
+                "peer": self.server.peer, "port": self.server.port,
+                "listen_addresses": list(self._addresses), "replay": None}
+
+
+def pacing_times(lines: list[bytes]) -> list[float]:
+    """Seconds from the start at which each line is due, to replay with the original timing.
+
+    Each tag's clock is followed on its own (relative to its first sample: tags may sit on
+    other clocks, e.g. ACC +131,072,000 ms or RSSWIFI in epoch ms) and the running maximum
+    keeps the schedule monotonic while the lines keep their file order.
+    """
+    first: dict[bytes, int] = {}
+    out: list[float] = []
+    latest = 0
+    for line in lines:
+        fields = line.split(b"\t", 2)
+        if len(fields) >= 2 and fields[0].isdigit():
+            t = int(fields[0])
+            tag = fields[1]
+            start = first.setdefault(tag, t)
+            elapsed = t - start
+            if elapsed > latest:
+                latest = elapsed
+        out.append(latest / 1000.0)
+    return out
+
+
+def split_lines(data: bytes) -> list[bytes]:
+    """Bytes -> lines with their LF (added to a last line that has none)."""
+    lines = data.split(b"\n")
+    last = lines.pop()
+    out = [line + b"\n" for line in lines]
+    if last:
+        out.append(last + b"\n")
+    return out
+
+
+class LineReplaySource(Source):
+    """Replays protocol lines with their original timing, scaled by ``speed`` (0: as fast as
+    possible), optionally looping; pause, step, seek and speed changes via :meth:`control`.
+
+    Events: "connected" at start, "loop" when wrapping around, "seek" before lines that start
+    again from the beginning (the consumer resets its filter: the lines up to the seek target
+    then come unpaced so the filter is re-synced), "finished" at the end.
+    """
+
+    kind = "replay"
+
+    def __init__(self, lines: list[bytes], name: str, speed: float = 1.0, loop: bool = False,
+                 paused: bool = False) -> None:
+        self.name = name
+        self._lines = lines
+        self._pace = pacing_times(lines)
+        self.speed = max(0.0, float(speed))
+        self.loop = bool(loop)
+        self.paused = bool(paused)
+        self._index = 0
+        self._fast_until = 0          # lines before this index go out unpaced (seek re-sync)
+        self._steps = 0
+        self._events: list[SourceEvent] = []
+        self._connection = 1
+        self._anchor_wall = 0.0
+        self._anchor_pace = 0.0
+        self._started = False
+        self._finished = False
+        self.loops = 0
+
+    @property
+    def duration_s(self) -> float:
+        return self._pace[-1] if self._pace else 0.0
+
+    @property
+    def position_s(self) -> float:
+        if not self._pace:
+            return 0.0
+        return self._pace[min(self._index, len(self._pace) - 1)] if self._index < len(
+            self._pace) else self.duration_s
+
+    def start(self) -> None:
+        self._started = True
+        self._anchor()
+        self._events.append(SourceEvent("connected", self._connection, self.name,
+                                        "replay", time.perf_counter()))
+
+    def _anchor(self) -> None:
+        self._anchor_wall = time.perf_counter()
+        self._anchor_pace = self.position_s
+
+    def control(self, command: Any) -> None:
+        if getattr(command, "speed", None) is not None:
+            self.speed = max(0.0, float(command.speed))
+            self._anchor()
+        if getattr(command, "loop", None) is not None:
+            self.loop = bool(command.loop)
+        if getattr(command, "paused", None) is not None:
+            self.paused = bool(command.paused)
+            self._anchor()
+        if getattr(command, "step", None):
+            self._steps += int(command.step)
+        if getattr(command, "seek_s", None) is not None:
+            self.seek(float(command.seek_s))
+
+    def seek(self, position_s: float) -> None:
+        """Go to `position_s` from the start; the consumer re-runs the filter from the start."""
+        target = 0
+        while target < len(self._pace) and self._pace[target] < position_s:
+            target += 1
+        self._connection += 1
+        self._events.append(SourceEvent("seek", self._connection, self.name,
+                                        f"{position_s:.3f} s", time.perf_counter()))
+        self._index = 0
+        self._fast_until = target
+        self._finished = False
+        self._anchor_pace = self._pace[target] if target < len(self._pace) else self.duration_s
+        self._anchor_wall = time.perf_counter()
+
+    def read(self, timeout: float = 0.05) -> list[Chunk | SourceEvent]:
+        out: list[Chunk | SourceEvent] = self._events
+        self._events = []
+        if not self._started or self._finished:
+            if not out:
+                time.sleep(timeout)
+            return out
+        lines, pace = self._lines, self._pace
+        start = self._index
+        end = start
+        limit = min(len(lines), start + _MAX_LINES_PER_CHUNK)
+        if end < self._fast_until:
+            end = min(self._fast_until, limit)
+        elif self.paused:
+            if self._steps:
+                end = min(limit, start + self._steps)
+                self._steps -= end - start
+        elif self.speed == 0.0:
+            end = limit
+        else:
+            now_pace = self._anchor_pace + (time.perf_counter() - self._anchor_wall) * self.speed
+            while end < limit and pace[end] <= now_pace:
+                end += 1
+            if end == start and end < len(lines) and not out:
+                wait = (pace[end] - now_pace) / self.speed
+                time.sleep(max(0.0, min(timeout, wait)))
+                return out
+        if end > start:
+            out.append(Chunk(self._connection, b"".join(lines[start:end]), time.perf_counter()))
+            self._index = end
+        elif self.paused and not out:
+            time.sleep(timeout)
+        if self._index >= len(lines):
+            if self.loop and lines:
+                self.loops += 1
+                self._connection += 1
+                self._index = 0
+                out.append(SourceEvent("loop", self._connection, self.name, "",
+                                       time.perf_counter()))
+                self._anchor()
+            else:
+                self._finished = True
+                out.append(SourceEvent("finished", self._connection, self.name, "",
+                                       time.perf_counter()))
+        return out
+
+    def info(self) -> dict[str, Any]:
+        state = "finished" if self._finished else "replaying"
+        return {"connection_state": state, "peer": self.name, "port": None,
+                "listen_addresses": [],
+                "replay": {"position_s": self.position_s, "duration_s": self.duration_s,
+                           "speed": self.speed, "paused": self.paused, "loop": self.loop}}
+
+
+class LogFileSource(LineReplaySource):
+    """A log file (.txt or .txt.gz; the phone's or our raw.txt) replayed like a phone."""
+
+    def __init__(self, path: str | Path, speed: float = 1.0, loop: bool = False,
+                 paused: bool = False) -> None:
+        from app.io.emulator import read_lines
+        path = Path(path)
+        super().__init__(read_lines(path), path.name, speed, loop, paused)
+        self.path = path
+
+
+class SimulatorSource(LineReplaySource):
+    """A simulated session (ekf.simulate) streamed as phone lines."""
+
+    kind = "simulator"
+
+    def __init__(self, duration_s: float = 120.0, rates_hz: dict[str, float] | None = None,
+                 seed: int = 0, speed: float = 1.0, loop: bool = True, **simulate_options) -> None:
+        from ekf.simulate import simulate
+
+        from app.io.protocol import Sample, format_line
+        session = simulate(duration_s=duration_s, rates_hz=rates_hz, seed=seed,
+                           **simulate_options)
+        lines = [(format_line(Sample(t, tag, values)) + "\n").encode("ascii")
+                 for t, tag, values in session.iter_rows()]
+        super().__init__(lines, f"simulator (seed {seed})", speed, loop)
+        self.session = session
+
+
+def demo_source(speed: float = 1.0) -> LogFileSource:
+    """The bundled demo session (resources/demo_session.txt.gz), looping at real speed."""
+    if not DEMO_SESSION.exists():
+        raise LogError(f"{DEMO_SESSION}: demo session missing")
+    return LogFileSource(DEMO_SESSION, speed=speed, loop=True)

@@ -1,0 +1,107 @@
+"""Engine: replay through the thread gives run_offline's estimates; commands; snapshots."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.engine import Engine
+from app.io.logfile import read_log
+from app.io.recorder import Recorder
+from app.io.sources import LineReplaySource, LogFileSource
+from app.pipeline import run_offline
+from app.snapshot import (AlignHeading, ReplayControl, ResetFilter, SetComparisonsEnabled,
+                          SetEstimator, SetSensorEnabled)
+
+REALPHONE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "realphone"
+
+
+def _wait_state(engine: Engine, state: str, timeout: float = 40.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        snapshot = engine.snapshot_now()
+        if snapshot.health.connection_state == state:
+            return snapshot
+        time.sleep(0.02)
+    raise AssertionError(f"engine never reached {state!r}")
+
+
+def _log_lines(seconds: float, t0: int = 1000, turn_rate: float = 0.5,
+               mag_until: int = 10**9) -> list[bytes]:
+    """Flat phone at rest for 1 s, then turning about z at turn_rate rad/s; MAG at 50 Hz
+    until sample number mag_until."""
+    out = []
+    for k in range(int(seconds * 100)):
+        t = t0 + 10 * k
+        rate = turn_rate if k > 100 else 0.0
+        out += [f"{t}\tGYR\t0.0\t0.0\t{rate}\n".encode(), f"{t}\tACC\t0.0\t0.0\t9.81\n".encode(),
+                f"{t + 3}\tORI\t1.0\t0.0\t0.0\t0.0\n".encode()]
+        if k % 2 == 0 and k <= mag_until:
+            out.append(f"{t}\tMAG\t0.0\t20.0\t-40.0\n".encode())
+    return out
+
+
+def test_replay_matches_run_offline_bit_for_bit(tmp_path):
+    if not REALPHONE.is_dir():
+        pytest.skip(f"shared real-phone logs not found at {REALPHONE}")
+    path = REALPHONE / "sensorLog_20221024T182616_standstill.txt"
+    engine = Engine(LogFileSource(path, speed=0), comparisons=False, record_rows=True,
+                    recorder=Recorder(tmp_path / "rec"))
+    with engine:
+        final = _wait_state(engine, "finished")
+    offline = run_offline(read_log(path).samples)
+    t_ms = np.concatenate([r.t_ms for r in engine.rows_log])
+    quat = np.concatenate([r.quat for r in engine.rows_log])
+    assert np.array_equal(t_ms, offline.t_ms) and np.array_equal(quat, offline.quat)
+    assert (final.health.damaged, final.health.out_of_order) == (2, 420)
+    assert (tmp_path / "rec" / "raw.txt").read_bytes() == path.read_bytes()
+
+
+def test_poll_merges_plot_samples_and_fills_snapshot():
+    lines = _log_lines(3.0, turn_rate=3.0, mag_until=100)   # 344 degrees of yaw without MAG
+    engine = Engine(LineReplaySource(lines, "synthetic", speed=0), comparisons=True)
+    with engine:
+        _wait_state(engine, "finished")
+        snapshot = engine.poll()
+        assert snapshot is not None and engine.poll() is None      # nothing new since
+    plot = snapshot.plot
+    assert len(plot.t_gyr) == 300 and len(plot.t_acc) == 300 and len(plot.t_mag) == 51
+    assert len(plot.t_est) == 600 and plot.own_euler_deg.shape == (600, 3)
+    assert np.all(np.diff(plot.t_est) > 0)
+    yaw = plot.own_euler_deg[:, 0]
+    assert yaw.max() - yaw.min() > 300 and np.all(np.abs(np.diff(yaw)) < 10)  # unwrapped, no 360° jumps
+    assert snapshot.own_quat.shape == (4,) and snapshot.own_cov.shape == (4, 4)
+    assert snapshot.phone_quat.tolist() == [1.0, 0.0, 0.0, 0.0]
+    assert [c.name for c in snapshot.comparisons][0] == "gyr+acc+mag"
+    health = snapshot.health
+    assert health.rates_hz["GYR"] == pytest.approx(100.0) and health.rates_hz["MAG"] == 50.0
+    assert health.lines_total == 951 and snapshot.replay["duration_s"] > 2.9
+
+
+def test_commands_apply_in_the_engine_thread(tmp_path):
+    recorder = Recorder(tmp_path / "rec")
+    source = LineReplaySource(_log_lines(2.0), "synthetic", speed=0, paused=True)
+    engine = Engine(source, comparisons=False, recorder=recorder)
+    with engine:
+        engine.send(SetSensorEnabled("mag", False))
+        engine.send(SetEstimator("complementary"))
+        engine.send(SetComparisonsEnabled(True))
+        engine.send(ReplayControl(step=40))
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            snapshot = engine.snapshot_now()
+            if snapshot.health.lines_total == 40:
+                break
+            time.sleep(0.02)
+        assert snapshot.status.sensors_enabled["mag"] is False
+        assert snapshot.status.estimator == "complementary" and len(snapshot.comparisons) == 7
+        engine.send(AlignHeading())
+        engine.send(ResetFilter())
+        engine.send(ReplayControl(paused=False))
+        _wait_state(engine, "finished")
+    timeline = [e["kind"] for e in recorder.session["timeline"]]
+    assert timeline[:3] == ["connected", "sensor", "estimator"] and "reset" in timeline
+    engine.stop()                                   # idempotent
