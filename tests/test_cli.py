@@ -1,0 +1,85 @@
+"""The headless commands, end to end, and their error handling."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from app import cli
+
+
+def test_simulate_filter_evaluate_round_trip(tmp_path, capsys):
+    log = tmp_path / "sim.txt"
+    assert cli.main(["simulate", "-o", str(log), "--duration", "20", "--seed", "2"]) == 0
+    out = tmp_path / "est.csv"
+    assert cli.main(["filter", str(log), "-o", str(out), "--estimator", "ekf"]) == 0
+    rows = list(csv.reader(out.open()))
+    assert rows[0] == ["t_ms", "qw", "qx", "qy", "qz", "acc_rejected", "mag_rejected", "at_rest"]
+    q = np.array([[float(x) for x in r[1:5]] for r in rows[1:]])
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-8)
+    assert (q[:, 0] >= 0).all()
+    t = [int(r[0]) for r in rows[1:]]
+    assert t == sorted(set(t))   # one row per distinct time
+    capsys.readouterr()
+    assert cli.main(["evaluate", str(log), "--estimator", "ekf,course,complementary,gyro,accmag"]) == 0
+    table = capsys.readouterr().out
+    ekf_total = float(next(line for line in table.splitlines() if line.startswith("ekf ")).split()[2])
+    assert ekf_total < 3.0
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["filter", "/no/such/log.txt"], "no such file"),
+    (["filter", "{log}", "--sensors", "gyr,foo"], "--sensors"),
+    (["filter", "{log}", "--estimator", "kalman"], "unknown"),
+    (["filter", "{log}", "--settings", "{bad_settings}"], "bad settings"),
+    (["evaluate", "{log}", "--intervals", "/no/such.json"], "not found"),
+    (["calibrate", "{empty}"], "empty"),
+    (["simulate", "-o", "x.txt", "--duration", "-1"], "--duration"),
+    (["filter"], "required"),
+    (["nonsense"], "invalid choice"),
+])
+def test_bad_input_gives_one_line_and_exit_2(tmp_path, capsys, argv, needle):
+    log = tmp_path / "sim.txt"
+    cli.main(["simulate", "-o", str(log), "--duration", "3"])
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"acc_gat": 1}))
+    empty = tmp_path / "empty.txt"
+    empty.write_text("")
+    argv = [a.format(log=log, bad_settings=bad, empty=empty) for a in argv]
+    capsys.readouterr()
+    try:
+        code = cli.main(argv)
+    except SystemExit as e:     # argparse's own errors
+        code = e.code
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert len(err.splitlines()) == 1, err
+    assert needle in err
+    assert "Traceback" not in err
+
+
+def test_calibrate_writes_settings_the_filter_accepts(tmp_path, capsys):
+    from ekf.simulate import simulate
+    from app.io.demo import write_session
+    log = tmp_path / "rest.txt"
+    write_session(simulate(duration_s=8, script="rest", seed=4, gyro_bias=(0.01, 0, 0)), log)
+    settings = tmp_path / "s.json"
+    assert cli.main(["calibrate", str(log), "-o", str(settings)]) == 0
+    saved = json.loads(settings.read_text())["settings"]
+    assert saved["g"] == pytest.approx(9.81, abs=0.01)
+    assert saved["gyr_bias"][0] == pytest.approx(0.01, abs=1e-3)
+    assert cli.main(["filter", str(log), "--settings", str(settings), "-o", str(tmp_path / "o.csv")]) == 0
+
+
+def test_real_rotation_log_within_10_degrees_of_the_phone(realphone_dir):
+    from app.io.logfile import read_log
+    import ekf
+    log = read_log(realphone_dir / "tsrt14_lab2_rotation.txt")
+    s = cli.evaluate_log(log, "ekf", None, ("gyr", "acc", "mag"), None, 3.0)
+    assert s.samples > 1500
+    assert s.total_rmse_deg < 10.0
+    course = cli.evaluate_log(log, "ekf", ekf.PRESETS["course"], ("gyr", "acc", "mag"), None, 3.0)
+    assert course.total_rmse_deg < 10.0
