@@ -1,0 +1,61 @@
+"""The window on the real engine, replaying a small simulated log: snapshots arrive, the plots
+fill, and a sensor switch reaches the filter (the engine's status and the light follow)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PySide6 import QtCore
+
+
+@pytest.fixture
+def small_log(tmp_path: Path) -> Path:
+    from ekf.simulate import simulate
+
+    from app.io.protocol import Sample, format_line
+    session = simulate(duration_s=20.0, seed=3)
+    path = tmp_path / "small.txt"
+    with open(path, "w", newline="\n") as file:
+        for t_ms, tag, values in session.to_rows():
+            file.write(format_line(Sample(int(t_ms), tag, tuple(float(v) for v in values))) + "\n")
+    return path
+
+
+def test_window_on_a_real_engine_replay(make_window, small_log, qtbot):
+    from app.engine import Engine
+    from app.io.sources import LogFileSource
+
+    engine = Engine(LogFileSource(small_log, speed=2.0, loop=True))
+    engine.start()
+    window = make_window(engine)
+    try:
+        window.show()
+        qtbot.waitUntil(lambda: window.plots.streams["gyr"].buffer.size > 100, timeout=60000)
+        snapshot = window.last_snapshot
+        assert snapshot.health.connection_state == "replaying"
+        assert window.connection.replay_box.isVisible()
+        assert window.own_view.quat is not None and window.phone_view.quat is not None
+        assert window.lights.states()["acc"] in ("ok", "disturbed")
+        qtbot.waitUntil(lambda: len(window.controls.comparison_rows()) == 7, timeout=15000)
+
+        window.controls.sensor_checkboxes["acc"].click()
+        qtbot.waitUntil(
+            lambda: window.last_snapshot.status.sensors_enabled.get("acc") is False, timeout=15000)
+        qtbot.waitUntil(lambda: window.lights.states()["acc"] == "off", timeout=5000)
+        assert not window.controls.sensor_checkboxes["acc"].isChecked()
+
+        # Pause the plots: the view stays, the samples keep coming.
+        window.plots.set_paused(True)
+        frozen = window.plots.x_range()
+        size = window.plots.streams["gyr"].buffer.size
+        qtbot.waitUntil(lambda: window.plots.streams["gyr"].buffer.size > size + 50, timeout=15000)
+        assert window.plots.x_range() == pytest.approx(frozen)
+        euler = window.plots.streams["euler"].buffer.values
+        assert np.isfinite(euler[:, :3]).all()
+    finally:
+        window.close()
+    assert not engine.running
+    assert not window.timer.isActive()
+    QtCore.QCoreApplication.processEvents()

@@ -1,0 +1,164 @@
+"""The main window with a fake engine: snapshots drive the widgets, actions send commands,
+layout and switches persist, closing stops the engine."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PySide6 import QtCore, QtGui, QtWidgets
+
+from app.snapshot import (AlignHeading, ReplayControl, ResetFilter, SetComparisonsEnabled,
+                          SetEstimator, SetSensorEnabled)
+
+from ui_helpers import make_snapshot
+
+
+def _press(qtbot, window, sequence: str) -> None:
+    """Type a key sequence into the active window (shortcuts only reach the active window)."""
+    if QtWidgets.QApplication.activeWindow() is not window:
+        window.activateWindow()
+        qtbot.waitUntil(lambda: QtWidgets.QApplication.activeWindow() is window, timeout=2000)
+    combination = QtGui.QKeySequence(sequence)[0]
+    target = QtWidgets.QApplication.focusWidget() or window
+    qtbot.keyClick(target, combination.key(), combination.keyboardModifiers())
+
+
+def _feed(window, engine, count: int, start_s: float = 0.0) -> None:
+    for seq in range(1, count + 1):
+        engine.snapshots.append(make_snapshot(seq, start_s + 0.5 * (seq - 1)))
+    for _ in range(count):
+        window.tick()
+
+
+def test_window_builds_offscreen_with_placeholders(make_window, fake_engine):
+    window = make_window(fake_engine)
+    assert window.own_view.gl_view is None and window.phone_view.gl_view is None
+    assert "OWN" in window.own_view.placeholder.text()
+    assert window.findChild(QtCore.QObject, "filter_dock") is window.filter_dock
+    assert fake_engine.commands == []         # default settings: nothing to tell the engine
+
+
+def test_snapshot_stream_drives_views_lights_plots_and_counters(make_window, fake_engine):
+    window = make_window(fake_engine)
+    window.show()
+    _feed(window, fake_engine, 4)
+    snapshot = make_snapshot(5, 2.0, acc_rejected=True, acc_norm=12.3, at_rest=True)
+    snapshot.health.damaged = 17
+    snapshot.health.warnings = ["ACC rate dropped to 20 Hz"]
+    fake_engine.snapshots.append(snapshot)
+    window.tick()
+    assert window.snapshots_received == 5
+    np.testing.assert_allclose(window.own_view.quat, snapshot.own_quat)
+    np.testing.assert_allclose(window.phone_view.quat, snapshot.phone_quat)
+    assert "σ" in window.own_view.detail_label.text()          # from own_cov
+    assert window.lights.states() == {"acc": "disturbed", "mag": "ok", "standstill": "still"}
+    assert "12.30" in window.lights.lights["acc"].toolTip()
+    assert window.plots.streams["acc"].buffer.size == 250
+    assert window.plots.x_range()[1] == pytest.approx(2.49)
+    assert "17 damaged" in window.connection.problems_label.text()
+    assert window.connection.address_text() == "192.168.1.10:3400"
+    assert "connected from 192.168.1.23:51234" in window.state_status.text()
+    assert window.time_status.text() == "t = 2.50 s"
+    assert "ACC 100 Hz" in window.rates_status.text()
+    assert window.statusBar().currentMessage() == "ACC rate dropped to 20 Hz"
+    fake_engine.snapshots.append(make_snapshot(6, 2.5, phone_quat=None))
+    window.tick()
+
+
+def test_shortcuts_send_commands(make_window, fake_engine, qtbot):
+    window = make_window(fake_engine)
+    window.show()
+    qtbot.waitExposed(window)
+    _press(qtbot, window, "Ctrl+R")
+    _press(qtbot, window, "Ctrl+H")
+    _press(qtbot, window, "Ctrl+1")
+    _press(qtbot, window, "Ctrl+2")
+    _press(qtbot, window, "Ctrl+3")
+    _press(qtbot, window, "Ctrl+3")
+    assert fake_engine.commands == [ResetFilter(), AlignHeading(), SetSensorEnabled("gyr", False),
+                                    SetSensorEnabled("acc", False), SetSensorEnabled("mag", False),
+                                    SetSensorEnabled("mag", True)]
+
+
+def test_space_pauses_plots_or_the_replay(make_window, fake_engine, qtbot):
+    window = make_window(fake_engine)
+    window.show()
+    qtbot.waitExposed(window)
+    _feed(window, fake_engine, 2)
+    _press(qtbot, window, "Space")
+    assert window.plots.paused
+    frozen = window.plots.x_range()
+    _feed(window, fake_engine, 3, start_s=10.0)
+    assert window.plots.x_range() == pytest.approx(frozen)
+    _press(qtbot, window, "Space")
+    window.tick()
+    assert not window.plots.paused
+    assert window.plots.x_range()[1] == pytest.approx(11.49)
+    # While replaying, Space is the replay's play/pause.
+    snapshot = make_snapshot(9, 12.0)
+    snapshot.replay = {"position_s": 3.0, "duration_s": 60.0, "speed": 1.0, "paused": False,
+                       "loop": False}
+    fake_engine.snapshots.append(snapshot)
+    window.tick()
+    _press(qtbot, window, "Space")
+    assert fake_engine.commands[-1] == ReplayControl(paused=True)
+    assert not window.plots.paused
+
+
+def test_settings_persist_across_a_restart(make_window, fake_engine, settings_file, qtbot):
+    from ui_helpers import FakeEngine
+    window = make_window(fake_engine)
+    window.show()
+    window.resize(777, 555)
+    window.plots.set_window_s(25)
+    window.controls.set_estimator("accmag")
+    window.controls.sensor_checkboxes["gyr"].setChecked(False)
+    window.controls.uncertainty_checkbox.setChecked(False)
+    window.controls.comparisons_checkbox.setChecked(False)
+    window.filter_dock.hide()
+    window.close()
+    assert fake_engine.stop_calls == 1
+
+    second_engine = FakeEngine()
+    again = make_window(second_engine)
+    again.show()
+    assert again.size() == QtCore.QSize(777, 555)
+    assert again.plots.window_s == 25
+    assert again.controls.estimator() == "accmag"
+    assert not again.controls.sensor_checkboxes["gyr"].isChecked()
+    assert again.controls.sensor_checkboxes["acc"].isChecked()
+    assert not again.controls.uncertainty_checkbox.isChecked()
+    assert not again.own_view.uncertainty_visible
+    assert not again.filter_dock.isVisible()
+    # The restored switches reach the new engine as commands.
+    assert SetEstimator("accmag") in second_engine.commands
+    assert SetSensorEnabled("gyr", False) in second_engine.commands
+    assert SetComparisonsEnabled(False) in second_engine.commands
+    assert settings_file.exists()
+
+
+def test_close_stops_the_engine_once(make_window, fake_engine):
+    window = make_window(fake_engine)
+    window.close()
+    window.shutdown()
+    assert fake_engine.stop_calls == 1
+    assert not window.timer.isActive()
+
+
+def test_about_names_the_versions(make_window, fake_engine):
+    import pyqtgraph
+    import PySide6
+
+    import app
+    text = make_window(fake_engine).about_text()
+    for version in (app.__version__, PySide6.__version__, pyqtgraph.__version__, np.__version__,
+                    QtCore.qVersion()):
+        assert version in text
+    assert "Python 3." in text
+
+
+def test_the_timer_polls_the_engine(make_window, fake_engine, qtbot):
+    window = make_window(fake_engine)
+    fake_engine.snapshots.extend(make_snapshot(seq, 0.5 * seq) for seq in range(1, 4))
+    qtbot.waitUntil(lambda: window.snapshots_received == 3, timeout=2000)
+    assert not fake_engine.snapshots
