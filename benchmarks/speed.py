@@ -1,0 +1,188 @@
+"""Speed of the compiled EKF (ekf.fast) beside VQF's and Fusion's C/C++ filters, same process.
+
+On one BROAD trial (default: 01_undisturbed_slow_rotation_A, 285.7 Hz, GYR/ACC/MAG on every row):
+
+* batch:     ``ekf.filter_batch`` (one compiled loop) vs ``vqf.VQF(Ts).updateBatch`` and
+             ``vqf.offlineVQF`` (rows per second, and the ratio);
+* streaming: ``est.step(t, gyr, acc, mag)`` called from Python per row, vs ``imufusion.Ahrs.update``
+             per row, and the readable reference (a slice of the trial: it is slow).
+
+Every figure is the best of `--repeats` runs (the machine may be shared; --cpu-time measures process
+CPU time instead of wall time). Targets: batch >= 2.3 M rows/s, streaming >= 200 000 rows/s.
+
+    .venv/bin/python benchmarks/speed.py [--trial PATH] [--repeats 7] [--cpu-time]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+import ekf  # noqa: E402
+from ekf.fast import FastEKF, warm_up  # noqa: E402
+from ekf.reference import OrientationEKF  # noqa: E402
+
+SHARED = Path(os.environ.get("ORIENTATION_LAB_SHARED", REPO.parent / "shared"))
+DEFAULT_TRIAL = SHARED / "data" / "broad" / "01_undisturbed_slow_rotation_A.txt"
+
+
+def load_rows(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """t [s] (N,), gyr, acc, mag (N, 3) from a TAB-separated `t_ms TAG v1 v2 v3 [v4]` log; rows =
+    distinct times (sorted), NaN where a sensor has no sample at that time."""
+    rows: dict[int, dict[str, list[float]]] = {}
+    with open(path) as f:
+        for line in f:
+            parts = line.split("\t")
+            if len(parts) >= 5 and parts[1] in ("GYR", "ACC", "MAG"):
+                rows.setdefault(int(parts[0]), {})[parts[1]] = [float(v) for v in parts[2:5]]
+    times = sorted(rows)
+    t = np.array(times, dtype=float) / 1000.0
+    gyr, acc, mag = (np.array([rows[k].get(tag, [np.nan] * 3) for k in times])
+                     for tag in ("GYR", "ACC", "MAG"))
+    return t, gyr, acc, mag
+
+
+CLOCK = time.perf_counter
+
+
+def best_time(run, repeats: int) -> float:
+    """Shortest time [s] of `repeats` calls of run(), on CLOCK (wall, or process CPU time with
+    --cpu-time: steadier when other processes share the cores)."""
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = CLOCK()
+        run()
+        best = min(best, CLOCK() - t0)
+    return best
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--trial", type=Path, default=DEFAULT_TRIAL)
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--reference-rows", type=int, default=3000,
+                        help="rows for the (slow) readable reference's streaming figure")
+    parser.add_argument("--cpu-time", action="store_true",
+                        help="time with process CPU time instead of wall time (shared machines)")
+    args = parser.parse_args(argv)
+    global CLOCK
+    if args.cpu_time:
+        CLOCK = time.process_time
+    if not args.trial.exists():
+        print(f"trial not found: {args.trial} (set ORIENTATION_LAB_SHARED)", file=sys.stderr)
+        return 2
+    t, gyr, acc, mag = load_rows(args.trial)
+    n = t.size
+    every_row = not (np.isnan(gyr).any() or np.isnan(acc).any() or np.isnan(mag).any())
+    print(f"trial {args.trial.name}: {n} rows, {(n - 1) / (t[-1] - t[0]):.1f} Hz, "
+          f"all three sensors on every row: {every_row}; load average {os.getloadavg()[0]:.2f} "
+          f"on {os.cpu_count()} CPUs")
+    t0 = time.perf_counter()
+    warm_up()
+    print(f"warm_up (compile or load the numba cache): {time.perf_counter() - t0:.2f} s")
+
+    results: dict[str, float] = {}
+
+    # ---- batch ------------------------------------------------------------------------------
+    dt = best_time(lambda: ekf.filter_batch(t, gyr, acc, mag), args.repeats)
+    results["ekf.filter_batch (default preset)"] = n / dt
+    dt = best_time(lambda: ekf.filter_batch(t, gyr, acc, mag, estimator="course"), args.repeats)
+    results["ekf.filter_batch (course preset)"] = n / dt
+    # model 4c with the heading-only magnetometer update: the heaviest configuration (n = 7)
+    heavy = ekf.PRESETS["default"].with_changes(estimate_gyro_bias=True, mag_heading_only=True)
+    dt = best_time(lambda: ekf.filter_batch(t, gyr, acc, mag, settings=heavy), args.repeats)
+    results["ekf.filter_batch (default + gyro bias + heading-only mag)"] = n / dt
+    try:
+        import vqf
+    except ImportError:
+        vqf = None
+    if vqf is not None:
+        Ts = float((t[-1] - t[0]) / (n - 1))
+        g, a, m = (np.ascontiguousarray(x) for x in (gyr, acc, mag))
+        dt = best_time(lambda: vqf.VQF(Ts).updateBatch(g, a, m), args.repeats)
+        results["vqf.VQF.updateBatch (C++)"] = n / dt
+        dt = best_time(lambda: vqf.offlineVQF(g, a, m, Ts, None), args.repeats)
+        results["vqf.offlineVQF (C++)"] = n / dt
+
+    # ---- streaming --------------------------------------------------------------------------
+    rows = [(float(t[k]), gyr[k], acc[k], mag[k]) for k in range(n)]
+
+    def stream_fast() -> None:
+        est = FastEKF()
+        step = est.step
+        for tk, gk, ak, mk in rows:
+            step(tk, gk, ak, mk)
+
+    dt = best_time(stream_fast, max(2, args.repeats // 2))
+    results["FastEKF.step per row (Python loop)"] = n / dt
+
+    def stream_fast_with_quat() -> None:
+        est = FastEKF()
+        step = est.step
+        for tk, gk, ak, mk in rows:
+            step(tk, gk, ak, mk)
+            est.quat
+
+    dt = best_time(stream_fast_with_quat, max(2, args.repeats // 2))
+    results["FastEKF.step + .quat per row"] = n / dt
+
+    try:
+        import imufusion
+    except ImportError:
+        imufusion = None
+    if imufusion is not None:
+        gyr_deg = np.rad2deg(gyr)
+        acc_g = acc / 9.81
+        fusion_rows = [(gyr_deg[k], acc_g[k], mag[k]) for k in range(n)]
+        period = (t[-1] - t[0]) / (n - 1)
+
+        def stream_fusion() -> None:
+            ahrs = imufusion.Ahrs()
+            ahrs.set_sample_period(period)   # fixed-rate API (imufusion >= 1.3)
+            update = ahrs.update
+            for gk, ak, mk in fusion_rows:
+                update(gk, ak, mk)
+
+        dt = best_time(stream_fusion, max(2, args.repeats // 2))
+        results["imufusion.Ahrs.update per row (C)"] = n / dt
+
+    m_ref = min(args.reference_rows, n)
+    if m_ref > 0:
+        def stream_reference() -> None:
+            est = OrientationEKF()
+            for tk, gk, ak, mk in rows[:m_ref]:
+                est.step(tk, gk, ak, mk)
+
+        dt = best_time(stream_reference, 1)
+        results[f"OrientationEKF.step per row (reference, {m_ref} rows)"] = m_ref / dt
+
+    width = max(len(k) for k in results)
+    print(f"\n(best of {args.repeats}, {'process CPU' if args.cpu_time else 'wall'} time)")
+    for name, rate in results.items():
+        print(f"{name:<{width}}  {rate:12,.0f} rows/s")
+    batch = results["ekf.filter_batch (default preset)"]
+    print()
+    stream = results["FastEKF.step per row (Python loop)"]
+    if vqf is not None:
+        print(f"filter_batch / VQF.updateBatch: "
+              f"{batch / results['vqf.VQF.updateBatch (C++)']:.2f}x; "
+              f"/ offlineVQF: {batch / results['vqf.offlineVQF (C++)']:.2f}x")
+    if imufusion is not None:
+        print(f"FastEKF.step / imufusion.Ahrs.update: "
+              f"{stream / results['imufusion.Ahrs.update per row (C)']:.2f}x")
+    print(f"targets: batch >= 2.3 M rows/s: {batch / 1e6:.2f} "
+          f"({'met' if batch >= 2.3e6 else 'NOT met'}); streaming >= 200 000 rows/s: "
+          f"{stream:.0f} ({'met' if stream >= 2e5 else 'NOT met'})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

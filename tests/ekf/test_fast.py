@@ -1,0 +1,282 @@
+"""ekf.fast.FastEKF gives the reference EKF's estimates (to 1e-9) and flags, sample by sample.
+
+The reference is slow (pure numpy), so every scenario is a few hundred rows chosen to pass
+through every branch: asynchronous sensors, rows with no sample, acc bursts beyond the gate,
+a field-strength change longer than mag_relearn_s, a gap > max_dt, rest (zero-rate updates),
+sensor switches through all seven non-empty combinations, and both presets plus a gated variant.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from ekf import quaternion as quat
+from ekf.batch import BatchResult, filter_batch
+from ekf.estimators import make_estimator
+from ekf.fast import FastEKF, warm_up
+from ekf.reference import OrientationEKF, Status
+from ekf.settings import PRESETS
+
+TOL = 1e-9
+FLAGS = ("acc_rejected", "mag_rejected", "at_rest", "used_gyr", "used_acc", "used_mag")
+NUMBERS = ("acc_norm", "g", "acc_gate", "acc_nis", "mag_norm", "mag_expected", "mag_gate",
+           "mag_nis", "mag_dip_deg")
+
+# The presets may be retuned; the variants below pin the branches each test needs (model 4a/4c,
+# full or heading-only magnetometer update, gates on or off). mag_relearn_s is shortened so a
+# disturbance longer than it fits in a few seconds of data.
+SETTINGS = {
+    "default": PRESETS["default"].with_changes(mag_relearn_s=1.0),
+    "course": PRESETS["course"],
+    "bias_heading": PRESETS["default"].with_changes(
+        estimate_gyro_bias=True, mag_heading_only=True, exact_discretisation=True, acc_gate=1.0,
+        mag_strength_update="accepted", mag_relearn_s=1.0, mag_dip_gate_deg=math.inf,
+        acc_nis_gate=math.inf),
+    "gated": PRESETS["default"].with_changes(
+        estimate_gyro_bias=True, mag_heading_only=False, exact_discretisation=False,
+        mag_strength_update="accepted", mag_relearn_s=1.0, acc_nis_gate=7.8,
+        mag_dip_gate_deg=4.0),
+}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _compiled():
+    warm_up()
+
+
+def synthetic(seed: int = 1, duration_s: float = 7.0):
+    """Rows (t, gyr, acc, mag) with NaN where a sensor has no sample.
+
+    gyr 50 Hz, acc 25 Hz (+3 ms), mag 20 Hz (+7 ms); still for the first 1.2 s (rest), then
+    turning about a slowly changing axis; gyro bias 0.02 rad/s; acc bursts of 9 m/s^2 (beyond
+    a 3 m/s^2 gate); the
+    field 30 % stronger from 3.0 s to 5.5 s; no samples at all from 5.8 s to 6.5 s (> max_dt);
+    one row with no sensor at all.
+    """
+    rng = np.random.default_rng(seed)
+    times = {"gyr": np.arange(0.0, duration_s, 0.02),
+             "acc": np.arange(0.003, duration_s, 0.04),
+             "mag": np.arange(0.007, duration_s, 0.05)}
+    all_t = np.unique(np.concatenate(list(times.values()) + [np.array([2.2345])]))
+    all_t = all_t[all_t < duration_s]
+    all_t = all_t[(all_t < 5.8) | (all_t > 6.5)]
+    # truth: q(t) integrated on a fine grid
+    fine = np.arange(0.0, duration_s + 0.01, 0.001)
+    omega = np.zeros((fine.size, 3))
+    moving = fine > 1.2
+    omega[moving] = np.column_stack([0.6 * np.sin(0.7 * fine), 0.4 * np.cos(1.1 * fine),
+                                     0.8 * np.ones_like(fine)])[moving]
+    q = np.empty((fine.size, 4))
+    q[0] = quat.from_euler(0.3, 0.1, -0.2)
+    for k in range(1, fine.size):
+        step = quat.from_rotation_vector(omega[k - 1] * 0.001)
+        q[k] = quat.normalize(quat.multiply(q[k - 1], step))
+    bias = np.array([0.02, -0.01, 0.015])
+    g0 = np.array([0.0, 0.0, 9.81])
+    m0 = np.array([0.0, 15.5, -48.0])
+    n = all_t.size
+    gyr = np.full((n, 3), np.nan)
+    acc = np.full((n, 3), np.nan)
+    mag = np.full((n, 3), np.nan)
+    for k, t in enumerate(all_t):
+        i = int(round(t * 1000))
+        R = quat.to_matrix(q[i])
+        if np.any(np.isclose(times["gyr"], t)):
+            gyr[k] = omega[i] + bias + rng.normal(0, 1e-3, 3)
+        if np.any(np.isclose(times["acc"], t)):
+            force = np.array([9.0, 0.0, 0.0]) if (1.5 < t < 1.8 or 4.0 < t < 4.3) else 0.0
+            acc[k] = R.T @ (g0 + force) + rng.normal(0, 0.02, 3)
+        if np.any(np.isclose(times["mag"], t)):
+            field = m0 * (1.3 if 3.0 < t < 5.5 else 1.0)
+            mag[k] = R.T @ field + rng.normal(0, 0.5, 3)
+    return all_t, gyr, acc, mag
+
+
+def _sample(row: np.ndarray) -> np.ndarray | None:
+    return None if np.isnan(row).any() else row
+
+
+def _compare(ref, fast, where: str) -> None:
+    np.testing.assert_allclose(fast.quat, ref.quat, rtol=0, atol=TOL, err_msg=where)
+    np.testing.assert_allclose(fast.gyro_bias, ref.gyro_bias, rtol=0, atol=TOL, err_msg=where)
+    assert fast.initialised == ref.initialised, where
+    for name in FLAGS:
+        assert getattr(fast.status, name) == getattr(ref.status, name), f"{where}: {name}"
+    for name in NUMBERS:
+        a, b = getattr(fast.status, name), getattr(ref.status, name)
+        assert (math.isnan(a) and math.isnan(b)) or abs(a - b) <= 1e-6 * max(1.0, abs(b)), \
+            f"{where}: {name} {a} != {b}"
+
+
+def _run_both(settings, t, gyr, acc, mag, switches=None):
+    """Feed both filters row by row; `switches` maps a row index to set_enabled kwargs.
+    Returns the fast filter's quaternions per row."""
+    ref = OrientationEKF(settings)
+    fast = FastEKF(settings)
+    out = np.empty((t.size, 4))
+    for k in range(t.size):
+        if switches and k in switches:
+            ref.set_enabled(**switches[k])
+            fast.set_enabled(**switches[k])
+            assert fast.enabled == ref.enabled
+        args = (_sample(gyr[k]), _sample(acc[k]), _sample(mag[k]))
+        st = fast.step(t[k], *args)
+        ref.step(t[k], *args)
+        assert st is fast.status
+        _compare(ref, fast, f"row {k} t={t[k]:.3f}")
+        out[k] = fast.quat
+    np.testing.assert_allclose(fast.cov, ref.cov, rtol=0, atol=1e-12)
+    assert fast.time == ref.time
+    return ref, fast, out
+
+
+@pytest.mark.parametrize("variant", sorted(SETTINGS))
+def test_synthetic_matches_reference(variant):
+    t, gyr, acc, mag = synthetic()
+    ref, fast, out = _run_both(SETTINGS[variant], t, gyr, acc, mag)
+    # the scenario really exercised the branches it is meant to
+    batch = FastEKF(SETTINGS[variant]).run_batch(t, gyr, acc, mag)
+    assert batch.acc_rejected.any() and batch.at_rest.any()
+    if variant != "course":
+        assert batch.mag_rejected.any()
+        # the 30 % stronger field was re-learned after mag_relearn_s (|m0| = 50.4 uT before)
+        during = FastEKF(SETTINGS[variant])
+        inside = t < 5.4
+        during.run_batch(t[inside], gyr[inside], acc[inside], mag[inside])
+        assert during.status.mag_expected > 60.0
+    # run_batch is the same filter as the step loop
+    np.testing.assert_array_equal(batch.quat, out)
+    np.testing.assert_array_equal(batch.quat[-1], fast.quat)
+    assert batch.gyro_bias.shape == (t.size, 3)
+    np.testing.assert_array_equal(batch.gyro_bias[-1], fast.gyro_bias)
+
+
+def test_sensor_switches_through_all_combinations():
+    t, gyr, acc, mag = synthetic(seed=2)
+    combos = [c for r in (1, 2, 3) for c in itertools.combinations(("gyr", "acc", "mag"), r)]
+    assert len(combos) == 7
+    # switch every ~35 rows; end with all on
+    switches = {}
+    for i, combo in enumerate(combos + [("gyr", "acc", "mag")]):
+        switches[20 + 35 * i] = {s: (s in combo) for s in ("gyr", "acc", "mag")}
+    for variant in ("default", "course", "bias_heading"):
+        _run_both(SETTINGS[variant], t, gyr, acc, mag, switches)
+
+
+def test_starts_with_partial_sensor_sets():
+    t, gyr, acc, mag = synthetic(seed=3, duration_s=2.0)
+    for sensors in (("gyr",), ("acc",), ("mag",), ("gyr", "mag"), ("acc", "mag")):
+        ref = OrientationEKF(SETTINGS["bias_heading"], sensors)
+        fast = FastEKF(SETTINGS["bias_heading"], sensors)
+        for k in range(t.size):
+            args = (_sample(gyr[k]), _sample(acc[k]), _sample(mag[k]))
+            ref.step(t[k], *args)
+            fast.step(t[k], *args)
+            _compare(ref, fast, f"{sensors} row {k}")
+
+
+def test_settings_change_and_reset_and_align_heading():
+    t, gyr, acc, mag = synthetic(seed=4, duration_s=3.0)
+    ref = OrientationEKF(SETTINGS["bias_heading"])
+    fast = FastEKF(SETTINGS["bias_heading"])
+    half = t.size // 2
+    for k in range(t.size):
+        if k == half:
+            for est in (ref, fast):
+                est.set_settings(SETTINGS["course"])      # n: 7 -> 4
+                est.align_heading(quat.from_euler(1.0, 0.0, 0.0))
+        if k == half + 40:
+            for est in (ref, fast):
+                est.set_settings(SETTINGS["gated"])       # n: 4 -> 7
+        if k == half + 80:
+            for est in (ref, fast):
+                est.reset()
+        args = (_sample(gyr[k]), _sample(acc[k]), _sample(mag[k]))
+        ref.step(t[k], *args)
+        fast.step(t[k], *args)
+        _compare(ref, fast, f"row {k}")
+    assert fast.cov.shape == ref.cov.shape == (7, 7)
+
+
+def test_snapshot_restore_continues_exactly():
+    t, gyr, acc, mag = synthetic(seed=5, duration_s=4.0)
+    fast = FastEKF(SETTINGS["bias_heading"])
+    half = t.size // 2
+    fast.run_batch(t[:half], gyr[:half], acc[:half], mag[:half])
+    snap = fast.snapshot()
+    first = fast.run_batch(t[half:], gyr[half:], acc[half:], mag[half:])
+    end_cov = fast.cov
+    fast.set_settings(SETTINGS["course"])
+    fast.set_enabled(mag=False)
+    fast.restore(snap)
+    assert fast.settings is SETTINGS["bias_heading"] and fast.enabled["mag"]
+    again = fast.run_batch(t[half:], gyr[half:], acc[half:], mag[half:])
+    np.testing.assert_array_equal(again.quat, first.quat)
+    np.testing.assert_array_equal(again.at_rest, first.at_rest)
+    np.testing.assert_array_equal(fast.cov, end_cov)
+    # the snapshot is a copy: continuing did not change it
+    fast.restore(snap)
+    assert fast.time == t[half - 1]
+
+
+def test_interface_names_status_and_factory():
+    assert FastEKF(PRESETS["course"]).name == "course"
+    assert FastEKF(PRESETS["default"]).name == "ekf"
+    assert FastEKF("course").name == "course"
+    est = make_estimator("course")
+    assert isinstance(est, FastEKF) and est.name == "course"
+    assert isinstance(make_estimator("ekf"), FastEKF)
+    fast = FastEKF()
+    assert fast.time is None and not fast.initialised
+    np.testing.assert_array_equal(fast.quat, [1.0, 0.0, 0.0, 0.0])
+    assert fast.cov.shape == OrientationEKF().cov.shape
+    st = fast.step(0.0, acc=[0.0, 0.0, 9.81], mag=[0.0, 20.0, -40.0])
+    assert isinstance(st, Status) and fast.initialised
+    frozen = st.frozen()
+    expected = OrientationEKF().step(0.0, acc=[0.0, 0.0, 9.81], mag=[0.0, 20.0, -40.0])
+    assert type(frozen) is Status and repr(frozen) == repr(expected)   # repr: NaN fields
+    fast.update_acc(0.01, [0.0, 0.0, 30.0])   # far beyond any acc gate
+    assert st.acc_rejected and not frozen.acc_rejected   # the live view follows the filter
+
+
+def test_filter_batch_uses_compiled_loop():
+    t, gyr, acc, mag = synthetic(seed=6, duration_s=2.0)
+    fast_result = filter_batch(t, gyr, acc, mag, settings=SETTINGS["bias_heading"])
+    slow_result = filter_batch(t, gyr, acc, mag, settings=SETTINGS["bias_heading"], fast=False)
+    assert isinstance(fast_result, BatchResult) and fast_result.gyro_bias is not None
+    np.testing.assert_allclose(fast_result.quat, slow_result.quat, rtol=0, atol=TOL)
+    np.testing.assert_array_equal(fast_result.acc_rejected, slow_result.acc_rejected)
+    np.testing.assert_array_equal(fast_result.at_rest, slow_result.at_rest)
+
+
+def load_log(path, limit_rows: int):
+    """Rows of a phone log: TAB-separated `t_ms TAG v1 v2 v3 [v4]`; rows = distinct times, sorted,
+    samples at equal times fed GYR, ACC, MAG."""
+    rows: dict[int, dict[str, list[float]]] = {}
+    with open(path) as f:
+        for line in f:
+            parts = line.split("\t")
+            if len(parts) >= 5 and parts[1] in ("GYR", "ACC", "MAG"):
+                rows.setdefault(int(parts[0]), {})[parts[1]] = [float(v) for v in parts[2:5]]
+    times = sorted(rows)[:limit_rows]
+    t = np.array(times) / 1000.0
+    arrays = [np.array([rows[k].get(tag, [np.nan] * 3) for k in times])
+              for tag in ("GYR", "ACC", "MAG")]
+    return t, *arrays
+
+
+@pytest.mark.shared
+def test_real_log_matches_reference(realphone_dir):
+    path = realphone_dir / "tsrt14_lab2_rotation.txt"
+    if not path.exists():
+        pytest.skip(f"{path} not found")
+    t, gyr, acc, mag = load_log(path, 700)
+    assert np.all(np.diff(t) > 0)
+    for settings in (PRESETS["default"], PRESETS["course"], SETTINGS["bias_heading"]):
+        ref, fast, out = _run_both(settings, t, gyr, acc, mag)
+        batch = FastEKF(settings).run_batch(t, gyr, acc, mag)
+        np.testing.assert_array_equal(batch.quat, out)
