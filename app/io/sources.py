@@ -279,3 +279,49 @@ def demo_source(speed: float = 1.0) -> LogFileSource:
     if not DEMO_SESSION.exists():
         raise LogError(f"{DEMO_SESSION}: demo session missing")
     return LogFileSource(DEMO_SESSION, speed=speed, loop=True)
+
+
+class DemoOrPhoneSource(Source):
+    """The demo session, played while the TCP server listens; the phone takes over as soon as it
+    connects (the demo stops), so `--demo` still shows where to point the phone."""
+
+    def __init__(self, demo: Source, phone: TcpSource) -> None:
+        self.demo = demo
+        self.phone = phone
+        self.phone_active = False
+
+    @property
+    def kind(self) -> str:  # type: ignore[override]
+        return "tcp" if self.phone_active else self.demo.kind
+
+    def start(self) -> None:
+        self.phone.start()
+        self.demo.start()
+
+    def stop(self) -> None:
+        self.demo.stop()
+        self.phone.stop()
+
+    def read(self, timeout: float = 0.05) -> list[Chunk | SourceEvent]:
+        if self.phone_active:
+            return self.phone.read(timeout)
+        incoming = self.phone.read(0.0)
+        if any(isinstance(x, Chunk) or x.kind == "connected" for x in incoming):
+            # The phone's "connected" event makes the engine restart its time base.
+            self.phone_active = True
+            self.demo.stop()
+            return incoming
+        return incoming + self.demo.read(timeout)
+
+    def control(self, command: Any) -> None:
+        if not self.phone_active:
+            self.demo.control(command)
+
+    def info(self) -> dict[str, Any]:
+        if self.phone_active:
+            return self.phone.info()
+        info = dict(self.demo.info())
+        phone = self.phone.info()
+        info["port"] = phone["port"]
+        info["listen_addresses"] = phone["listen_addresses"]
+        return info

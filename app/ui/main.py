@@ -59,8 +59,7 @@ def _load_filter_settings(path: str | None) -> Any:
 def make_source(args: argparse.Namespace) -> Any:
     """The engine's source for these arguments: a replayed log, the demo, or the TCP server.
 
-    --demo returns the demo source only (the engine takes one source); see build_engine for
-    how listening is kept alongside when the engine supports it.
+    --demo plays the demo while the TCP server listens; a phone that connects takes over.
     """
     from app.io import sources
     replay = getattr(args, "replay", None)
@@ -72,7 +71,9 @@ def make_source(args: argparse.Namespace) -> Any:
             raise _usage_error("--speed must be positive")
         return sources.LogFileSource(replay, speed=speed, loop=bool(getattr(args, "loop", False)))
     if getattr(args, "demo", False):
-        return sources.demo_source()
+        return sources.DemoOrPhoneSource(
+            sources.demo_source(),
+            sources.TcpSource(getattr(args, "host", "0.0.0.0"), int(getattr(args, "port", DEFAULT_PORT))))
     return sources.TcpSource(getattr(args, "host", "0.0.0.0"),
                              int(getattr(args, "port", DEFAULT_PORT)))
 
