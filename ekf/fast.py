@@ -106,7 +106,16 @@ _ST_MAG_EXPECTED = 100
 _ST_MAG_GATE = 101
 _ST_MAG_NIS = 102
 _ST_MAG_DIP_DEG = 103
-_S_WORK = 104               # scratch for the compiled functions (not state)
+_S_ACC_CARRIED = 104        # (3) low-passed specific force, carried along by the gyro [m/s^2]
+_S_ACC_CARRIED_VALID = 107
+_S_ACC_CARRIED_T = 108      # time of the latest blended accelerometer sample [s]
+_S_MAG_PASSING_SINCE = 109  # readings have passed the gates since this time [s]; NaN = rejecting
+_S_ACC_UPDATED_T = 110      # time of the latest accelerometer update [s]
+_S_MAG_UPDATED_T = 111      # time of the latest magnetometer update [s]
+_S_MAG_CANDIDATE_NORM = 112 # strength of the field seen while rejecting [uT]
+_S_MAG_CANDIDATE_DIP = 113  # its dip [deg]
+_S_REST_UPDATED_T = 114     # time of the latest zero-rate update [s]
+_S_WORK = 116               # scratch for the compiled functions (not state)
 _W_A = _S_WORK              # 21: B = P H^T (7x3, or 7 for the heading update)
 _W_B = _S_WORK + 32         # 28: A P rows (4x7), or K (7x3 or 7)
 _W_D = _S_WORK + 88         # 9: S (3x3)
@@ -147,7 +156,14 @@ _C_GYR_HOLD_S = 48
 _C_REST_GYR_THRESHOLD = 49
 _C_REST_ACC_THRESHOLD = 50
 _C_REST_MIN_DURATION = 51
-_CFG_SIZE = 52
+_C_ACC_LOWPASS_S = 52
+_C_MAG_SETTLE_S = 53
+_C_MAG_DIP_FROM_ESTIMATE = 54
+_C_GYR_SCALE_NOISE = 55
+_C_UPDATE_PERIOD = 56
+_C_GYR_RATE_BEFORE = 58
+_C_MAG_NIS_GATE = 59
+_CFG_SIZE = 60
 
 # sample kinds (the order of `step`)
 KIND_GYR = 0
@@ -189,6 +205,13 @@ def pack_settings(settings: EKFSettings) -> np.ndarray:
     c[_C_REST_GYR_THRESHOLD] = s.rest_gyr_threshold
     c[_C_REST_ACC_THRESHOLD] = s.rest_acc_threshold
     c[_C_REST_MIN_DURATION] = s.rest_min_duration
+    c[_C_ACC_LOWPASS_S] = s.acc_lowpass_s
+    c[_C_MAG_SETTLE_S] = s.mag_settle_s
+    c[_C_GYR_SCALE_NOISE] = s.gyr_scale_noise
+    c[_C_UPDATE_PERIOD] = s.update_period_s
+    c[_C_GYR_RATE_BEFORE] = float(bool(s.gyr_rate_before_sample))
+    c[_C_MAG_NIS_GATE] = s.mag_nis_gate
+    c[_C_MAG_DIP_FROM_ESTIMATE] = float(bool(s.mag_dip_from_estimate))
     return c
 
 
@@ -379,6 +402,19 @@ def _normalise(s):
 
 
 @_jit_inline
+def _flip_sign(s):
+    """reference ``_flip_sign``: q <- -q (same rotation, w >= 0); P_qb changes sign."""
+    for i in range(4):
+        s[i] = -s[i]
+    if int(s[_S_N]) == 7:
+        for i in range(4):
+            for j in range(4, 7):
+                v = -s[_S_P + 7 * i + j]
+                s[_S_P + 7 * i + j] = v
+                s[_S_P + 7 * j + i] = v
+
+
+@_jit_inline
 def _inverse3(s, src, dst):
     """dst = src^-1 (3x3, row-major in the state's scratch) by the adjugate; returns det."""
     a = s[src + 0]
@@ -504,6 +540,28 @@ def _zero_rate_update(s, c, w0, w1, w2):
 
 # ---- time update ----------------------------------------------------------------------------
 @_jit_inline
+def _carry(s, wx, wy, wz, rate, cs, sn):
+    """reference ``_carry``: turn the carried specific force into the new body frame,
+    v <- R(w T)^T v (Rodrigues; cs, sn: cosine and sine of the angle |w| T)."""
+    if rate < 1e-12:
+        return
+    kx = wx / rate
+    ky = wy / rate
+    kz = wz / rate
+    v0 = s[_S_ACC_CARRIED]
+    v1 = s[_S_ACC_CARRIED + 1]
+    v2 = s[_S_ACC_CARRIED + 2]
+    kv = kx * v0 + ky * v1 + kz * v2
+    # R^T v = v cos - (k x v) sin + k (k.v)(1 - cos)
+    cx = ky * v2 - kz * v1
+    cy = kz * v0 - kx * v2
+    cz = kx * v1 - ky * v0
+    s[_S_ACC_CARRIED] = v0 * cs - cx * sn + kx * kv * (1 - cs)
+    s[_S_ACC_CARRIED + 1] = v1 * cs - cy * sn + ky * kv * (1 - cs)
+    s[_S_ACC_CARRIED + 2] = v2 * cs - cz * sn + kz * kv * (1 - cs)
+
+
+@_jit_inline
 def _time_update_gyro_n(s, c, T, n):
     """reference ``_time_update_gyro``: q = F q, P = A P A^T + Q with A = [[F, -G], [0, I]]."""
     q0 = s[0]
@@ -529,6 +587,14 @@ def _time_update_gyro_n(s, c, T, n):
     ax = sinc * wx
     ay = sinc * wy
     az = sinc * wz
+    if s[_S_ACC_CARRIED_VALID] != 0.0 and sinc * cs != 0.0:
+        # rotation by |w| T: cos = 2 cos^2(half) - 1, sin = 2 sin(half) cos(half); with the
+        # course's F (not exact) the same exact rotation is used for the carried vector
+        if c[_C_EXACT] != 0.0:
+            _carry(s, wx, wy, wz, rate, 2.0 * cs * cs - 1.0, 2.0 * sinc * rate * cs)
+        else:
+            r = math.sqrt(wx * wx + wy * wy + wz * wz)
+            _carry(s, wx, wy, wz, r, math.cos(r * T), math.sin(r * T))
     F = ((cs, -ax, -ay, -az), (ax, cs, az, -ay), (ay, -az, cs, ax), (az, ay, -ax, cs))
     h = 0.5 * T
     G = ((h * -q1, h * -q2, h * -q3), (h * q0, h * -q3, h * q2),
@@ -547,12 +613,13 @@ def _time_update_gyro_n(s, c, T, n):
                 v -= (G[i][0] * s[P + 28 + j] + G[i][1] * s[P + 35 + j]
                       + G[i][2] * s[P + 42 + j])
             s[AP + 7 * i + j] = v
-    # G R_w G^T
+    # G R_w G^T, R_w grown by the scale-factor noise (k |w|)^2 I
     R = _C_GYR_COV
+    extra = c[_C_GYR_SCALE_NOISE] ** 2 * (wx * wx + wy * wy + wz * wz)
     for i in range(4):
-        gr0 = G[i][0] * c[R + 0] + G[i][1] * c[R + 3] + G[i][2] * c[R + 6]
-        gr1 = G[i][0] * c[R + 1] + G[i][1] * c[R + 4] + G[i][2] * c[R + 7]
-        gr2 = G[i][0] * c[R + 2] + G[i][1] * c[R + 5] + G[i][2] * c[R + 8]
+        gr0 = G[i][0] * (c[R + 0] + extra) + G[i][1] * c[R + 3] + G[i][2] * c[R + 6]
+        gr1 = G[i][0] * c[R + 1] + G[i][1] * (c[R + 4] + extra) + G[i][2] * c[R + 7]
+        gr2 = G[i][0] * c[R + 2] + G[i][1] * c[R + 5] + G[i][2] * (c[R + 8] + extra)
         for j in range(i, 4):
             v = (s[AP + 7 * i] * F[j][0] + s[AP + 7 * i + 1] * F[j][1]
                  + s[AP + 7 * i + 2] * F[j][2] + s[AP + 7 * i + 3] * F[j][3])
@@ -610,27 +677,33 @@ def _advance(s, c, t):
         return
     if dt > c[_C_MAX_DT]:
         s[_ST_USED_GYR] = 0.0
+        s[_S_ACC_CARRIED_VALID] = 0.0
         return
     if (s[_S_OMEGA_VALID] != 0.0 and s[_S_EN_GYR] != 0.0
             and t_prev - s[_S_OMEGA_T] <= c[_C_GYR_HOLD_S]):
         _time_update_gyro(s, c, dt)
         s[_ST_USED_GYR] = 1.0
+        if c[_C_EXACT] == 0.0:
+            _normalise(s)
+        elif s[0] < 0.0:
+            _flip_sign(s)
     else:
         _time_update_random_walk(s, c, dt)
         s[_ST_USED_GYR] = 0.0
-    _normalise(s)
+        _normalise(s)
 
 
 # ---- measurement updates --------------------------------------------------------------------
 @_jit
-def _acc_update(s, c, y0, y1, y2):
-    """reference ``_acc_update``: y_a = Q(q)^T g0 with the norm gate (task 8) and NIS gate."""
+def _acc_update(s, c, y0, y1, y2, norm_gate):
+    """reference ``_acc_update``: y_a = Q(q)^T g0 with the norm gate (task 8) and NIS gate;
+    y is the reading, or its carried low-pass (then without the norm gate)."""
     norm = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
     g = c[_C_G]
     s[_ST_ACC_NORM] = norm
     s[_ST_G] = g
     s[_ST_ACC_GATE] = c[_C_ACC_GATE]
-    if abs(norm - g) > c[_C_ACC_GATE]:
+    if abs(norm - g) > norm_gate:
         s[_ST_ACC_REJECTED] = 1.0
         s[_ST_USED_ACC] = 0.0
         return
@@ -670,7 +743,7 @@ def _heading_error(s, m0, m1):
 
 
 @_jit_inline
-def _mag_heading_update_n(s, c, y0, y1, y2, n):
+def _mag_heading_update_n(s, c, y0, y1, y2, n, gate):
     """reference ``_mag_heading_update``: heading pseudo-measurement, gain projected on a turn
     about world up. Returns the NIS (NaN when the field is vertical: no update)."""
     q0 = s[0]
@@ -698,6 +771,8 @@ def _mag_heading_update_n(s, c, y0, y1, y2, n):
         s[B + i] = (s[P + 7 * i] * h0 + s[P + 7 * i + 1] * h1 + s[P + 7 * i + 2] * h2
                     + s[P + 7 * i + 3] * h3)
     S = h0 * s[B] + h1 * s[B + 1] + h2 * s[B + 2] + h3 * s[B + 3] + r
+    if psi * psi / S > gate:
+        return psi * psi / S
     K = _W_B
     inv_S = 1.0 / S
     for i in range(n):
@@ -732,11 +807,11 @@ def _mag_heading_update_n(s, c, y0, y1, y2, n):
 
 
 @_jit
-def _mag_heading_update(s, c, y0, y1, y2):
+def _mag_heading_update(s, c, y0, y1, y2, gate):
     # n = 4 or 7 as a compile-time constant: fixed loops are unrolled.
     if int(s[_S_N]) == 7:
-        return _mag_heading_update_n(s, c, y0, y1, y2, 7)
-    return _mag_heading_update_n(s, c, y0, y1, y2, 4)
+        return _mag_heading_update_n(s, c, y0, y1, y2, 7, gate)
+    return _mag_heading_update_n(s, c, y0, y1, y2, 4, gate)
 
 
 @_jit
@@ -771,8 +846,14 @@ def _relearn_field(s, y0, y1, y2):
 
 
 @_jit
-def _dip_deg(s, y0, y1, y2):
-    """reference ``_dip_deg``: angle between the latest accelerometer reading and the field."""
+def _dip_deg(s, c, y0, y1, y2):
+    """reference ``_dip_deg``: angle between up and the field (from the estimate, or from the
+    latest accelerometer reading)."""
+    if c[_C_MAG_DIP_FROM_ESTIMATE] != 0.0:
+        Q = _to_matrix(s[0], s[1], s[2], s[3])
+        up = Q[6] * y0 + Q[7] * y1 + Q[8] * y2
+        ny = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
+        return math.degrees(math.acos(max(-1.0, min(1.0, up / (ny + 1e-300)))))
     if s[_S_LAST_ACC_VALID] == 0.0 or s[_ST_ACC_REJECTED] != 0.0:
         return _NAN
     a0 = s[_S_LAST_ACC]
@@ -805,7 +886,7 @@ def _mag_update(s, c, y0, y1, y2, t):
         s[_S_MAG_STRENGTH] = norm
     L_prev = s[_S_MAG_STRENGTH]
     rejected = abs(norm - L_prev) > c[_C_MAG_GATE]
-    dip = _dip_deg(s, y0, y1, y2)
+    dip = _dip_deg(s, c, y0, y1, y2)
     s[_ST_MAG_DIP_DEG] = dip
     dip_gate = c[_C_MAG_DIP_GATE_DEG]
     if not rejected and math.isfinite(dip_gate) and math.isfinite(dip):
@@ -815,17 +896,38 @@ def _mag_update(s, c, y0, y1, y2, t):
         s[_S_MAG_STRENGTH] = (1 - alpha) * L_prev + alpha * norm
     s[_ST_MAG_EXPECTED] = s[_S_MAG_STRENGTH]
     if rejected:
+        s[_S_MAG_PASSING_SINCE] = _NAN
+    elif math.isnan(s[_S_MAG_PASSING_SINCE]):
+        s[_S_MAG_PASSING_SINCE] = t
+    settling = t - s[_S_MAG_PASSING_SINCE] < c[_C_MAG_SETTLE_S]
+    if rejected or settling:
         if c[_C_MAG_ACCEPTED] != 0.0:
-            if math.isnan(s[_S_MAG_REJECTED_SINCE]):
+            # a new field is learned only when the rejected readings agree with each other
+            # (strength and dip within the gates of their own running mean) for relearn_s
+            cn = s[_S_MAG_CANDIDATE_NORM]
+            cd = s[_S_MAG_CANDIDATE_DIP]
+            if (math.isnan(s[_S_MAG_REJECTED_SINCE]) or abs(norm - cn) > c[_C_MAG_GATE]
+                    or abs(dip - cd) > dip_gate):
                 s[_S_MAG_REJECTED_SINCE] = t
-            elif t - s[_S_MAG_REJECTED_SINCE] >= c[_C_MAG_RELEARN_S]:
-                _relearn_field(s, y0, y1, y2)
+                s[_S_MAG_CANDIDATE_NORM] = norm
+                s[_S_MAG_CANDIDATE_DIP] = dip
+            else:
+                alpha = c[_C_MAG_ALPHA]
+                s[_S_MAG_CANDIDATE_NORM] = cn + alpha * (norm - cn)
+                s[_S_MAG_CANDIDATE_DIP] = cd + alpha * (dip - cd)
+                if t - s[_S_MAG_REJECTED_SINCE] >= c[_C_MAG_RELEARN_S]:
+                    _relearn_field(s, y0, y1, y2)
         s[_ST_MAG_REJECTED] = 1.0
         s[_ST_USED_MAG] = 0.0
         return
     s[_S_MAG_REJECTED_SINCE] = _NAN
+    s[_ST_MAG_REJECTED] = 0.0
+    if t - s[_S_MAG_UPDATED_T] < c[_C_UPDATE_PERIOD]:
+        s[_ST_USED_MAG] = 0.0
+        return
+    s[_S_MAG_UPDATED_T] = t
     if c[_C_HEADING_ONLY] != 0.0:
-        nis = _mag_heading_update(s, c, y0, y1, y2)
+        nis = _mag_heading_update(s, c, y0, y1, y2, c[_C_MAG_NIS_GATE])
     else:
         q0 = s[0]
         q1 = s[1]
@@ -851,8 +953,15 @@ def _mag_update(s, c, y0, y1, y2, t):
              2 * q3 * m0 - 2 * q0 * m1,
              2 * q0 * m0 + 2 * q3 * m1,
              2 * q1 * m0 + 2 * q2 * m1 + 4 * q3 * m2)
-        nis = _measurement_update_q(s, c, h, y0 - yh0, y1 - yh1, y2 - yh2, _C_MAG_COV, _INF)
+        nis = _measurement_update_q(s, c, h, y0 - yh0, y1 - yh1, y2 - yh2, _C_MAG_COV,
+                                    c[_C_MAG_NIS_GATE])
     s[_ST_MAG_NIS] = nis
+    if nis > c[_C_MAG_NIS_GATE]:
+        # an innovation the filter cannot believe: rejected, and readings must settle again
+        s[_S_MAG_PASSING_SINCE] = _NAN
+        s[_ST_MAG_REJECTED] = 1.0
+        s[_ST_USED_MAG] = 0.0
+        return
     s[_ST_MAG_REJECTED] = 0.0
     s[_ST_USED_MAG] = 1.0
 
@@ -975,7 +1084,16 @@ def _detect_rest_acc(s, c, t, y0, y1, y2):
 @_jit
 def _update_gyr(s, c, t, v0, v1, v2):
     """reference ``update_gyr``."""
-    _advance(s, c, t)
+    if c[_C_GYR_RATE_BEFORE] != 0.0 and s[_S_EN_GYR] != 0.0:
+        # the sample is the rate over the interval ending now: it drives the state up to t
+        if s[_S_OMEGA_VALID] == 0.0 or t - s[_S_OMEGA_T] <= c[_C_GYR_HOLD_S]:
+            s[_S_OMEGA] = v0
+            s[_S_OMEGA + 1] = v1
+            s[_S_OMEGA + 2] = v2
+            s[_S_OMEGA_VALID] = 1.0
+        _advance(s, c, t)
+    else:
+        _advance(s, c, t)
     if s[_S_EN_GYR] == 0.0:
         return
     s[_S_OMEGA] = v0
@@ -986,7 +1104,9 @@ def _update_gyr(s, c, t, v0, v1, v2):
     if s[_S_INITIALISED] == 0.0 and s[_S_EN_ACC] == 0.0 and s[_S_EN_MAG] == 0.0:
         _initialise(s, c, t)   # gyroscope alone: nothing absolute, start at identity (flat)
     _detect_rest_gyr(s, c, t, v0, v1, v2)
-    if int(s[_S_N]) == 7 and s[_S_INITIALISED] != 0.0 and s[_ST_AT_REST] != 0.0:
+    if (int(s[_S_N]) == 7 and s[_S_INITIALISED] != 0.0 and s[_ST_AT_REST] != 0.0
+            and t - s[_S_REST_UPDATED_T] >= c[_C_UPDATE_PERIOD]):
+        s[_S_REST_UPDATED_T] = t
         _zero_rate_update(s, c, v0, v1, v2)
 
 
@@ -1006,7 +1126,42 @@ def _update_acc(s, c, t, v0, v1, v2):
     if s[_S_INITIALISED] == 0.0:
         _initialise(s, c, t)
         return
-    _acc_update(s, c, v0, v1, v2)
+    tau = c[_C_ACC_LOWPASS_S]
+    if tau > 0.0 and s[_S_EN_GYR] != 0.0:
+        _acc_lowpass_update(s, c, t, v0, v1, v2, tau)
+    else:
+        _acc_update(s, c, v0, v1, v2, c[_C_ACC_GATE])
+
+
+@_jit
+def _acc_lowpass_update(s, c, t, v0, v1, v2, tau):
+    """reference ``_acc_lowpass_update``: every reading is blended into the carried low-pass
+    (first order, time constant tau: accelerations cancel in the average, so none is
+    dropped); at most every update_period_s the carried vector is the measurement. The
+    norm gate only flags a disturbed reading (acc_rejected) for the user."""
+    norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+    C = _S_ACC_CARRIED
+    if s[_S_ACC_CARRIED_VALID] == 0.0:
+        s[C] = v0
+        s[C + 1] = v1
+        s[C + 2] = v2
+        s[_S_ACC_CARRIED_VALID] = 1.0
+    else:
+        dt = t - s[_S_ACC_CARRIED_T]
+        alpha = dt / (tau + dt)
+        s[C] += alpha * (v0 - s[C])
+        s[C + 1] += alpha * (v1 - s[C + 1])
+        s[C + 2] += alpha * (v2 - s[C + 2])
+    s[_S_ACC_CARRIED_T] = t
+    used = 1.0
+    if t - s[_S_ACC_UPDATED_T] >= c[_C_UPDATE_PERIOD]:
+        s[_S_ACC_UPDATED_T] = t
+        _acc_update(s, c, s[C], s[C + 1], s[C + 2], _INF)
+        used = s[_ST_USED_ACC]   # the NIS gate may still refuse the averaged vector
+    s[_ST_ACC_NORM] = norm
+    s[_ST_ACC_GATE] = c[_C_ACC_GATE]
+    s[_ST_ACC_REJECTED] = 1.0 if abs(norm - c[_C_G]) > c[_C_ACC_GATE] else 0.0
+    s[_ST_USED_ACC] = used
 
 
 @_jit
@@ -1244,6 +1399,7 @@ class FastEKF:
                 s[offset] = float(bool(value))
         if not s[_S_EN_GYR]:
             s[_S_OMEGA_VALID] = 0.0
+            s[_S_ACC_CARRIED_VALID] = 0.0
         s[_ST_AT_REST] = float(bool(s[_ST_AT_REST]) and bool(s[_S_EN_GYR] or s[_S_EN_ACC]))
 
     def set_settings(self, settings: EKFSettings) -> None:
@@ -1288,6 +1444,10 @@ class FastEKF:
         else:
             s[_S_MAG_STRENGTH] = math.nan
         s[_S_MAG_REJECTED_SINCE] = math.nan
+        s[_S_MAG_PASSING_SINCE] = -math.inf
+        s[_S_ACC_UPDATED_T] = -math.inf
+        s[_S_MAG_UPDATED_T] = -math.inf
+        s[_S_REST_UPDATED_T] = -math.inf
         s[_S_LAST_MOTION_T] = -math.inf
         fresh = Status(g=st.g, acc_gate=st.acc_gate, mag_gate=st.mag_gate)
         s[_S_STATUS:_S_STATUS + 15] = [float(getattr(fresh, name)) for name in _STATUS_FIELDS]

@@ -12,6 +12,13 @@ the sample's time with the most recent gyroscope sample (eq. 6), then uses the s
 * accelerometer (task 6):   y_a = Q(q)^T g0,  H = [dQ/dq_i^T g0]_i,  gate |‖y_a‖ - g| (task 8)
 * magnetometer (task 9):    y_m = Q(q)^T m0,  H = [dQ/dq_i^T m0]_i,  AR(1) gate on ‖y_m‖ (task 11)
 * after each step:          q <- q / ‖q‖ (w >= 0),  P <- J P J^T with J the Jacobian of that map
+                            (not needed after an exact time update: exp(T/2 S(w)) keeps ‖q‖)
+
+Extensions beyond the course (each a setting, off in the "course" preset; see ekf.settings):
+gyroscope bias in the state with a zero-rate update at rest (model 4c), gyroscope scale noise,
+the sample convention of the gyroscope, an accelerometer low-pass that the gyroscope carries
+along with the phone, a heading-only magnetometer update with strength, dip and settling gates,
+re-learning of a changed field, and a cap on how often the slow updates run.
 
 Covariance updates use the Joseph form P = (I - K H) P (I - K H)^T + K R K^T, which stays
 symmetric positive semi-definite and is valid for any gain (the heading-only gain included).
@@ -39,7 +46,9 @@ SENSORS = ("gyr", "acc", "mag")
 class Status:
     """What the filter did with its latest samples: the lights and their reasons.
 
-    Flags keep the decision of the latest sample of their sensor.
+    Flags keep the decision of the latest sample of their sensor. With the accelerometer
+    low-pass (``acc_lowpass_s`` > 0) every reading is averaged, and ``acc_rejected`` only says
+    that the latest reading was outside the norm gate (disturbed).
     """
 
     acc_rejected: bool = False
@@ -164,6 +173,7 @@ class OrientationEKF:
                 self._enabled[name] = bool(value)
         if not self._enabled["gyr"]:
             self._omega = None
+            self._acc_carried = None   # nothing carries the low-pass along without the gyro
         self.status.at_rest = self.status.at_rest and (self._enabled["gyr"] or self._enabled["acc"])
 
     def set_settings(self, settings: EKFSettings) -> None:
@@ -201,7 +211,15 @@ class OrientationEKF:
         self._last_mag_t = -math.inf
         self._m0 = None if s.m0 is None else np.asarray(s.m0, dtype=float)
         self._mag_strength = math.nan if self._m0 is None else float(np.linalg.norm(self._m0))
-        self._mag_rejected_since = math.nan
+        self._mag_rejected_since = math.nan      # rejected readings agree since then
+        self._mag_candidate_norm = math.nan      # their running strength [uT] ...
+        self._mag_candidate_dip = math.nan       # ... and dip [deg]
+        self._mag_passing_since = -math.inf      # readings pass the gates since then
+        self._acc_carried: np.ndarray | None = None   # low-passed specific force [m/s^2]
+        self._acc_carried_t = math.nan
+        self._acc_updated_t = -math.inf          # latest update times (update_period_s)
+        self._mag_updated_t = -math.inf
+        self._rest_updated_t = -math.inf
         self._acc_lowpass: np.ndarray | None = None
         self._last_motion_t = -math.inf
         self._still_since_t = math.inf
@@ -227,17 +245,25 @@ class OrientationEKF:
     # sample entry points
     def update_gyr(self, t: float, gyr: ArrayLike) -> Status:
         """A gyroscope sample [rad/s, sensor frame] at time t [s]: it drives the time update
-        from t until the next sample (eq. 5: w piecewise constant)."""
+        from t until the next sample (eq. 5: w piecewise constant), or, with
+        ``gyr_rate_before_sample``, from the previous sample up to t."""
+        omega = _as3(gyr)
+        s = self.settings
+        if s.gyr_rate_before_sample and self._enabled["gyr"]:
+            # The sample is the rate over the interval that ends now: it drives the state to t.
+            if self._omega is None or t - self._omega_t <= s.gyr_hold_s:
+                self._omega = omega
         self._advance(t)
         if not self._enabled["gyr"]:
             return self.status
-        omega = _as3(gyr)
         self._omega = omega
         self._omega_t = t
         if not self._initialised and not (self._enabled["acc"] or self._enabled["mag"]):
             self._initialise(t)   # gyroscope alone: nothing absolute, start at identity (flat)
         self._detect_rest_gyr(t, omega)
-        if self._n == 7 and self._initialised and self.status.at_rest:
+        if (self._n == 7 and self._initialised and self.status.at_rest
+                and t - self._rest_updated_t >= s.update_period_s):
+            self._rest_updated_t = t
             self._zero_rate_update(omega)
         return self.status
 
@@ -253,7 +279,11 @@ class OrientationEKF:
         if not self._initialised:
             self._initialise(t)
             return self.status
-        self._acc_update(y)
+        if self.settings.acc_lowpass_s > 0.0 and self._enabled["gyr"]:
+            # Only the gyroscope can carry the average along; without it, the reading itself.
+            self._acc_lowpass_update(t, y)
+        else:
+            self._acc_update(y, self.settings.acc_gate)
         return self.status
 
     def update_mag(self, t: float, mag: ArrayLike) -> Status:
@@ -304,15 +334,20 @@ class OrientationEKF:
         if dt > self.settings.max_dt:
             # A pause or a new connection: keep the orientation, do not integrate the gap.
             self.status.used_gyr = False
+            self._acc_carried = None
             return
         omega = self._omega
         if omega is not None and self._enabled["gyr"] and t_prev - self._omega_t <= self.settings.gyr_hold_s:
             self._time_update_gyro(omega, dt)
             self.status.used_gyr = True
+            if not self.settings.exact_discretisation:
+                self._normalise()
+            elif self._x[0] < 0:
+                self._flip_sign()
         else:
             self._time_update_random_walk(dt)
             self.status.used_gyr = False
-        self._normalise()
+            self._normalise()
 
     def _time_update_gyro(self, omega_measured: np.ndarray, T: float) -> None:
         """Eq. (6): q_k = F(w) q_{k-1} + G(q) v with F = I + T/2 S(w), G = T/2 S̄(q)."""
@@ -329,8 +364,12 @@ class OrientationEKF:
             F = math.cos(half) * np.eye(4) + sinc * quat.S_omega(omega)
         else:
             F = np.eye(4) + 0.5 * T * quat.S_omega(omega)
+        if self._acc_carried is not None:
+            self._carry(omega, T)
         G = 0.5 * T * quat.S_bar(q)
-        Rw = np.asarray(s.gyr_noise_cov, float)
+        # R_w, grown in fast turns by the scale-factor uncertainty: + (k |w|)^2 I
+        Rw = np.asarray(s.gyr_noise_cov, float) + np.eye(3) * (s.gyr_scale_noise ** 2
+                                                               * float(omega @ omega))
         A = np.eye(n)
         A[:4, :4] = F
         Qn = np.zeros((n, n))
@@ -340,6 +379,18 @@ class OrientationEKF:
             Qn[4:, 4:] = np.eye(3) * (s.gyro_bias_random_walk ** 2 * T)
         self._x[:4] = F @ q
         self._P = A @ self._P @ A.T + Qn
+
+    def _carry(self, omega: np.ndarray, T: float) -> None:
+        """Turn the carried specific force into the new body frame: the body turned by |w| T
+        about w, so a fixed vector turns by the opposite, v <- R(w T)^T v (Rodrigues)."""
+        rate = float(np.linalg.norm(omega))
+        if rate < 1e-12:
+            return
+        k = omega / rate
+        v = self._acc_carried
+        angle = rate * T
+        cs, sn = math.cos(angle), math.sin(angle)
+        self._acc_carried = v * cs - np.cross(k, v) * sn + k * float(k @ v) * (1 - cs)
 
     def _time_update_random_walk(self, T: float) -> None:
         """No gyroscope: q stays; P grows as if w were white noise with the given intensity."""
@@ -352,13 +403,15 @@ class OrientationEKF:
 
     # ---------------------------------------------------------------------------------------
     # measurement updates
-    def _acc_update(self, y: np.ndarray) -> None:
+    def _acc_update(self, y: np.ndarray, norm_gate: float) -> None:
+        """Task 6 with the task-8 gate: y_a = Q(q)^T g0 + e_a, skipped when |‖y‖ - g| > gate
+        or (optionally) when the NIS exceeds acc_nis_gate."""
         s = self.settings
         norm = float(np.linalg.norm(y))
         self.status.acc_norm = norm
         self.status.g = s.g
         self.status.acc_gate = s.acc_gate
-        if abs(norm - s.g) > s.acc_gate:
+        if abs(norm - s.g) > norm_gate:
             # Task 8: a specific force is present; the model y_a = Q^T g0 does not hold.
             self.status.acc_rejected = True
             self.status.used_acc = False
@@ -377,6 +430,31 @@ class OrientationEKF:
         self.status.acc_rejected = not accepted
         self.status.used_acc = accepted
 
+    def _acc_lowpass_update(self, t: float, y: np.ndarray) -> None:
+        """The accelerometer through a first-order low-pass (time constant acc_lowpass_s) that
+        the gyroscope carries along with the phone (see _carry): gravity stays in the average,
+        accelerations cancel. Every reading is averaged; at most every update_period_s the
+        average is the measurement (without the norm gate). The norm gate only flags a
+        disturbed reading for the user."""
+        s = self.settings
+        norm = float(np.linalg.norm(y))
+        if self._acc_carried is None:
+            self._acc_carried = y.copy()
+        else:
+            dt = t - self._acc_carried_t
+            alpha = dt / (s.acc_lowpass_s + dt)
+            self._acc_carried = self._acc_carried + alpha * (y - self._acc_carried)
+        self._acc_carried_t = t
+        used = True
+        if t - self._acc_updated_t >= s.update_period_s:
+            self._acc_updated_t = t
+            self._acc_update(self._acc_carried, math.inf)
+            used = self.status.used_acc   # the NIS gate may still refuse the average
+        self.status.acc_norm = norm
+        self.status.acc_gate = s.acc_gate
+        self.status.acc_rejected = abs(norm - s.g) > s.acc_gate
+        self.status.used_acc = used
+
     def _mag_update(self, y: np.ndarray, t: float) -> None:
         s = self.settings
         norm = float(np.linalg.norm(y))
@@ -394,33 +472,59 @@ class OrientationEKF:
         if s.mag_strength_update == "always" or not rejected:
             self._mag_strength = (1 - s.mag_alpha) * L_prev + s.mag_alpha * norm
         self.status.mag_expected = self._mag_strength
+        # After a rejection, readings must pass for mag_settle_s before they are used again.
         if rejected:
+            self._mag_passing_since = math.nan
+        elif math.isnan(self._mag_passing_since):
+            self._mag_passing_since = t
+        settling = t - self._mag_passing_since < s.mag_settle_s
+        if rejected or settling:
             if s.mag_strength_update == "accepted":
-                if math.isnan(self._mag_rejected_since):
+                # A new field is learned only when the rejected readings agree with each
+                # other (strength and dip within the gates of their running mean) for
+                # mag_relearn_s: a changed field, not a magnet that moves with the phone.
+                cn, cd = self._mag_candidate_norm, self._mag_candidate_dip
+                if (math.isnan(self._mag_rejected_since) or abs(norm - cn) > s.mag_gate
+                        or abs(dip - cd) > s.mag_dip_gate_deg):
                     self._mag_rejected_since = t
-                elif t - self._mag_rejected_since >= s.mag_relearn_s:
-                    # The field has been different for long: it is the new normal.
-                    self._relearn_field(y)
+                    self._mag_candidate_norm, self._mag_candidate_dip = norm, dip
+                else:
+                    self._mag_candidate_norm = cn + s.mag_alpha * (norm - cn)
+                    self._mag_candidate_dip = cd + s.mag_alpha * (dip - cd)
+                    if t - self._mag_rejected_since >= s.mag_relearn_s:
+                        self._relearn_field(y)
             self.status.mag_rejected = True
             self.status.used_mag = False
             return
         self._mag_rejected_since = math.nan
+        self.status.mag_rejected = False
+        if t - self._mag_updated_t < s.update_period_s:
+            self.status.used_mag = False
+            return
+        self._mag_updated_t = t
         q = self._x[:4]
         R = np.asarray(s.mag_noise_cov, float)
         if s.mag_heading_only:
-            nis = self._mag_heading_update(y, R)
+            nis = self._mag_heading_update(y, R, s.mag_nis_gate)
         else:
             m0 = self._m0
             y_hat = quat.to_matrix(q).T @ m0
             H = np.zeros((3, self._n))
             for i, dQi in enumerate(quat.dQ_dq(q)):
                 H[:, i] = dQi.T @ m0
-            nis = self._update(y - y_hat, H, R)
+            nis = self._update(y - y_hat, H, R, gate=s.mag_nis_gate)
         self.status.mag_nis = nis
+        if nis > s.mag_nis_gate:
+            # An innovation the filter cannot believe: rejected, and readings must settle again.
+            self._mag_passing_since = math.nan
+            self.status.mag_rejected = True
+            self.status.used_mag = False
+            return
         self.status.mag_rejected = False
         self.status.used_mag = True
 
-    def _mag_heading_update(self, y: np.ndarray, R: np.ndarray) -> float:
+    def _mag_heading_update(self, y: np.ndarray, R: np.ndarray,
+                            gate: float = math.inf) -> float:
         """Footnote 2: use only the field's horizontal direction, and only turn about up.
 
         Pseudo-measurement: the heading error psi = atan2(-m_E, m_N) of the reading rotated to
@@ -441,6 +545,8 @@ class OrientationEKF:
         r = float(np.trace(R)) / 3.0 / horizontal_sq
         P = self._P
         S = float((H @ P @ H.T)[0, 0]) + r
+        if psi * psi / S > gate:
+            return psi * psi / S
         K = (P @ H.T) / S
         # Keep only the component of the quaternion correction along a turn about up:
         # d q / d delta = 1/2 (0,0,0,1) ⊗ q.
@@ -477,6 +583,12 @@ class OrientationEKF:
         H[:, 4:7] = np.eye(3)
         R = np.eye(3) * self.settings.rest_rate_noise_std ** 2
         self._update(omega - self._x[4:7], H, R)
+
+    def _flip_sign(self) -> None:
+        """q <- -q: the same rotation with w >= 0; the q-bias covariance changes sign."""
+        self._x[:4] = -self._x[:4]
+        self._P[:4, 4:] = -self._P[:4, 4:]
+        self._P[4:, :4] = -self._P[4:, :4]
 
     def _normalise(self) -> None:
         """q <- q/|q| with w >= 0, and P <- J P J^T with J = d(q/|q|)/dq = (I - q q^T/|q|^2)/|q|."""
@@ -570,6 +682,12 @@ class OrientationEKF:
         self._mag_rejected_since = math.nan
 
     def _dip_deg(self, y: np.ndarray) -> float:
+        """Angle between up and the field [deg]: up from the estimate, or from the latest
+        accelerometer reading (NaN when there is none or it was disturbed)."""
+        if self.settings.mag_dip_from_estimate:
+            up = float(quat.to_matrix(self._x[:4])[2] @ y)
+            c = up / (np.linalg.norm(y) + 1e-300)
+            return math.degrees(math.acos(max(-1.0, min(1.0, c))))
         a = self._last_acc
         if a is None or self.status.acc_rejected:
             return math.nan

@@ -40,6 +40,11 @@ SETTINGS = {
         estimate_gyro_bias=True, mag_heading_only=False, exact_discretisation=False,
         mag_strength_update="accepted", mag_relearn_s=1.0, acc_nis_gate=7.8,
         mag_dip_gate_deg=4.0),
+    # the low-pass with the course's discretisation and sample convention, every sample updated,
+    # the NIS gate on the averaged accelerometer and the accelerometer-based dip
+    "lowpass_course_timing": PRESETS["default"].with_changes(
+        exact_discretisation=False, gyr_rate_before_sample=False, update_period_s=0.0,
+        acc_nis_gate=7.8, mag_dip_from_estimate=False, mag_relearn_s=1.0, mag_settle_s=0.2),
 }
 
 
