@@ -8,7 +8,8 @@ On one BROAD trial (default: 01_undisturbed_slow_rotation_A, 285.7 Hz, GYR/ACC/M
              per row, and the readable reference (a slice of the trial: it is slow).
 
 Every figure is the best of `--repeats` runs (the machine may be shared; --cpu-time measures process
-CPU time instead of wall time). Targets: batch >= 2.3 M rows/s, streaming >= 200 000 rows/s.
+CPU time instead of wall time). Targets: batch >= 1.0 x VQF's updateBatch in the same run (timed
+in alternation, so load from other processes hits both alike), streaming >= 200 000 rows/s.
 
     .venv/bin/python benchmarks/speed.py [--trial PATH] [--repeats 7] [--cpu-time]
 """
@@ -16,6 +17,7 @@ CPU time instead of wall time). Targets: batch >= 2.3 M rows/s, streaming >= 200
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -96,19 +98,28 @@ def main(argv: list[str] | None = None) -> int:
     results["ekf.filter_batch (default preset)"] = n / dt
     dt = best_time(lambda: ekf.filter_batch(t, gyr, acc, mag, estimator="course"), args.repeats)
     results["ekf.filter_batch (course preset)"] = n / dt
-    # model 4c with the heading-only magnetometer update: the heaviest configuration (n = 7)
-    heavy = ekf.PRESETS["default"].with_changes(estimate_gyro_bias=True, mag_heading_only=True)
-    dt = best_time(lambda: ekf.filter_batch(t, gyr, acc, mag, settings=heavy), args.repeats)
-    results["ekf.filter_batch (default + gyro bias + heading-only mag)"] = n / dt
+    # the same filter with every slow update run on every sample: what update_period_s saves
+    every = ekf.PRESETS["default"].with_changes(update_period_s=0.0)
+    dt = best_time(lambda: ekf.filter_batch(t, gyr, acc, mag, settings=every), args.repeats)
+    results["ekf.filter_batch (default, update_period_s=0)"] = n / dt
     try:
         import vqf
     except ImportError:
         vqf = None
+    pair_ratios: list[float] = []
     if vqf is not None:
         Ts = float((t[-1] - t[0]) / (n - 1))
         g, a, m = (np.ascontiguousarray(x) for x in (gyr, acc, mag))
-        dt = best_time(lambda: vqf.VQF(Ts).updateBatch(g, a, m), args.repeats)
-        results["vqf.VQF.updateBatch (C++)"] = n / dt
+        # ours and VQF's batch call in alternation: each pair sees the same machine load
+        ours_best = vqf_best = math.inf
+        for _ in range(args.repeats):
+            ours = best_time(lambda: ekf.filter_batch(t, gyr, acc, mag), 1)
+            theirs = best_time(lambda: vqf.VQF(Ts).updateBatch(g, a, m), 1)
+            pair_ratios.append(theirs / ours)
+            ours_best, vqf_best = min(ours_best, ours), min(vqf_best, theirs)
+        results["ekf.filter_batch (default preset)"] = n / min(ours_best, n / results[
+            "ekf.filter_batch (default preset)"])
+        results["vqf.VQF.updateBatch (C++)"] = n / vqf_best
         dt = best_time(lambda: vqf.offlineVQF(g, a, m, Ts, None), args.repeats)
         results["vqf.offlineVQF (C++)"] = n / dt
 
@@ -173,14 +184,17 @@ def main(argv: list[str] | None = None) -> int:
     stream = results["FastEKF.step per row (Python loop)"]
     if vqf is not None:
         print(f"filter_batch / VQF.updateBatch: "
-              f"{batch / results['vqf.VQF.updateBatch (C++)']:.2f}x; "
+              f"{batch / results['vqf.VQF.updateBatch (C++)']:.2f}x (best of each); "
+              f"median of {len(pair_ratios)} alternating pairs {np.median(pair_ratios):.2f}x; "
               f"/ offlineVQF: {batch / results['vqf.offlineVQF (C++)']:.2f}x")
     if imufusion is not None:
         print(f"FastEKF.step / imufusion.Ahrs.update: "
               f"{stream / results['imufusion.Ahrs.update per row (C)']:.2f}x")
-    print(f"targets: batch >= 2.3 M rows/s: {batch / 1e6:.2f} "
-          f"({'met' if batch >= 2.3e6 else 'NOT met'}); streaming >= 200 000 rows/s: "
-          f"{stream:.0f} ({'met' if stream >= 2e5 else 'NOT met'})")
+    if vqf is not None:
+        ratio = float(np.median(pair_ratios))
+        print(f"targets: filter_batch >= 1.0 x VQF.updateBatch: {ratio:.2f}x "
+              f"({'met' if ratio >= 1.0 else 'NOT met'}); ", end="")
+    print(f"streaming >= 200 000 rows/s: {stream:.0f} ({'met' if stream >= 2e5 else 'NOT met'})")
     return 0
 
 
