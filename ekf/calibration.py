@@ -176,22 +176,33 @@ class CalibrationResult:
                          + f") uT ENU   |m0| = {self.field_strength:.3f} uT")
         return "\n".join(lines)
 
-    def to_settings(self, base: "EKFSettings | None" = None) -> "EKFSettings":
-        """`base` (default: the "default" preset) with g, m0, gyr_bias and the three noise
-        covariances replaced by the measured ones; fields of missing sensors stay as in `base`."""
+    def to_settings(self, base: "EKFSettings | None" = None,
+                    replace_noise: bool | None = None) -> "EKFSettings":
+        """`base` (default: the "default" preset) with g, m0 and gyr_bias replaced by the
+        measured ones, and the three noise covariances too when `replace_noise` (task 2).
+
+        replace_noise None: only for the plain course model (no accelerometer low-pass). The
+        default preset's covariances are tuning values that absorb model errors (the averaged
+        accelerometer, the heading pseudo-measurement), far above the sensors' own noise, so
+        measured noise would make it overconfident. Fields of missing sensors stay as in `base`."""
         from ekf.settings import PRESETS
 
         settings = PRESETS["default"] if base is None else base
+        if replace_noise is None:
+            replace_noise = settings.acc_lowpass_s <= 0.0
         changes: dict[str, Any] = {}
         if self.acc is not None:
             changes["g"] = float(self.g)
-            changes["acc_noise_cov"] = self.acc.cov.tolist()
+            if replace_noise:
+                changes["acc_noise_cov"] = self.acc.cov.tolist()
         if self.gyr is not None:
             changes["gyr_bias"] = tuple(float(v) for v in self.gyr_bias)
-            changes["gyr_noise_cov"] = self.gyr.cov.tolist()
+            if replace_noise:
+                changes["gyr_noise_cov"] = self.gyr.cov.tolist()
         if self.mag is not None:
             changes["m0"] = tuple(float(v) for v in self.m0)
-            changes["mag_noise_cov"] = self.mag.cov.tolist()
+            if replace_noise:
+                changes["mag_noise_cov"] = self.mag.cov.tolist()
         return replace(settings, **changes)
 
     def to_dict(self) -> dict[str, Any]:

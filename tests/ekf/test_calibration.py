@@ -107,6 +107,21 @@ def test_to_settings_replaces_calibrated_fields_only(flat_rest):
     assert result.to_settings().estimate_gyro_bias == PRESETS["default"].estimate_gyro_bias
 
 
+def test_default_preset_keeps_its_tuned_noise(flat_rest):
+    """The default preset's covariances are tuning values (far above sensor noise): calibration
+    sets g, m0 and the bias but keeps them, unless asked to replace them."""
+    result = calibrate(flat_rest.acc.values, flat_rest.gyr.values, flat_rest.mag.values)
+    default = PRESETS["default"]
+    settings = result.to_settings()
+    assert settings.acc_noise_cov == default.acc_noise_cov
+    assert settings.gyr_noise_cov == default.gyr_noise_cov
+    assert settings.mag_noise_cov == default.mag_noise_cov
+    assert settings.g == pytest.approx(result.g) and settings.m0 == tuple(result.m0)
+    assert settings.gyr_bias == tuple(result.gyr_bias)
+    forced = result.to_settings(replace_noise=True)
+    np.testing.assert_allclose(forced.acc_noise_cov, result.acc.cov)
+
+
 def test_histograms_match_the_samples_and_their_gaussian(flat_rest):
     result = calibrate(flat_rest.acc.values, flat_rest.gyr.values, flat_rest.mag.values)
     hists = result.histograms(bins=40)
