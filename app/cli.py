@@ -61,6 +61,8 @@ def _load_settings(path: str | None):
     import ekf
     if path is None:
         return None
+    if path in ekf.PRESETS and not Path(path).exists():
+        return ekf.PRESETS[path]   # a preset name: --settings course
     try:
         return ekf.EKFSettings.load(path)
     except FileNotFoundError:

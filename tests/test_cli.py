@@ -72,6 +72,17 @@ def test_calibrate_writes_settings_the_filter_accepts(tmp_path, capsys):
     assert saved["g"] == pytest.approx(9.81, abs=0.01)
     assert saved["gyr_bias"][0] == pytest.approx(0.01, abs=1e-3)
     assert cli.main(["filter", str(log), "--settings", str(settings), "-o", str(tmp_path / "o.csv")]) == 0
+    # onto the plain course model the measured noise goes too (task 2)
+    course_file = tmp_path / "c.json"
+    assert cli.main(["calibrate", str(log), "--settings", "course", "-o", str(course_file)]) == 0
+    course = json.loads(course_file.read_text())["settings"]
+    assert course["acc_lowpass_s"] == 0 and course["acc_noise_cov"][0][0] < 0.01
+    assert saved["acc_noise_cov"] == ekf_default_acc_cov()
+
+
+def ekf_default_acc_cov():
+    import ekf
+    return ekf.PRESETS["default"].acc_noise_cov
 
 
 def test_real_rotation_log_within_10_degrees_of_the_phone(realphone_dir):
