@@ -126,9 +126,12 @@ def run_madgwick(trial: Trial):
 
 def run_ahrs_ekf(trial: Trial):
     from ahrs.filters import EKF
-    f = EKF(gyr=trial.sync_gyr, acc=trial.sync_acc, mag=trial.sync_mag,
-            frequency=1.0 / trial.Ts, frame="ENU")
-    return trial.sync_t, Q.normalize(f.Q)
+    # ahrs' EKF in its NED mode expects the accelerometer along gravity (the negated specific
+    # force the phone reports); its quaternion is sensor -> NED, turned here into ENU. (Its ENU
+    # mode did not give a consistent frame on BROAD.)
+    f = EKF(gyr=trial.sync_gyr, acc=-trial.sync_acc, mag=trial.sync_mag,
+            frequency=1.0 / trial.Ts, frame="NED")
+    return trial.sync_t, Q.normalize(Q.multiply(NED_TO_ENU, f.Q))
 
 
 ESTIMATORS = {
@@ -166,9 +169,7 @@ def main() -> int:
     if not SHARED.is_dir():
         print(f"no shared data at {SHARED}: nothing to measure")
         return 0
-    # ahrs' EKF is left out unless asked for: with frame="ENU" its output did not match any
-    # consistent frame on BROAD (inclination error > 20 deg), so its figures would mislead.
-    names = args.only.split(",") if args.only else [n for n in ESTIMATORS if n != "ahrs-ekf"]
+    names = args.only.split(",") if args.only else list(ESTIMATORS)
     results: dict[str, dict[str, tuple]] = {}
     ekf.filter_batch(np.arange(3) * 0.01, np.zeros((3, 3)), np.tile([0, 0, 9.81], (3, 1)),
                      np.tile([0, 20, -40.0], (3, 1)))   # compile the fast path outside the timing
