@@ -4,7 +4,12 @@ One plain ``threading`` thread (no Qt) runs the filter at the sample rate; the G
 ``serve`` command) calls :meth:`Engine.poll` at its own frame rate and gets the latest
 estimates, status and stream health plus every plot sample since its previous poll, merged into
 one :class:`~app.snapshot.PlotChunk`. Neither side waits for the other; buffers are bounded.
-Commands (app/snapshot.py) go in with :meth:`Engine.send` and are applied before the next sample.
+Commands (app/snapshot.py) go in with :meth:`Engine.send` and are applied before the next chunk.
+
+The engine thread works chunk by chunk: everything the source has is parsed in one compiled call
+(:class:`~app.io.fastparse.FastLineParser`), ordered in one (:class:`~app.io.ordering.TimeOrderer`)
+and run through each estimator in one (:meth:`~app.pipeline.EstimatorRunner.feed_arrays`); the
+kernels release the GIL, so the GUI thread keeps running while the engine computes.
 """
 
 from __future__ import annotations
@@ -20,8 +25,10 @@ from typing import Any
 import numpy as np
 
 import ekf
-from app.io.ordering import TimeOrderer
-from app.io.protocol import LineParser, Sample
+from app.io import fastparse, ordering
+from app.io.fastparse import ParsedArrays
+from app.io.ordering import OrderedArrays, TimeOrderer
+from app.io.protocol import FILTER_TAGS
 from app.io.recorder import Recorder
 from app.io.sources import Source
 from app.io.tcp_server import Chunk, SourceEvent
@@ -31,6 +38,7 @@ from app.snapshot import (AlignHeading, Comparison, FilterStatus, PlotChunk, Rep
                           SetSettings, Snapshot, StreamHealth)
 
 RATE_WINDOW_MS = 2000          # per-tag rates are measured over this much phone time
+MAX_BYTES_PER_PASS = 1 << 20    # received bytes processed between two publishes (~25k lines)
 PUBLISH_IDLE_S = 0.25          # publish health at least this often without data
 WARNING_INTERVAL_S = 5.0       # one warning of a kind per this many seconds
 
@@ -99,8 +107,11 @@ class Engine:
         self.record_rows = record_rows
         self.rows_log: list[Rows] = []
         self._orderer_options = dict(orderer_options or {})
+        # The engine takes the rows at every publish; the bound only guards a pass (a sample
+        # line has >= 8 bytes, a pass about MAX_BYTES_PER_PASS) from losing rows.
         self._runner = EstimatorRunner(estimator, settings, sensors, comparisons,
-                                       collect_plot=True, max_rows=max_plot_rows)
+                                       collect_plot=True,
+                                       max_rows=max(max_plot_rows, MAX_BYTES_PER_PASS // 4))
         self._parser = self._new_parser()
         self._orderer = TimeOrderer(**self._orderer_options)
         self._commands: queue.SimpleQueue = queue.SimpleQueue()
@@ -120,8 +131,14 @@ class Engine:
         self._previous_own_euler: np.ndarray | None = None
         self._previous_phone_euler: np.ndarray | None = None
         self._last_publish = 0.0
-        self._pending_host_times: list[float] = []
-        self.latencies_s: deque[float] = deque(maxlen=200_000)   # chunk arrival -> published
+        # (chunk arrival time, orderer sequence after it): a chunk's estimates are out once
+        # the orderer holds nothing pushed up to that sequence
+        self._backlog: list[Chunk | SourceEvent] = []   # read but not yet processed
+        self._pending_host_times: deque[tuple[float, int]] = deque(maxlen=100_000)
+        # chunk arrival -> the estimates of all its samples published (time held for reordering
+        # included)
+        self.latencies_s: deque[float] = deque(maxlen=200_000)
+        self.latency_arrivals_s: deque[float] = deque(maxlen=200_000)   # their chunks' t_host
         self.error: str | None = None
         # monotonic time since which the source has had nothing for the engine (None: busy)
         self.waiting_since: float | None = None
@@ -135,6 +152,9 @@ class Engine:
         """Start the source (may raise OSError/LogError, e.g. port taken) and the thread."""
         if self._thread is not None:
             return
+        # Load the compiled kernels now (numba's on-disk cache), not at the first chunk.
+        fastparse.warm_up()
+        ordering.warm_up()
         self.source.start()
         self._thread = threading.Thread(target=self._run, name="engine", daemon=True)
         self._thread.start()
@@ -195,26 +215,47 @@ class Engine:
 
     # -- engine thread ----------------------------------------------------------------------------
 
-    def _new_parser(self) -> LineParser:
-        sink = self.recorder.write_line if self.recorder is not None else None
-        return LineParser(raw_sink=sink)
+    def _new_parser(self) -> fastparse.FastLineParser:
+        if self.recorder is None:
+            return fastparse.FastLineParser()
+        return fastparse.FastLineParser(raw_sink=self.recorder.write_line,
+                                        raw_block_sink=self.recorder.write_block)
 
     def _run(self) -> None:
         try:
             while not self._stop.is_set():
                 self._apply_commands()
-                items = self.source.read(0.02)
+                if self._backlog:
+                    items, self._backlog = self._backlog, []
+                else:
+                    items = self.source.read(0.02)
                 if items:
                     self.waiting_since = None
                 elif self.waiting_since is None:
                     self.waiting_since = time.monotonic()
                 changed = False
-                for item in items:
-                    self._apply_commands()
+                chunks: list[Chunk] = []
+                size = 0
+                for index, item in enumerate(items):
                     if isinstance(item, Chunk):
-                        self._on_chunk(item)
-                    else:
-                        self._on_event(item)
+                        chunks.append(item)
+                        size += len(item.data)
+                        if size < MAX_BYTES_PER_PASS:
+                            continue
+                        # Enough for one pass: publish, then go on with the rest (bounded work
+                        # and rows between publishes, commands between passes).
+                        self._backlog = items[index + 1:]
+                        break
+                    if chunks:
+                        self._apply_commands()
+                        self._on_chunks(chunks)
+                        chunks = []
+                    self._apply_commands()
+                    self._on_event(item)
+                    changed = True
+                if chunks:
+                    self._apply_commands()
+                    self._on_chunks(chunks)
                     changed = True
                 now = time.perf_counter()
                 if changed or now - self._last_publish >= PUBLISH_IDLE_S:
@@ -227,18 +268,27 @@ class Engine:
             self._publish(time.perf_counter())
             raise
 
-    def _feed(self, samples: list[Sample]) -> None:
-        if samples:
-            self._runner.feed_many(samples)
-            self.samples_processed += len(samples)
+    def _feed(self, ordered: OrderedArrays) -> None:
+        if len(ordered):
+            self._runner.feed_arrays(ordered.t_ms, ordered.tag, ordered.values)
+            self.samples_processed += len(ordered)
 
-    def _on_chunk(self, chunk: Chunk) -> None:
+    def _parsed(self, parsed: ParsedArrays) -> None:
+        """Parsed samples (in line order) -> rates, orderer, estimators."""
+        self._track_rates(parsed)
+        self.samples_processed += len(parsed.other)   # other tags pass the orderer untouched
+        if len(parsed.t_ms):
+            self._feed(self._orderer.push_arrays(parsed.t_ms, parsed.tag, parsed.values))
+
+    def _on_chunks(self, chunks: list[Chunk]) -> None:
+        """Consecutive chunks of one stream, parsed and filtered as one."""
         parser = self._parser
         damaged_before = parser.stats.damaged + parser.stats.too_long
-        samples = parser.feed(chunk.data)
-        self._track_rates(samples)
-        self._feed(self._orderer.push_many(samples))
-        self._pending_host_times.append(chunk.t_host)
+        data = chunks[0].data if len(chunks) == 1 else b"".join(c.data for c in chunks)
+        self._parsed(parser.feed_arrays(data))
+        sequence = self._orderer.sequence
+        for chunk in chunks:
+            self._pending_host_times.append((chunk.t_host, sequence))
         if parser.stats.damaged + parser.stats.too_long > damaged_before:
             message = parser.stats.bad_examples[-1][2] if parser.stats.bad_examples else ""
             self._warn("damaged", f"damaged line skipped ({message})")
@@ -247,7 +297,7 @@ class Engine:
         kind = event.kind
         if kind == "connected":
             self._end_of_stream(partial_line_damaged=True)
-            self._feed(self._orderer.restart())
+            self._feed(self._orderer.restart_arrays())
             self._connection_state = "replaying" if self.source.kind != "tcp" else "connected"
             self._peer = event.peer
             self._record_event("connected", peer=event.peer)
@@ -258,7 +308,7 @@ class Engine:
             self._record_event("disconnected", peer=event.peer, reason=event.detail)
         elif kind == "loop":
             self._end_of_stream(partial_line_damaged=False)
-            self._feed(self._orderer.restart())
+            self._feed(self._orderer.restart_arrays())
         elif kind == "seek":
             # Re-run the filter from the start of the log up to the target (the source sends
             # those lines unpaced): the estimate there is exactly what playing would give.
@@ -270,6 +320,9 @@ class Engine:
             self._retire_parser()
             self._order_retired += self._orderer.stats.out_of_order
             self._orderer = TimeOrderer(**self._orderer_options)
+            # everything the old orderer held was released by _end_of_stream
+            self._pending_host_times = deque(((t_host, -1) for t_host, _ in
+                                              self._pending_host_times), maxlen=100_000)
             self._previous_own_euler = self._previous_phone_euler = None
         elif kind == "finished":
             self._end_of_stream(partial_line_damaged=False)
@@ -294,8 +347,8 @@ class Engine:
                 parser._count_bad(kind, "line cut off by the end of the connection")
             parser.reset_line()
         else:
-            self._track_rates(parser.finish())
-        self._feed(self._orderer.flush())
+            self._parsed(parser.finish_arrays())
+        self._feed(self._orderer.flush_arrays())
         self._runner.finish()
 
     def _apply_commands(self) -> None:
@@ -348,8 +401,24 @@ class Engine:
         self._warned_at[kind] = now
         self._warnings.append(message)
 
-    def _track_rates(self, samples: list[Sample]) -> None:
+    def _track_rates(self, parsed: ParsedArrays) -> None:
+        """Remember each tag's own (unaligned) times, in line order, for :meth:`_rates`."""
         times = self._tag_times
+        if parsed.other:
+            # Rare tags: keep the line order among all tags (deque creation order = first seen).
+            samples = parsed.to_samples()
+        elif len(parsed.t_ms):
+            codes = parsed.tag
+            present = sorted(set(codes.tolist()), key=lambda c: int(np.argmax(codes == c)))
+            for code in present:
+                tag = FILTER_TAGS[code]
+                queue_ = times.get(tag)
+                if queue_ is None:
+                    queue_ = times[tag] = deque()
+                queue_.extend(parsed.t_ms[codes == code].tolist())
+            return
+        else:
+            return
         for sample in samples:
             queue_ = times.get(sample.tag)
             if queue_ is None:
@@ -391,12 +460,14 @@ class Engine:
         plot = runner.take_plot_samples()
         if self.record_rows and len(rows):
             self.rows_log.append(rows)
-        own_euler = _unwrap_continuing(np.degrees(ekf.quaternion.to_euler(rows.quat))
-                                       if len(rows) else np.empty((0, 3)),
-                                       self._previous_own_euler)
-        phone_euler = _unwrap_continuing(np.degrees(ekf.quaternion.to_euler(rows.phone_quat))
-                                         if len(rows) else np.empty((0, 3)),
-                                         self._previous_phone_euler)
+        if len(rows):
+            # one call for both series (the per-call overhead dominates at live chunk sizes)
+            euler = np.degrees(ekf.quaternion.to_euler(np.concatenate([rows.quat,
+                                                                       rows.phone_quat])))
+            own_euler = _unwrap_continuing(euler[:len(rows)], self._previous_own_euler)
+            phone_euler = _unwrap_continuing(euler[len(rows):], self._previous_phone_euler)
+        else:
+            own_euler = phone_euler = np.empty((0, 3))
         if len(rows):
             self._previous_own_euler = own_euler[-1]
             finite = np.isfinite(phone_euler).all(axis=1)
@@ -450,9 +521,13 @@ class Engine:
             self._latest = snapshot
             self._seq += 1
             snapshot.seq = self._seq
-        for t_host in self._pending_host_times:
-            self.latencies_s.append(published - t_host)
-        self._pending_host_times.clear()
+        pending = self._pending_host_times
+        if pending:
+            oldest = self._orderer.oldest_pending_sequence
+            while pending and pending[0][1] < oldest:
+                t_host = pending.popleft()[0]
+                self.latencies_s.append(published - t_host)
+                self.latency_arrivals_s.append(t_host)
         self._last_publish = now
         if self.recorder is not None:
             self.recorder.set_stats(self._stats_dict())

@@ -3,8 +3,10 @@
 :class:`EstimatorRunner` feeds time-ordered filter-tag samples (from
 :class:`app.io.ordering.TimeOrderer`) into the main estimator and, optionally, the comparison
 estimators; ORI is the phone's own estimate and never reaches a filter. It produces one row
-per distinct phone time. The live engine and :func:`run_offline` both use it, sample by sample
-in the same order, so a file and its live replay give bit-identical estimates.
+per distinct phone time. The live engine and :func:`run_offline` both use it on the same
+ordered samples (chunk by chunk: each estimator runs over a chunk in one compiled call) and the
+result does not depend on the chunking, so a file and its live replay give bit-identical
+estimates.
 
 Times: phone ms (aligned) in, seconds (t_ms / 1000) to the estimators. Quaternions w-first,
 sensor -> ENU, w >= 0. Angles in degrees.
@@ -18,8 +20,10 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 import ekf
+from app.io.fastparse import samples_to_arrays
 from app.io.protocol import Sample
 
 SENSORS = ("gyr", "acc", "mag")
@@ -100,19 +104,136 @@ class ComparisonState:
         return math.sqrt(self.squared_sum / self.count) if self.count else math.nan
 
 
-_FILTER_TAGS = frozenset(("GYR", "ACC", "MAG", "ORI"))
 _NAN4 = (math.nan, math.nan, math.nan, math.nan)
+_jit = njit(cache=True, nogil=True)
+
+
+@_jit
+def _layout(t_ms, tag, row_of, row_t, group_last, group_row, group_ori):
+    """Ordered samples -> estimator rows and distinct-time groups.
+
+    Rows: consecutive sensor samples (GYR 0, ACC 1, MAG 2) of one time with strictly increasing
+    tags, so feeding a row gyr, acc, mag is feeding its samples in their order. row_of[k]: the
+    row of sample k (-1 for ORI, 3). Groups: runs of equal time; group_last its last sample,
+    group_row the latest row at or before it (-1: none in this chunk), group_ori the latest ORI
+    sample at or before it (-1: none). Returns (rows, groups)."""
+    rows = 0
+    groups = 0
+    current = -1
+    current_tag = 0
+    last_ori = -1
+    n = t_ms.shape[0]
+    for k in range(n):
+        t = t_ms[k]
+        if k > 0 and t != t_ms[k - 1]:
+            group_last[groups] = k - 1
+            group_row[groups] = current
+            group_ori[groups] = last_ori
+            groups += 1
+        code = tag[k]
+        if code == 3:
+            last_ori = k
+            row_of[k] = -1
+            continue
+        if current < 0 or t != row_t[current] or code <= current_tag:
+            current = rows
+            row_t[current] = t
+            rows += 1
+        current_tag = code
+        row_of[k] = current
+    if n > 0:
+        group_last[groups] = n - 1
+        group_row[groups] = current
+        group_ori[groups] = last_ori
+        groups += 1
+    return rows, groups
+
+
+@_jit
+def _angle_deg(p0, p1, p2, p3, q0, q1, q2, q3):
+    """:func:`angle_deg`, compiled (the same operations, so the same bits)."""
+    dot = abs(p0 * q0 + p1 * q1 + p2 * q2 + p3 * q3)
+    norm = math.sqrt((p0 * p0 + p1 * p1 + p2 * p2 + p3 * p3)
+                     * (q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3))
+    if not norm > 0.0:
+        return math.nan
+    return math.degrees(2.0 * math.acos(min(1.0, dot / norm)))
+
+
+@_jit
+def _accumulate_errors(quat, phone, squared_sum, count, latest):
+    """Per row with a phone quaternion: the angle to it; returns the running (squared_sum,
+    count, latest angle) as :meth:`EstimatorRunner._commit_row` would, row by row."""
+    for k in range(quat.shape[0]):
+        if math.isnan(phone[k, 0]):
+            continue
+        error = _angle_deg(quat[k, 0], quat[k, 1], quat[k, 2], quat[k, 3],
+                           phone[k, 0], phone[k, 1], phone[k, 2], phone[k, 3])
+        latest = error
+        if error == error:
+            squared_sum += error * error
+            count += 1
+    return squared_sum, count, latest
+
+
+class _RowsResult:
+    """Per estimator row: quat (R, 4), flags (R, 3) after the row (acc_rejected, mag_rejected,
+    at_rest), and the acc/mag rejected flag right after the row's ACC/MAG sample."""
+
+    __slots__ = ("quat", "flags", "acc_rejected", "mag_rejected")
+
+    def __init__(self, quat, flags, acc_rejected, mag_rejected) -> None:
+        self.quat = quat
+        self.flags = flags
+        self.acc_rejected = acc_rejected
+        self.mag_rejected = mag_rejected
+
+
+def _run_rows(estimator, t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
+              mag: np.ndarray) -> _RowsResult:
+    """Feed rows (NaN rows: no such sample) gyr, acc, mag, exactly as the per-sample calls
+    update_gyr/acc/mag would. A compiled EKF does it in one nogil call (run_batch); its
+    ACC_REJECTED/MAG_REJECTED are only written by the ACC/MAG update, so the flags after the
+    row are those right after the row's sample. Other estimators are stepped in Python."""
+    if hasattr(estimator, "run_batch"):
+        result = estimator.run_batch(t_s, gyr, acc, mag)
+        flags = np.stack([result.acc_rejected, result.mag_rejected, result.at_rest], axis=1)
+        return _RowsResult(result.quat, flags, result.acc_rejected, result.mag_rejected)
+    n = len(t_s)
+    quat = np.empty((n, 4))
+    flags = np.zeros((n, 3), bool)
+    acc_rejected = np.zeros(n, bool)
+    mag_rejected = np.zeros(n, bool)
+    has_gyr = ~np.isnan(gyr[:, 0])
+    has_acc = ~np.isnan(acc[:, 0])
+    has_mag = ~np.isnan(mag[:, 0])
+    for k, t in enumerate(t_s.tolist()):
+        if has_gyr[k]:
+            estimator.update_gyr(t, gyr[k])
+        if has_acc[k]:
+            acc_rejected[k] = bool(estimator.update_acc(t, acc[k]).acc_rejected)
+        if has_mag[k]:
+            mag_rejected[k] = bool(estimator.update_mag(t, mag[k]).mag_rejected)
+        quat[k] = estimator.quat
+        status = estimator.status
+        flags[k] = (status.acc_rejected, status.mag_rejected, status.at_rest)
+    return _RowsResult(quat, flags, acc_rejected, mag_rejected)
 
 
 class EstimatorRunner:
-    """Feed ordered Samples; read the latest estimates; take the rows produced so far.
+    """Feed ordered samples; read the latest estimates; take the rows produced so far.
 
     estimator: a name from ekf.ESTIMATORS; settings: ekf.EKFSettings or None (default preset);
     sensors: the sensors enabled in the main estimator; comparisons: also run the 7 EKF sensor
     combinations. collect_plot: keep the raw ACC/GYR/MAG samples with their rejected flags for
     plotting (:meth:`take_plot_samples`).
 
-    Samples must come in time order (at equal times GYR, ACC, MAG, as TimeOrderer releases them).
+    Samples must come in time order (at equal times GYR, ACC, MAG, as TimeOrderer releases
+    them). :meth:`feed_arrays` takes a chunk as arrays and runs each estimator over it in one
+    compiled call; :meth:`feed` / :meth:`feed_many` take Samples through the same path. The
+    result does not depend on the chunking: it is what feeding the samples one by one with
+    update_gyr/acc/mag gives, bit for bit, with one row per distinct time committed when a
+    later time arrives (or at :meth:`finish`) from the estimators' state at that moment.
     """
 
     def __init__(self, estimator: str = "ekf", settings: ekf.EKFSettings | None = None,
@@ -191,47 +312,102 @@ class EstimatorRunner:
 
     def feed(self, sample: Sample) -> None:
         """One sample (non-filter tags are ignored)."""
-        tag = sample.tag
-        if tag not in _FILTER_TAGS:
-            return
-        t_ms = sample.t_ms
-        if self._row_t is not None and t_ms != self._row_t:
-            self._commit_row()
-        if tag == "ORI":
-            self.phone_quat = sample.values
-        elif tag == "GYR" or tag == "ACC" or tag == "MAG":
-            t_s = t_ms / 1000.0
-            main = self.main
-            if tag == "GYR":
-                status = main.update_gyr(t_s, sample.values)
-                for comparison in self.comparisons:
-                    comparison.estimator.update_gyr(t_s, sample.values)
-                if self.collect_plot:
-                    self._plot_gyr_t.append(t_ms)
-                    self._plot_gyr.append(sample.values)
-            elif tag == "ACC":
-                status = main.update_acc(t_s, sample.values)
-                for comparison in self.comparisons:
-                    comparison.estimator.update_acc(t_s, sample.values)
-                if self.collect_plot:
-                    self._plot_acc_t.append(t_ms)
-                    self._plot_acc.append(sample.values)
-                    self._plot_acc_rejected.append(bool(status.acc_rejected))
-            else:
-                status = main.update_mag(t_s, sample.values)
-                for comparison in self.comparisons:
-                    comparison.estimator.update_mag(t_s, sample.values)
-                if self.collect_plot:
-                    self._plot_mag_t.append(t_ms)
-                    self._plot_mag.append(sample.values)
-                    self._plot_mag_rejected.append(bool(status.mag_rejected))
-        self.samples_fed += 1
-        self.latest_t_ms = t_ms
-        self._row_t = t_ms
+        self.feed_many((sample,))
 
     def feed_many(self, samples: Iterable[Sample]) -> None:
-        for sample in samples:
-            self.feed(sample)
+        """Samples in order (non-filter tags are ignored)."""
+        arrays = samples_to_arrays(list(samples))
+        self.feed_arrays(arrays.t_ms, arrays.tag, arrays.values)
+
+    def feed_arrays(self, t_ms: np.ndarray, tag: np.ndarray, values: np.ndarray) -> None:
+        """Ordered filter-tag samples: t_ms (n,) int phone ms, tag (n,) codes GYR 0, ACC 1,
+        MAG 2, ORI 3, values (n, 4) (rad/s, m/s^2, uT; ORI w x y z)."""
+        n = len(t_ms)
+        if n == 0:
+            return
+        t_ms = np.ascontiguousarray(t_ms, dtype=np.int64)
+        tag = np.ascontiguousarray(tag, dtype=np.int64)
+        first_t = int(t_ms[0])
+        if self._row_t is not None and first_t != self._row_t:
+            self._commit_row()
+        row_of = np.empty(n, np.int64)
+        row_t = np.empty(n, np.int64)
+        group_last = np.empty(n, np.int64)
+        group_row = np.empty(n, np.int64)
+        group_ori = np.empty(n, np.int64)
+        n_rows, n_groups = _layout(t_ms, tag, row_of, row_t, group_last, group_row, group_ori)
+        group_last = group_last[:n_groups]
+        group_row = group_row[:n_groups]
+        group_ori = group_ori[:n_groups]
+
+        # State before this chunk: what groups without a row of their own show.
+        main = self.main
+        status = main.status
+        quat_before = main.quat
+        flags_before = (bool(status.acc_rejected), bool(status.mag_rejected),
+                        bool(status.at_rest))
+        compare_before = [c.estimator.quat for c in self.comparisons]
+        phone_before = self.phone_quat if self.phone_quat is not None else _NAN4
+
+        sensor = row_of >= 0
+        rows_sensor = {}
+        columns = []
+        for code in range(3):
+            column = np.full((n_rows, 3), np.nan)
+            chosen = tag == code
+            if chosen.any():
+                column[row_of[chosen]] = values[chosen, :3]
+            columns.append(column)
+            rows_sensor[code] = chosen
+        t_s = row_t[:n_rows].astype(np.float64) / 1000.0
+        if n_rows:
+            result = _run_rows(main, t_s, columns[0], columns[1], columns[2])
+            compared = [c.estimator.run_batch(t_s, columns[0], columns[1], columns[2]).quat
+                        for c in self.comparisons]   # comparisons are always compiled EKFs
+        else:
+            result = _RowsResult(np.empty((0, 4)), np.zeros((0, 3), bool), np.zeros(0, bool),
+                                 np.zeros(0, bool))
+            compared = [np.empty((0, 4)) for _ in self.comparisons]
+
+        # Rows of the distinct times completed here (the last one waits for a later time).
+        done = n_groups - 1
+        if done > 0:
+            has_row = group_row[:done] >= 0
+            index = np.where(has_row, group_row[:done], 0)
+            quat = np.where(has_row[:, None], result.quat[index] if n_rows else 0.0,
+                            quat_before)
+            flags = np.where(has_row[:, None], result.flags[index] if n_rows else False,
+                             np.array(flags_before))
+            has_ori = group_ori[:done] >= 0
+            phone = np.where(has_ori[:, None], values[np.where(has_ori, group_ori[:done], 0)],
+                             np.array(phone_before))
+            if self.comparisons and not np.isnan(phone[:, 0]).all():
+                for comparison, compared_quat, before in zip(self.comparisons, compared,
+                                                             compare_before):
+                    compared_rows = np.where(has_row[:, None],
+                                             compared_quat[index] if n_rows else 0.0, before)
+                    comparison.squared_sum, comparison.count, comparison.angle_to_phone_deg = \
+                        _accumulate_errors(compared_rows, phone, comparison.squared_sum,
+                                           comparison.count, comparison.angle_to_phone_deg)
+            self._add_rows(t_ms[group_last[:done]], quat, phone, flags)
+        ori = np.flatnonzero(tag == 3)
+        if len(ori):
+            self.phone_quat = tuple(values[ori[-1]].tolist())
+        if self.collect_plot and sensor.any():
+            for code, name in ((0, "gyr"), (1, "acc"), (2, "mag")):
+                chosen = rows_sensor[code]
+                if not chosen.any():
+                    continue
+                pieces = self._plot[name]
+                pieces[0].append(t_ms[chosen])
+                pieces[1].append(values[chosen, :3])
+                if code == 1:
+                    pieces[2].append(result.acc_rejected[row_of[chosen]])
+                elif code == 2:
+                    pieces[2].append(result.mag_rejected[row_of[chosen]])
+        self.samples_fed += n
+        self.latest_t_ms = int(t_ms[-1])
+        self._row_t = self.latest_t_ms
 
     def finish(self) -> None:
         """End of stream: commit the row of the last time."""
@@ -255,19 +431,31 @@ class EstimatorRunner:
     # -- rows ---------------------------------------------------------------------------------
 
     def _reset_rows(self) -> None:
-        self._rows_t: list[int] = []
-        self._rows_q: list[np.ndarray] = []
-        self._rows_phone: list[tuple[float, ...]] = []
-        self._rows_flags: list[tuple[bool, bool, bool]] = []
+        self._rows: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._rows_count = 0
+
+    def _add_rows(self, t_ms: np.ndarray, quat: np.ndarray, phone: np.ndarray,
+                  flags: np.ndarray) -> None:
+        self._rows.append((t_ms, quat, phone, flags))
+        self._rows_count += len(t_ms)
+        if self.max_rows is not None and self._rows_count > self.max_rows:
+            # Nobody took the rows for a long time (GUI stalled): keep the newest.
+            drop = self._rows_count - self.max_rows
+            merged = self._merged_rows()
+            self._rows = [tuple(array[drop:] for array in merged)]
+            self._rows_count = self.max_rows
+            self.dropped_rows += drop
+
+    def _merged_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        if len(self._rows) == 1:
+            return self._rows[0]
+        return tuple(np.concatenate(parts) for parts in zip(*self._rows))
 
     def _commit_row(self) -> None:
+        """The row of the pending time, from the estimators' state now."""
         q = self.main.quat
         phone = self.phone_quat
         status = self.main.status
-        self._rows_t.append(self._row_t)
-        self._rows_q.append(q)
-        self._rows_phone.append(phone if phone is not None else _NAN4)
-        self._rows_flags.append((status.acc_rejected, status.mag_rejected, status.at_rest))
         if phone is not None:
             for comparison in self.comparisons:
                 error = angle_deg(comparison.estimator.quat, phone)
@@ -275,23 +463,20 @@ class EstimatorRunner:
                 if error == error:
                     comparison.squared_sum += error * error
                     comparison.count += 1
-        if self.max_rows is not None and len(self._rows_t) > self.max_rows:
-            # Nobody took the rows for a long time (GUI stalled): keep the newest.
-            drop = len(self._rows_t) - self.max_rows
-            for rows in (self._rows_t, self._rows_q, self._rows_phone, self._rows_flags):
-                del rows[:drop]
-            self.dropped_rows += drop
+        self._add_rows(np.array([self._row_t], np.int64), q.reshape(1, 4),
+                       np.array([phone if phone is not None else _NAN4], np.float64),
+                       np.array([[status.acc_rejected, status.mag_rejected, status.at_rest]],
+                                bool))
 
     def take_rows(self) -> Rows:
         """The rows committed since the previous call (the row of the latest time is committed
         when a later time arrives or at finish())."""
-        if not self._rows_t:
+        if not self._rows:
             return Rows.empty()
-        flags = np.array(self._rows_flags, dtype=bool).reshape(-1, 3)
-        quat = np.array(self._rows_q, dtype=np.float64).reshape(-1, 4)
-        phone = np.array(self._rows_phone, dtype=np.float64).reshape(-1, 4)
-        rows = Rows(np.array(self._rows_t, dtype=np.int64), quat, phone,
-                    angles_deg(quat, phone),
+        t_ms, quat, phone, flags = self._merged_rows()
+        quat = np.ascontiguousarray(quat, dtype=np.float64)
+        phone = np.ascontiguousarray(phone, dtype=np.float64)
+        rows = Rows(np.asarray(t_ms, dtype=np.int64), quat, phone, angles_deg(quat, phone),
                     flags[:, 0].copy(), flags[:, 1].copy(), flags[:, 2].copy())
         self._reset_rows()
         return rows
@@ -299,28 +484,21 @@ class EstimatorRunner:
     # -- plot samples ---------------------------------------------------------------------------
 
     def _reset_plot(self) -> None:
-        self._plot_acc_t: list[int] = []
-        self._plot_acc: list[tuple[float, ...]] = []
-        self._plot_acc_rejected: list[bool] = []
-        self._plot_gyr_t: list[int] = []
-        self._plot_gyr: list[tuple[float, ...]] = []
-        self._plot_mag_t: list[int] = []
-        self._plot_mag: list[tuple[float, ...]] = []
-        self._plot_mag_rejected: list[bool] = []
+        # per sensor: [times (ms) pieces, values pieces, rejected pieces]
+        self._plot: dict[str, list[list[np.ndarray]]] = {
+            name: [[], [], []] for name in ("gyr", "acc", "mag")}
 
     def take_plot_samples(self) -> dict[str, np.ndarray]:
         """Raw sensor samples fed since the previous call: t_acc/t_gyr/t_mag (ms, int64),
         acc/gyr/mag (n, 3), acc_rejected/mag_rejected (n,) bool."""
-        out = {
-            "t_acc": np.array(self._plot_acc_t, dtype=np.int64),
-            "acc": np.array(self._plot_acc, dtype=np.float64).reshape(-1, 3),
-            "acc_rejected": np.array(self._plot_acc_rejected, dtype=bool),
-            "t_gyr": np.array(self._plot_gyr_t, dtype=np.int64),
-            "gyr": np.array(self._plot_gyr, dtype=np.float64).reshape(-1, 3),
-            "t_mag": np.array(self._plot_mag_t, dtype=np.int64),
-            "mag": np.array(self._plot_mag, dtype=np.float64).reshape(-1, 3),
-            "mag_rejected": np.array(self._plot_mag_rejected, dtype=bool),
-        }
+        out: dict[str, np.ndarray] = {}
+        for name in ("acc", "gyr", "mag"):
+            times, values, rejected = self._plot[name]
+            out["t_" + name] = (np.concatenate(times) if times else np.empty(0, np.int64))
+            out[name] = np.concatenate(values) if values else np.empty((0, 3))
+            if name != "gyr":
+                out[name + "_rejected"] = (np.concatenate(rejected) if rejected
+                                           else np.empty(0, bool))
         self._reset_plot()
         return out
 

@@ -105,3 +105,35 @@ def test_commands_apply_in_the_engine_thread(tmp_path):
     timeline = [e["kind"] for e in recorder.session["timeline"]]
     assert timeline[:3] == ["connected", "sensor", "estimator"] and "reset" in timeline
     engine.stop()                                   # idempotent
+
+
+def test_simulated_session_through_tcp_equals_run_offline_and_is_recorded(tmp_path):
+    from ekf.simulate import simulate
+
+    from app.io.emulator import PhoneEmulator
+    from app.io.protocol import Sample, format_line
+    from app.io.sources import TcpSource
+    session = simulate(duration_s=20.0, rates_hz={"gyr": 200.0, "acc": 200.0, "mag": 100.0,
+                                                  "ori": 100.0}, seed=4)
+    lines = [(format_line(Sample(t, tag, values)) + "\n").encode()
+             for t, tag, values in session.iter_rows()]
+    path = tmp_path / "simulated.txt"
+    path.write_bytes(b"".join(lines))
+    engine = Engine(TcpSource("127.0.0.1", 0), comparisons=True, record_rows=True,
+                    recorder=Recorder(tmp_path / "rec"))
+    with engine:
+        with PhoneEmulator("127.0.0.1", engine.source.port) as phone:
+            for start in range(0, len(lines), 777):      # many chunks, cut anywhere
+                phone.send(b"".join(lines[start:start + 777])[:-3])
+                phone.send(lines[min(len(lines), start + 777) - 1][-3:])
+        _wait_state(engine, "disconnected")
+        deadline = time.monotonic() + 20
+        while engine.snapshot_now().health.lines_total < len(lines) \
+                and time.monotonic() < deadline:
+            time.sleep(0.02)
+    offline = run_offline(read_log(path).samples)
+    t_ms = np.concatenate([r.t_ms for r in engine.rows_log])
+    quat = np.concatenate([r.quat for r in engine.rows_log])
+    assert np.array_equal(t_ms, offline.t_ms) and np.array_equal(quat, offline.quat)
+    assert (tmp_path / "rec" / "raw.txt").read_bytes() == path.read_bytes()
+    assert len(engine.latencies_s) > 0

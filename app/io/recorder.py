@@ -44,8 +44,9 @@ def write_json_atomic(path: Path, data: Any) -> None:
 class Recorder:
     """Record a session into `directory` (created if needed; raw.txt is appended to).
 
-    write_line() is the LineParser's raw_sink; tick() is called often by the engine (it flushes
-    raw.txt every FLUSH_INTERVAL_S and rewrites session.json when something changed).
+    write_line() is the LineParser's raw_sink, write_block() the FastLineParser's block sink;
+    tick() is called often by the engine (it flushes raw.txt every FLUSH_INTERVAL_S and
+    rewrites session.json when something changed).
     Thread-safe: the engine thread writes, a GUI may read size/elapsed.
     """
 
@@ -87,6 +88,15 @@ class Recorder:
             self._raw.write(raw)
             self.lines_written += 1
             self.bytes_written += len(raw)
+
+    def write_block(self, data: bytes, lines: int) -> None:
+        """Append `lines` received lines at once, verbatim (`data` ends with a terminator)."""
+        with self._lock:
+            if self.closed:
+                return
+            self._raw.write(data)
+            self.lines_written += lines
+            self.bytes_written += len(data)
 
     def add_event(self, kind: str, t_ms: int | None = None, **data: Any) -> None:
         """A timeline entry: sensor toggles ("sensor", sensor=..., enabled=...), markers,
