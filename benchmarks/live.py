@@ -179,8 +179,9 @@ def main() -> int:
         print(f"  {label}: {len(values)} chunks: p50 {np.percentile(values, 50):.2f} ms, "
               f"p99 {np.percentile(values, 99):.2f} ms, max {values.max():.2f} ms "
               f"(target p99 <= 5 ms)")
-    print("  (the reorder window holds the first 250 ms of phone time of every new stream so a "
-          "sensor starting late keeps its first samples)")
+    print("  (at the start of a stream the reorder window holds samples until all four filter "
+          "tags have arrived, at most 250 ms of phone time, so a sensor starting late keeps its "
+          "first samples)")
 
     print(f"Memory over a {args.minutes:g}-minute 500 Hz session (comparisons on), paced at "
           f"{args.memory_speed:g}x real time:")
