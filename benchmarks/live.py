@@ -180,7 +180,7 @@ def main() -> int:
               f"p99 {np.percentile(values, 99):.2f} ms, max {values.max():.2f} ms "
               f"(target p99 <= 5 ms)")
     print("  (at the start of a stream the reorder window holds samples until all four filter "
-          "tags have arrived, at most 250 ms of phone time, so a sensor starting late keeps its "
+          "tags have arrived (otherwise 250 ms to 1 s of phone time), so a sensor starting late keeps its "
           "first samples)")
 
     print(f"Memory over a {args.minutes:g}-minute 500 Hz session (comparisons on), paced at "
