@@ -9,6 +9,7 @@ estimators, recorder) is identical whichever source feeds it.
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,10 @@ from app.io.netinfo import lan_ipv4_addresses
 from app.io.tcp_server import DEFAULT_PORT, Chunk, SourceEvent, TcpServer
 
 _MAX_LINES_PER_CHUNK = 4096
+# Paced replay hands out what is due at most this often [s]: a 500 Hz log at 10x would otherwise
+# wake the engine for every few lines, and the per-chunk Python work would crowd out the GUI.
+# Well under one display frame, so the window still sees every frame's samples in time.
+REPLAY_MIN_INTERVAL_S = 0.01
 DEMO_SESSION = Path(__file__).resolve().parents[2] / "resources" / "demo_session.txt.gz"
 
 
@@ -138,6 +143,7 @@ class LineReplaySource(Source):
         self._connection = 1
         self._anchor_wall = 0.0
         self._anchor_pace = 0.0
+        self._last_chunk_wall = -math.inf
         self._started = False
         self._finished = False
         self.loops = 0
@@ -211,6 +217,9 @@ class LineReplaySource(Source):
         elif self.speed == 0.0:
             end = limit
         else:
+            since = time.perf_counter() - self._last_chunk_wall
+            if since < REPLAY_MIN_INTERVAL_S and not out:
+                time.sleep(min(timeout, REPLAY_MIN_INTERVAL_S - since))
             now_pace = self._anchor_pace + (time.perf_counter() - self._anchor_wall) * self.speed
             while end < limit and pace[end] <= now_pace:
                 end += 1
@@ -219,7 +228,8 @@ class LineReplaySource(Source):
                 time.sleep(max(0.0, min(timeout, wait)))
                 return out
         if end > start:
-            out.append(Chunk(self._connection, b"".join(lines[start:end]), time.perf_counter()))
+            self._last_chunk_wall = time.perf_counter()
+            out.append(Chunk(self._connection, b"".join(lines[start:end]), self._last_chunk_wall))
             self._index = end
         elif self.paused and not out:
             time.sleep(timeout)

@@ -135,12 +135,15 @@ class ConnectionPanel(QtWidgets.QWidget):
         self._set_text(self.quirks_label, "; ".join(health.clock_quirks) or "none")
 
     def update_replay(self, replay: dict[str, Any] | None) -> None:
+        """Follow the replay's state (every frame: only changed widgets are touched)."""
         self._replay = replay
-        self.replay_box.setVisible(replay is not None)
+        if self.replay_box.isHidden() != (replay is None):
+            self.replay_box.setVisible(replay is not None)
         if replay is None:
             return
         paused = bool(replay.get("paused", False))
-        self.play_button.setText("Play" if paused else "Pause")
+        if self.play_button.text() != ("Play" if paused else "Pause"):
+            self.play_button.setText("Play" if paused else "Pause")
         speed = float(replay.get("speed", 1.0))
         index = self.speed_combo.findData(speed)
         if index < 0:

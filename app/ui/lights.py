@@ -39,7 +39,9 @@ class Light(QtWidgets.QWidget):
         if state != self.state:
             self.state = state
             self.update()
-        self.setToolTip(f"{self.caption}: {state}\n{reason}")
+        tooltip = f"{self.caption}: {state}\n{reason}"
+        if tooltip != self.toolTip():
+            self.setToolTip(tooltip)
 
     def paintEvent(self, event: QtGui.QPaintEvent) -> None:  # noqa: N802 (Qt name)
         painter = QtGui.QPainter(self)

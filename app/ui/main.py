@@ -91,34 +91,27 @@ def build_engine(args: argparse.Namespace) -> Any:
 
 
 def _grab_window(window) -> "Any":
-    """The whole window as a QImage, with the 3D views' framebuffers painted in place
-    (QWidget.grab does not always include QOpenGLWidget content)."""
-    from PySide6 import QtCore, QtGui
-    image = window.grab().toImage()
-    painter = QtGui.QPainter(image)
-    for view in (window.own_view, window.phone_view):
-        if view.gl_view is None or not view.gl_view.isVisible():
-            continue
-        frame = view.gl_view.grabFramebuffer()
-        top_left = view.gl_view.mapTo(window, QtCore.QPoint(0, 0))
-        target = QtCore.QRectF(top_left.x(), top_left.y(), view.gl_view.width(),
-                               view.gl_view.height())
-        painter.drawImage(target, frame)
-    painter.end()
-    return image
+    """The whole window as a QImage (the 3D views are ordinary widgets showing their
+    offscreen renders, so QWidget.grab includes them)."""
+    return window.grab().toImage()
 
 
-GUI_SWITCH_INTERVAL_S = 0.001
+GUI_SWITCH_INTERVAL_S = 0.0002
 
 
 def make_application():
     """The QApplication, configured for the window (call before any widget exists).
 
-    - GL contexts share: pyqtgraph compiles each shader once, so 3D views in a second window
-      could not use it otherwise.
-    - A shorter GIL switch interval: the engine thread runs Python filter code, and the GUI
-      thread gives up the GIL on every Qt call; with the default 5 ms it then waits up to 5 ms
-      to get it back, hundreds of times per frame.
+    - GL contexts share (the 3D views all render in one offscreen context of their own, see
+      app/ui/phone_view.py; sharing keeps any other GL widget able to use their resources).
+    - A shorter GIL switch interval: the engine thread runs Python code, and the GUI thread
+      gives up the GIL on every Qt call and takes it back for every Python method Qt calls
+      (each plot item's paint and boundingRect); with the default 5 ms it then waits up to
+      5 ms to get it back, hundreds of times per frame. 0.2 ms keeps a busy engine (a 10x
+      replay) from halving the frame rate; the engine pays only while the GUI wants the GIL.
+    - LP_NUM_THREADS (Mesa llvmpipe's rasteriser threads) is left to Mesa: limiting it to
+      0 or 1 thread did not lower the process's CPU per frame (measured with
+      benchmarks/gui_fps.py) and made each frame take longer.
     """
     import sys
 

@@ -4,12 +4,18 @@ The phone is drawn in its own sensor frame (x right, y up the screen, z out of t
 and rotated into the world with p_world = Q(q) p_sensor. The camera looks from the south
 with z up, as in the course kit. Without OpenGL (offscreen tests, headless CI) the view is a
 plain text label with the same public API, so the window still builds.
+
+Speed: both views render offscreen in one shared OpenGL context and are shown as images in
+raster widgets (no QOpenGLWidget, so Qt never composites the whole window through GL), only
+when their scene changed, with a handful of draw calls each (see _PhoneScene).
 """
 
 from __future__ import annotations
 
+import ctypes
 import math
 import os
+import time
 
 import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
@@ -24,6 +30,13 @@ PHONE_THICKNESS = 0.16
 AXIS_LENGTH = 1.15
 GRID_LEVEL = -1.0          # the ground grid sits below the phone so they never intersect
 AXIS_COLORS = ((1.0, 0.25, 0.25, 1.0), (0.25, 0.9, 0.3, 1.0), (0.35, 0.55, 1.0, 1.0))
+# The σ text in the header changes at most this often (s); rings are redrawn only when the
+# attitude covariance changed by more than this fraction of its largest entry.
+DETAIL_INTERVAL_S = 0.2
+RING_REDRAW_CHANGE = 0.02
+# The phone is turned (and the view rendered again) only when a quaternion component changed
+# by more than this: about 0.01 degrees, far below a pixel.
+REDRAW_QUAT_CHANGE = 1e-4
 CAMERA = {"distance": 4.8, "elevation": 22.0, "azimuth": -90.0}   # azimuth -90: from the south
 
 _gl_available: bool | None = None
@@ -86,174 +99,503 @@ def _rotation_matrix4(rotation: np.ndarray) -> QtGui.QMatrix4x4:
                             0.0, 0.0, 0.0, 1.0)
 
 
-def _lit_shader(name: str):
-    """Diffuse lighting from behind the camera, upper left (pyqtgraph's "shaded" lights faces
-    that point away from the viewer, which leaves the screen face nearly black).
+VERTEX_SHADER = """
+uniform mat4 u_mvp;
+uniform mat3 u_normal;
+uniform float u_lit;
+attribute vec3 a_position;
+attribute vec3 a_normal;
+attribute vec4 a_color;
+varying vec4 v_color;
+void main() {
+    // Diffuse light from behind the camera, upper left (the faces are flat, so lighting per
+    // vertex is lighting per face). Lines are drawn unlit (u_lit = 0).
+    float p = max(dot(normalize(u_normal * a_normal), normalize(vec3(-0.35, 0.5, 1.0))), 0.0);
+    float shade = mix(1.0, 0.35 + 0.65 * p, u_lit);
+    v_color = vec4(a_color.rgb * shade, a_color.a);
+    gl_Position = u_mvp * vec4(a_position, 1.0);
+}
+"""
+FRAGMENT_SHADER = """
+#ifdef GL_ES
+precision mediump float;
+#endif
+varying vec4 v_color;
+void main() {
+    gl_FragColor = v_color;
+}
+"""
+FLOATS_PER_VERTEX = 10          # position (3), normal (3), colour RGBA (4)
 
-    pyqtgraph compiles a ShaderProgram once, in whichever GL context draws it first, so each
-    view gets its own program object: windows that do not share contexts must not share it.
-    """
-    from pyqtgraph.opengl import shaders
-    program = shaders.ShaderProgram(name, [
-        shaders.VertexShader("""
-            uniform mat4 u_mvp;
-            uniform mat3 u_normal;
-            attribute vec4 a_position;
-            attribute vec3 a_normal;
-            attribute vec4 a_color;
-            varying vec4 v_color;
-            varying vec3 v_normal;
-            void main() {
-                v_normal = normalize(u_normal * a_normal);
-                v_color = a_color;
-                gl_Position = u_mvp * a_position;
-            }
-        """),
-        shaders.FragmentShader("""
-            #ifdef GL_ES
-            precision mediump float;
-            #endif
-            varying vec4 v_color;
-            varying vec3 v_normal;
-            void main() {
-                float p = dot(normalize(v_normal), normalize(vec3(-0.35, 0.5, 1.0)));
-                p = p < 0. ? 0. : p;
-                vec3 rgb = v_color.rgb * (0.35 + 0.65 * p);
-                gl_FragColor = vec4(rgb, v_color.a);
-            }
-        """),
-    ])
-    shaders.ShaderProgram.names.pop(name, None)   # used by object, not looked up by name
-    return program
+
+def _merged_boxes(boxes: list[tuple[tuple[float, float, float], tuple[float, float, float],
+                                     tuple[float, float, float, float]]]) -> np.ndarray:
+    """Triangles of several (size, center, color) boxes as vertex rows (36 n, 10): position,
+    face normal, colour. One array is one draw call instead of one per box."""
+    rows = []
+    for size, center, color in boxes:
+        vertices, faces = _box_mesh(size, center)
+        corners = vertices[faces]                                   # (12, 3, 3)
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        block = np.empty((len(faces), 3, FLOATS_PER_VERTEX))
+        block[..., 0:3] = corners
+        block[..., 3:6] = normals[:, None, :]
+        block[..., 6:10] = color
+        rows.append(block.reshape(-1, FLOATS_PER_VERTEX))
+    return np.vstack(rows)
+
+
+def _line_rows(points: np.ndarray, colors: np.ndarray) -> np.ndarray:
+    """Vertex rows (n, 10) for line vertices `points` (n, 3) with colours (n, 4) or (4,)."""
+    rows = np.zeros((len(points), FLOATS_PER_VERTEX))
+    rows[:, 0:3] = points
+    rows[:, 5] = 1.0
+    rows[:, 6:10] = colors
+    return rows
+
+
+RING_SEGMENTS = 32
+
+
+class _RingSet:
+    """The three uncertainty rings: shown or hidden together (the scene draws them)."""
+
+    def __init__(self) -> None:
+        self._visible = False
+
+    def visible(self) -> bool:
+        return self._visible
 
 
 class _PhoneScene:
-    """The GL items of one view: grid, compass labels, and the phone group that rotates."""
+    """Everything one view draws, as one vertex buffer and a dozen GL calls per frame.
 
-    count = 0
+    World part: the East-North-Up ground grid and a compass (N and E arrows). Phone part,
+    turned by the orientation: the body (six boxes: body, screen, earpiece, camera bump and
+    two lenses) as lit triangles, the body axes x red, y green, z blue, and the uncertainty
+    rings at the axis tips. Text labels (x, y, z, N, E) are painted with QPainter over the
+    rendered image by the view (`labels()`).
 
-    def __init__(self, view) -> None:
-        import pyqtgraph.opengl as gl
+    Why not pyqtgraph's GL items: each costs ~30 OpenGL calls per frame from Python, and
+    every call through PyOpenGL releases and re-takes the GIL, which a busy engine thread
+    then holds for up to a switch interval. Here a new orientation only changes a matrix; the
+    vertices are uploaded once, the rings again only when the covariance visibly changed.
+    """
 
-        self.view = view
-        _PhoneScene.count += 1
-        self.shader = _lit_shader(f"orientation_lab_lit_{_PhoneScene.count}")
-        grid = gl.GLGridItem()
-        grid.setSize(5, 5)
-        grid.setSpacing(0.5, 0.5)
-        grid.setColor((150, 160, 175, 110))
-        grid.translate(0, 0, GRID_LEVEL)
-        view.addItem(grid)
-        # Everything below is a child of `phone` and rotates with it.
-        self.phone = gl.GLGraphicsItem.GLGraphicsItem()
-        view.addItem(self.phone)
-        self._add_box(gl, (PHONE_WIDTH, PHONE_HEIGHT, PHONE_THICKNESS), (0, 0, 0),
-                      (0.78, 0.80, 0.84, 1.0))
-        # Screen: a dark glass panel just above the +z face, with a bezel left around it.
-        self._add_box(gl, (PHONE_WIDTH * 0.86, PHONE_HEIGHT * 0.88, 0.01),
-                      (0, -0.01, PHONE_THICKNESS / 2 + 0.006), (0.16, 0.38, 0.75, 1.0))
-        # Earpiece slot at the top of the screen side: says which end is up from the front.
-        self._add_box(gl, (PHONE_WIDTH * 0.3, 0.035, 0.01),
-                      (0, PHONE_HEIGHT * 0.47, PHONE_THICKNESS / 2 + 0.006), (0.1, 0.1, 0.1, 1.0))
-        # Camera bump at the top back (-z), left of centre as seen from behind.
-        self._add_box(gl, (0.26, 0.34, 0.06),
-                      (PHONE_WIDTH * 0.22, PHONE_HEIGHT * 0.36, -PHONE_THICKNESS / 2 - 0.03),
-                      (0.18, 0.18, 0.2, 1.0))
-        for dy in (0.07, -0.07):
-            self._add_box(gl, (0.11, 0.11, 0.02),
-                          (PHONE_WIDTH * 0.22, PHONE_HEIGHT * 0.36 + dy,
-                           -PHONE_THICKNESS / 2 - 0.065), (0.05, 0.05, 0.07, 1.0))
+    def __init__(self) -> None:
+        self.rotation = np.eye(3)
+        self.phone_matrix = QtGui.QMatrix4x4()
+        self.rings = [_RingSet()]
+        self._ring_rows = np.zeros((6 * RING_SEGMENTS, FLOATS_PER_VERTEX))
+        self._ring_dirty = False
+        self.changed = lambda: None          # set by the view: asks for a new render
 
-        center = QtCore.Qt.AlignmentFlag.AlignHCenter | QtCore.Qt.AlignmentFlag.AlignVCenter
-        self.axes = []
-        self.rings = []
-        for i, name in enumerate("xyz"):
-            tip = np.zeros(3)
-            tip[i] = AXIS_LENGTH
-            line = gl.GLLinePlotItem(parentItem=self.phone, pos=np.array([np.zeros(3), tip]),
-                                     color=AXIS_COLORS[i], width=4, antialias=True,
-                                     glOptions="opaque")
-            label = gl.GLTextItem(parentItem=self.phone, pos=tip * 1.1, text=name,
-                                  font=QtGui.QFont("Sans Serif", 12, QtGui.QFont.Weight.Bold),
-                                  color=tuple(int(c * 255) for c in AXIS_COLORS[i]),
-                                  alignment=center)
-            ring = gl.GLLinePlotItem(parentItem=self.phone, pos=np.zeros((2, 3)),
-                                     color=AXIS_COLORS[i][:3] + (0.9,), width=2,
-                                     antialias=True, mode="line_strip", glOptions="translucent")
-            ring.setVisible(False)
-            self.axes.append((line, label))
-            self.rings.append(ring)
-        self._add_compass(gl)
-
-    def _add_compass(self, gl) -> None:
-        """A compass rose on the ground in the front-left corner, where the phone never hides it.
-
-        Added last so its labels paint over the scene.
-        """
+        half = 2.5
+        ticks = np.arange(-half, half + 1e-9, 0.5)
+        grid = []
+        for value in ticks:
+            grid += [[value, -half, GRID_LEVEL], [value, half, GRID_LEVEL],
+                     [-half, value, GRID_LEVEL], [half, value, GRID_LEVEL]]
+        grid_rows = _line_rows(np.array(grid), np.array([150, 160, 175, 110]) / 255.0)
         origin = np.array([-1.7, -1.3, GRID_LEVEL])
         arrow_length = 0.9
-        center = QtCore.Qt.AlignmentFlag.AlignHCenter | QtCore.Qt.AlignmentFlag.AlignVCenter
-        font = QtGui.QFont("Sans Serif", 14, QtGui.QFont.Weight.Bold)
+        compass = []
+        self.world_labels: list[tuple[np.ndarray, str, tuple[int, int, int], int]] = []
         for text, direction in (("N", np.array([0.0, 1.0, 0.0])), ("E", np.array([1.0, 0.0, 0.0]))):
             tip = origin + arrow_length * direction
             side = np.cross(direction, [0.0, 0.0, 1.0]) * 0.08
-            head = np.array([tip - 0.18 * direction + side, tip, tip - 0.18 * direction - side])
-            for points in (np.array([origin, tip]), head):
-                self.view.addItem(gl.GLLinePlotItem(pos=points, color=(1.0, 0.92, 0.47, 1.0),
-                                                    width=3, antialias=True, mode="line_strip"))
-            self.view.addItem(gl.GLTextItem(pos=tip + 0.22 * direction, text=text, font=font,
-                                            color=(255, 235, 120), alignment=center))
+            back = tip - 0.18 * direction
+            compass += [origin, tip, back + side, tip, tip, back - side]
+            self.world_labels.append((tip + 0.22 * direction, text, (255, 235, 120), 14))
+        compass_rows = _line_rows(np.array(compass), (1.0, 0.92, 0.47, 1.0))
+        lens = (PHONE_WIDTH * 0.22, PHONE_HEIGHT * 0.36)
+        body_rows = _merged_boxes([
+            ((PHONE_WIDTH, PHONE_HEIGHT, PHONE_THICKNESS), (0, 0, 0), (0.78, 0.80, 0.84, 1.0)),
+            # Screen: a dark glass panel just above the +z face, with a bezel left around it.
+            ((PHONE_WIDTH * 0.86, PHONE_HEIGHT * 0.88, 0.01),
+             (0, -0.01, PHONE_THICKNESS / 2 + 0.006), (0.16, 0.38, 0.75, 1.0)),
+            # Earpiece slot at the top of the screen side: says which end is up from the front.
+            ((PHONE_WIDTH * 0.3, 0.035, 0.01),
+             (0, PHONE_HEIGHT * 0.47, PHONE_THICKNESS / 2 + 0.006), (0.1, 0.1, 0.1, 1.0)),
+            # Camera bump at the top back (-z), left of centre as seen from behind, two lenses.
+            ((0.26, 0.34, 0.06), (lens[0], lens[1], -PHONE_THICKNESS / 2 - 0.03),
+             (0.18, 0.18, 0.2, 1.0)),
+            ((0.11, 0.11, 0.02), (lens[0], lens[1] + 0.07, -PHONE_THICKNESS / 2 - 0.065),
+             (0.05, 0.05, 0.07, 1.0)),
+            ((0.11, 0.11, 0.02), (lens[0], lens[1] - 0.07, -PHONE_THICKNESS / 2 - 0.065),
+             (0.05, 0.05, 0.07, 1.0)),
+        ])
+        tips = np.eye(3) * AXIS_LENGTH
+        axis_rows = _line_rows(np.vstack([[np.zeros(3), tip] for tip in tips]),
+                               np.repeat(np.array(AXIS_COLORS), 2, axis=0))
+        self.phone_labels = [(tip * 1.1, name, tuple(int(c * 255) for c in AXIS_COLORS[i]), 12)
+                             for i, (tip, name) in enumerate(zip(tips, "xyz"))]
+        self._ring_colors = np.repeat(np.array([color[:3] + (0.9,) for color in AXIS_COLORS]),
+                                      2 * RING_SEGMENTS, axis=0)
+        # (first vertex, count, primitive, line width) of each part, in buffer order.
+        parts = [("grid", grid_rows), ("compass", compass_rows), ("body", body_rows),
+                 ("axes", axis_rows), ("rings", self._ring_rows)]
+        self.ranges: dict[str, tuple[int, int]] = {}
+        first = 0
+        for name, rows in parts:
+            self.ranges[name] = (first, len(rows))
+            first += len(rows)
+        self.vertices = np.vstack([rows for _, rows in parts]).astype(np.float32)
+        self._buffer = None
+        self._program = None
 
-    def _add_box(self, gl, size, center, color) -> None:
-        vertices, faces = _box_mesh(size, center)
-        mesh = gl.MeshData(vertexes=vertices, faces=faces,
-                           faceColors=np.tile(np.array(color, float), (len(faces), 1)))
-        item = gl.GLMeshItem(parentItem=self.phone, meshdata=mesh, smooth=False,
-                             shader=self.shader, glOptions="opaque", drawEdges=False,
-                             edgeColor=(0.25, 0.25, 0.28, 1.0))
-        del item  # owned by its parent item
+    # -- state -----------------------------------------------------------------------------
 
     def set_rotation(self, rotation: np.ndarray) -> None:
-        self.phone.setTransform(_rotation_matrix4(rotation))
+        self.rotation = np.asarray(rotation, dtype=float)
+        self.phone_matrix = _rotation_matrix4(self.rotation)
+        self.changed()
 
     def set_uncertainty(self, ellipses: list[tuple[np.ndarray, np.ndarray]] | None) -> None:
-        for i, ring in enumerate(self.rings):
-            if ellipses is None:
-                ring.setVisible(False)
-                continue
-            semi_axes, directions = ellipses[i]
+        if ellipses is None:
+            if self.rings[0]._visible:          # hiding again would ask for a new render
+                self.rings[0]._visible = False
+                self.changed()
+            return
+        pieces = []
+        for i, (semi_axes, directions) in enumerate(ellipses):
             tip = np.zeros(3)
             tip[i] = AXIS_LENGTH
-            ring.setData(pos=ellipse_points(tip, semi_axes, directions))
-            ring.setVisible(True)
+            points = ellipse_points(tip, semi_axes, directions, RING_SEGMENTS)
+            # As separate segments (GL_LINES) so the three rings are one draw call.
+            pieces.append(np.repeat(points, 2, axis=0)[1:-1])
+        self._ring_rows = _line_rows(np.vstack(pieces), self._ring_colors)
+        self._ring_dirty = True
+        self.rings[0]._visible = True
+        self.changed()
+
+    def labels(self) -> list[tuple[QtGui.QMatrix4x4 | None, np.ndarray, str,
+                                   tuple[int, int, int], int]]:
+        """(model transform or None for world, position, text, colour, size) of every label."""
+        return ([(self.phone_matrix, *label) for label in self.phone_labels]
+                + [(None, *label) for label in self.world_labels])
+
+    # -- drawing (the shared GL context is current) -----------------------------------------
+
+    def _prepare(self, GL) -> None:
+        from OpenGL.GL import shaders
+        if self._program is None:
+            self._program = _shared_program(GL, shaders)
+            self._locations = {name: GL.glGetUniformLocation(self._program, name)
+                               for name in ("u_mvp", "u_normal", "u_lit")}
+            self._attributes = [GL.glGetAttribLocation(self._program, name)
+                                for name in ("a_position", "a_normal", "a_color")]
+        if self._buffer is None:
+            self._buffer = GL.glGenBuffers(1)
+            GL.glBindBuffer(GL.GL_ARRAY_BUFFER, self._buffer)
+            GL.glBufferData(GL.GL_ARRAY_BUFFER, self.vertices.nbytes, self.vertices,
+                            GL.GL_DYNAMIC_DRAW)
+            self._ring_dirty = self.rings[0]._visible
+        else:
+            GL.glBindBuffer(GL.GL_ARRAY_BUFFER, self._buffer)
+        if self._ring_dirty:
+            first, _ = self.ranges["rings"]
+            rows = self._ring_rows.astype(np.float32)
+            GL.glBufferSubData(GL.GL_ARRAY_BUFFER, first * FLOATS_PER_VERTEX * 4, rows.nbytes,
+                               rows)
+            self._ring_dirty = False
+
+    def draw(self, GL, projection: QtGui.QMatrix4x4, view: QtGui.QMatrix4x4) -> None:
+        """Draw into the bound framebuffer (cleared by the caller) with this camera."""
+        self._prepare(GL)
+        GL.glUseProgram(self._program)
+        stride = FLOATS_PER_VERTEX * 4
+        for location, (offset, size) in zip(self._attributes, ((0, 3), (3, 3), (6, 4))):
+            GL.glEnableVertexAttribArray(location)
+            GL.glVertexAttribPointer(location, size, GL.GL_FLOAT, False, stride,
+                                     ctypes.c_void_p(offset * 4))
+        GL.glEnable(GL.GL_DEPTH_TEST)
+        GL.glEnable(GL.GL_BLEND)
+        GL.glBlendFunc(GL.GL_SRC_ALPHA, GL.GL_ONE_MINUS_SRC_ALPHA)
+        world = projection * view
+        phone = world * self.phone_matrix
+        normal = np.array((view * self.phone_matrix).normalMatrix().data(), dtype=np.float32)
+        GL.glUniformMatrix4fv(self._locations["u_mvp"], 1, False,
+                              np.array(world.data(), dtype=np.float32))
+        GL.glUniform1f(self._locations["u_lit"], 0.0)
+        self._draw_part(GL, "grid", GL.GL_LINES, 1.0)
+        self._draw_part(GL, "compass", GL.GL_LINES, 3.0)
+        GL.glUniformMatrix4fv(self._locations["u_mvp"], 1, False,
+                              np.array(phone.data(), dtype=np.float32))
+        GL.glUniformMatrix3fv(self._locations["u_normal"], 1, False, normal)
+        GL.glUniform1f(self._locations["u_lit"], 1.0)
+        self._draw_part(GL, "body", GL.GL_TRIANGLES, None)
+        GL.glUniform1f(self._locations["u_lit"], 0.0)
+        self._draw_part(GL, "axes", GL.GL_LINES, 4.0)
+        if self.rings[0]._visible:
+            self._draw_part(GL, "rings", GL.GL_LINES, 2.0)
+        for location in self._attributes:
+            GL.glDisableVertexAttribArray(location)
+        GL.glUseProgram(0)
+        GL.glBindBuffer(GL.GL_ARRAY_BUFFER, 0)
+
+    def _draw_part(self, GL, name: str, primitive, line_width: float | None) -> None:
+        first, count = self.ranges[name]
+        if line_width is not None:
+            GL.glLineWidth(line_width)
+        GL.glDrawArrays(primitive, first, count)
+
+
+_program = None
+
+
+def _shared_program(GL, shaders):
+    """The scenes' shader program, compiled once in the shared context."""
+    global _program
+    if _program is None:
+        _program = shaders.compileProgram(
+            shaders.compileShader(VERTEX_SHADER, GL.GL_VERTEX_SHADER),
+            shaders.compileShader(FRAGMENT_SHADER, GL.GL_FRAGMENT_SHADER),
+            validate=False)
+    return _program
+
+
+class _RenderContext:
+    """The process's one OpenGL context and an offscreen surface to make it current on.
+
+    Every 3D view renders into its own framebuffer object in this context and shows the
+    pixels as an image in an ordinary (raster) widget. An on-screen GL widget would instead
+    make Qt composite the whole top-level window through OpenGL on every frame, which in
+    software GL (llvmpipe) costs more than drawing the scenes themselves.
+    """
+
+    _instance: _RenderContext | None = None
+
+    def __init__(self) -> None:
+        self.surface = QtGui.QOffscreenSurface()
+        self.surface.setFormat(QtGui.QSurfaceFormat.defaultFormat())
+        self.surface.create()
+        self.context = QtGui.QOpenGLContext()
+        self.context.setFormat(QtGui.QSurfaceFormat.defaultFormat())
+        if not self.context.create() or not self.surface.isValid():
+            raise RuntimeError("cannot create an OpenGL context")
+        self.vertex_array = None
+        self.software = False
+
+    @classmethod
+    def get(cls) -> _RenderContext:
+        if cls._instance is None:
+            cls._instance = cls()
+            cls._instance._first_use()
+        return cls._instance
+
+    def _first_use(self) -> None:
+        from OpenGL import GL
+        from PySide6 import QtOpenGL
+        self.make_current()
+        renderer = (GL.glGetString(GL.GL_RENDERER) or b"").decode(errors="replace").lower()
+        self.software = any(name in renderer for name in SOFTWARE_RENDERERS)
+        if self.context.format().profile() == QtGui.QSurfaceFormat.OpenGLContextProfile.CoreProfile:
+            self.vertex_array = QtOpenGL.QOpenGLVertexArrayObject()
+            self.vertex_array.create()
+            self.vertex_array.bind()
+
+    def make_current(self) -> bool:
+        return bool(self.context.makeCurrent(self.surface))
+
+    def done_current(self) -> None:
+        self.context.doneCurrent()
+
+
+# Substrings of GL_RENDERER for drivers that rasterise on the CPU.
+SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast", "software", "swiftshader")
+
+
+def software_gl() -> bool:
+    """Whether the 3D views render with a CPU rasteriser (Mesa llvmpipe and the like);
+    False where there is no OpenGL at all."""
+    if not opengl_available():
+        return False
+    try:
+        return _RenderContext.get().software
+    except RuntimeError:
+        return False
 
 
 VERTICAL_FOV_DEG = 42.0
 
 
+def _make_scene_view_class():
+    """The scene view class, built on first use so pyqtgraph.opengl is imported only with GL."""
+    from OpenGL import GL
+    from pyqtgraph.opengl.GLViewWidget import GLViewMixin
+    from PySide6 import QtOpenGL
+
+    class SceneView(GLViewMixin, QtWidgets.QWidget):
+        """A 3D scene (_PhoneScene) rendered offscreen, with pyqtgraph's camera and mouse
+        orbit/zoom (GLViewMixin).
+
+        Rendering happens in paintEvent and only when something changed (the scene, the
+        camera, the size): `update()` marks the scene for rendering and asks Qt for a repaint, and Qt
+        merges all repaints of one event-loop pass into one painted frame. `frame_painted`
+        is emitted for each frame this widget actually paints.
+        """
+
+        frame_painted = QtCore.Signal()
+
+        def __init__(self) -> None:
+            self._needs_render = True
+            self._image: QtGui.QImage | None = None
+            self._framebuffer = None
+            self._label_painter_fonts: dict[int, QtGui.QFont] = {}
+            self.scene: _PhoneScene | None = None
+            super().__init__()
+            self.setFocusPolicy(QtCore.Qt.FocusPolicy.ClickFocus)
+            # The widget paints every pixel itself: Qt need not clear or blend below it.
+            self.setAttribute(QtCore.Qt.WidgetAttribute.WA_OpaquePaintEvent)
+            self.frames_rendered = 0
+            self.frames_painted = 0
+
+        # -- what GLViewMixin expects of its widget --------------------------------------------
+
+        def isValid(self) -> bool:  # noqa: N802 (Qt name)
+            return False     # GLViewMixin.addItem: no pyqtgraph items are used here
+
+        def update(self, *args) -> None:
+            self._needs_render = True
+            super().update(*args)
+
+        def resizeEvent(self, event) -> None:  # noqa: N802 (Qt name)
+            self._needs_render = True
+            super().resizeEvent(event)
+
+        # -- rendering -------------------------------------------------------------------------
+
+        def render_scene(self) -> QtGui.QImage | None:
+            """Draw the scene into this view's framebuffer and read it back (device pixels)."""
+            ratio = self.devicePixelRatioF()
+            width = max(int(self.width() * ratio), 1)
+            height = max(int(self.height() * ratio), 1)
+            try:
+                target = _RenderContext.get()
+            except RuntimeError:
+                return None
+            if not target.make_current():
+                return None
+            try:
+                if (self._framebuffer is None or self._framebuffer.width() != width
+                        or self._framebuffer.height() != height):
+                    self._framebuffer = QtOpenGL.QOpenGLFramebufferObject(
+                        width, height, QtOpenGL.QOpenGLFramebufferObject.Attachment.Depth)
+                self._framebuffer.bind()
+                # Vertical field of view fixed (pyqtgraph's fov is horizontal), so a wide,
+                # short view does not crop the phone at the top and bottom.
+                aspect = width / height
+                half = math.atan(math.tan(math.radians(VERTICAL_FOV_DEG) / 2) * aspect)
+                self.opts["fov"] = min(math.degrees(2 * half), 150.0)
+                GL.glViewport(0, 0, width, height)
+                GL.glClearColor(*self.opts["bgcolor"])
+                GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)
+                if self.scene is not None:
+                    region = (0, 0, self.width(), self.height())
+                    self.scene.draw(GL, self.projectionMatrix(region, region), self.viewMatrix())
+                pixels = np.empty((height, width, 4), np.uint8)
+                GL.glReadPixels(0, 0, width, height, GL.GL_BGRA, GL.GL_UNSIGNED_BYTE, pixels)
+                self._framebuffer.release()
+            finally:
+                target.done_current()
+            # GL rows run bottom-up; QImage rows top-down.
+            flipped = np.ascontiguousarray(pixels[::-1])
+            image = QtGui.QImage(flipped.data, width, height, 4 * width,
+                                 QtGui.QImage.Format.Format_RGB32).copy()
+            image.setDevicePixelRatio(ratio)
+            self.frames_rendered += 1
+            return image
+
+        def _current_image(self) -> QtGui.QImage | None:
+            if self._needs_render or self._image is None:
+                self._needs_render = False
+                self._image = self.render_scene()
+            return self._image
+
+        def paintEvent(self, event) -> None:  # noqa: N802 (Qt name)
+            image = self._current_image()
+            painter = QtGui.QPainter(self)
+            if image is None:
+                painter.fillRect(self.rect(), QtGui.QColor(34, 38, 46))
+                painter.setPen(QtGui.QColor(200, 204, 212))
+                painter.drawText(self.rect(), QtCore.Qt.AlignmentFlag.AlignCenter,
+                                 "3D view: OpenGL failed")
+            else:
+                painter.drawImage(0, 0, image)
+                self._paint_labels(painter)
+            painter.end()
+            self.frames_painted += 1
+            self.frame_painted.emit()
+
+        def _paint_labels(self, painter: QtGui.QPainter) -> None:
+            if self.scene is None:
+                return
+            region = (0, 0, self.width(), self.height())
+            to_screen = QtGui.QMatrix4x4()
+            to_screen.viewport(0, self.height(), self.width(), -self.height())
+            world_to_screen = to_screen * self.projectionMatrix(region, region) * self.viewMatrix()
+            metrics_cache = {}
+            for transform, position, text, color, size in self.scene.labels():
+                matrix = world_to_screen if transform is None else world_to_screen * transform
+                point = matrix.map(QtGui.QVector3D(*(float(v) for v in position))).toPointF()
+                font = self._label_painter_fonts.get(size)
+                if font is None:
+                    font = QtGui.QFont("Sans Serif", size, QtGui.QFont.Weight.Bold)
+                    self._label_painter_fonts[size] = font
+                painter.setFont(font)
+                painter.setPen(QtGui.QColor(*color))
+                metrics = metrics_cache.get(size) or QtGui.QFontMetrics(font)
+                metrics_cache[size] = metrics
+                bounds = metrics.tightBoundingRect(text)
+                painter.drawText(QtCore.QPointF(point.x() - bounds.width() / 2,
+                                                point.y() + bounds.height() / 2), text)
+
+        def release(self) -> None:
+            """Free this view's GL objects (framebuffer, vertex buffer) in the shared context."""
+            if self._framebuffer is None and (self.scene is None or self.scene._buffer is None):
+                return
+            try:
+                target = _RenderContext.get()
+            except RuntimeError:
+                return
+            if not target.make_current():
+                return
+            try:
+                self._framebuffer = None          # deleted while its context is current
+                if self.scene is not None and self.scene._buffer is not None:
+                    GL.glDeleteBuffers(1, [self.scene._buffer])
+                    self.scene._buffer = None
+            finally:
+                target.done_current()
+            self._image = None
+            self._needs_render = True
+
+        def grabFramebuffer(self) -> QtGui.QImage:  # noqa: N802 (Qt name)
+            """The view as it is painted (scene and labels), like QOpenGLWidget's."""
+            return self.grab().toImage()
+
+    return SceneView
+
+
+_scene_view_class = None
+
+
 def _make_gl_view():
-    """A GLViewWidget whose vertical field of view stays fixed as it is resized.
-
-    pyqtgraph's `fov` is horizontal, so a wide, short view would crop the phone at the top and
-    bottom; here the horizontal fov follows the aspect ratio instead.
-    """
-    import pyqtgraph.opengl as gl
-
-    class _GLView(gl.GLViewWidget):
-        def paintGL(self, *args, **kwargs):  # noqa: N802 (Qt name)
-            aspect = max(self.width(), 1) / max(self.height(), 1)
-            half = math.atan(math.tan(math.radians(VERTICAL_FOV_DEG) / 2) * aspect)
-            self.opts["fov"] = min(math.degrees(2 * half), 150.0)
-            return super().paintGL(*args, **kwargs)
-
-    return _GLView()
+    """A new offscreen-rendered 3D scene widget (see SceneView)."""
+    global _scene_view_class
+    if _scene_view_class is None:
+        _scene_view_class = _make_scene_view_class()
+    return _scene_view_class()
 
 
 class PhoneView(QtWidgets.QFrame):
     """One titled 3D view (OWN or PHONE). Falls back to a text label without OpenGL.
 
     Public API: set_orientation(quat, cov), set_uncertainty_visible(bool), reset_camera(),
-    `gl_view` (the pyqtgraph GLViewWidget, None without OpenGL).
+    `gl_view` (the offscreen-rendered 3D scene widget, None without OpenGL; its
+    `frame_painted` signal fires for every frame it paints).
     """
 
     def __init__(self, title: str, parent: QtWidgets.QWidget | None = None,
@@ -269,6 +611,10 @@ class PhoneView(QtWidgets.QFrame):
         # scale; the rings show n_sigma standard deviations magnified by ring_gain (and say so).
         self.n_sigma = 2.0
         self.ring_gain = 10.0
+        self._detail_changed_at = -math.inf
+        self._drawn_theta_cov: np.ndarray | None = None
+        self._drawn_quat: np.ndarray | None = None
+        self.pose_changes = 0           # visible pose changes handed to the 3D scene
 
         layout = QtWidgets.QVBoxLayout(self)
         layout.setContentsMargins(2, 2, 2, 2)
@@ -295,7 +641,9 @@ class PhoneView(QtWidgets.QFrame):
             self.gl_view = _make_gl_view()
             self.gl_view.setBackgroundColor((34, 38, 46))
             self.gl_view.setMinimumSize(200, 180)
-            self._scene = _PhoneScene(self.gl_view)
+            self._scene = _PhoneScene()
+            self._scene.changed = self.gl_view.update
+            self.gl_view.scene = self._scene
             self.reset_camera()
             layout.addWidget(self.gl_view, 1)
             self.placeholder = None
@@ -323,19 +671,22 @@ class PhoneView(QtWidgets.QFrame):
         if quat is None or not np.all(np.isfinite(quat)) or np.linalg.norm(quat) < 1e-9:
             self.quat = None
             self.cov = None
-            self.detail_label.setText("no data")
+            self._set_detail("no data", urgent=True)
             self._update_placeholder()
             self._update_uncertainty()
             return
         quat = np.asarray(quat, dtype=float)
         quat = quat / np.linalg.norm(quat)
-        # An unchanged pose (a paused replay, a phone at rest) needs no new 3D frame.
-        moved = self.quat is None or float(np.abs(quat - self.quat).max()) > 1e-6
         self.quat = quat
         self.cov = None if cov is None else np.asarray(cov, dtype=float)
-        self.detail_label.setText("")
-        if self._scene is not None and moved:
-            self._scene.set_rotation(quat_to_matrix(self.quat))
+        # A pose that did not visibly change (a paused replay, a phone at rest with a little
+        # noise) needs no new 3D frame.
+        drawn = self._drawn_quat
+        if self._scene is not None and (drawn is None or float(np.abs(quat - drawn).max())
+                                        > REDRAW_QUAT_CHANGE):
+            self._drawn_quat = quat
+            self.pose_changes += 1
+            self._scene.set_rotation(quat_to_matrix(quat))
         self._update_uncertainty()
         self._update_placeholder()
 
@@ -346,19 +697,46 @@ class PhoneView(QtWidgets.QFrame):
         theta_cov = attitude_covariance(self.quat, self.cov)
         return np.degrees(np.sqrt(np.clip(np.diag(theta_cov), 0.0, None)))
 
+    def _set_detail(self, text: str, urgent: bool = False) -> None:
+        """Change the header text, at most DETAIL_INTERVAL_S apart unless `urgent` (a label
+        re-laid-out on every frame costs more than it tells: nobody reads 60 numbers/s)."""
+        if text == self.detail_label.text():
+            return
+        now = time.monotonic()
+        if urgent or now - self._detail_changed_at >= DETAIL_INTERVAL_S:
+            self._detail_changed_at = now
+            self.detail_label.setText(text)
+
     def _update_uncertainty(self) -> None:
-        std = self.attitude_std_deg()
-        if std is not None and np.all(np.isfinite(std)):
-            self.detail_label.setText(
-                "σ (x, y, z) = " + ", ".join(f"{s:.1f}°" for s in std)
-                + (f"   rings: {self.n_sigma:g}σ × {self.ring_gain:g}"
-                   if self.uncertainty_visible and self._scene is not None else ""))
+        if self.quat is None or self.cov is None or self.cov.shape[0] < 4:
+            theta_cov = None
+        else:
+            theta_cov = attitude_covariance(self.quat, self.cov)
+        std = (None if theta_cov is None
+               else np.degrees(np.sqrt(np.clip(np.diag(theta_cov), 0.0, None))))
+        valid = std is not None and bool(np.all(np.isfinite(std)))
+        if valid:
+            text = ("σ (x, y, z) = " + ", ".join(f"{s:.1f}°" for s in std)
+                    + (f"   rings: {self.n_sigma:g}σ × {self.ring_gain:g}"
+                       if self.uncertainty_visible and self._scene is not None else ""))
+            # The first σ after "no data" (or a switch of the rings) shows at once.
+            self._set_detail(text, urgent="σ" not in self.detail_label.text()
+                             or ("rings" in text) != ("rings" in self.detail_label.text()))
+        elif self.quat is not None:
+            self._set_detail("", urgent=True)
         if self._scene is None:
             return
-        if not self.uncertainty_visible or std is None or not np.all(np.isfinite(std)):
+        if not self.uncertainty_visible or not valid:
+            self._drawn_theta_cov = None
             self._scene.set_uncertainty(None)
             return
-        theta_cov = attitude_covariance(self.quat, self.cov)
+        # New ring geometry only when the covariance changed visibly: the rings are in the
+        # phone's frame, so turning the phone needs no new vertices.
+        drawn = self._drawn_theta_cov
+        if drawn is not None and (np.abs(theta_cov - drawn).max()
+                                  <= RING_REDRAW_CHANGE * np.abs(drawn).max()):
+            return
+        self._drawn_theta_cov = theta_cov
         self._scene.set_uncertainty(axis_tip_ellipses(theta_cov * self.ring_gain ** 2, AXIS_LENGTH,
                                                       self.n_sigma))
 
@@ -371,6 +749,11 @@ class PhoneView(QtWidgets.QFrame):
             w, x, y, z = self.quat
             body = f"q = ({w:+.3f}, {x:+.3f}, {y:+.3f}, {z:+.3f})"
         self.placeholder.setText(f"{self.title}\n(3D view needs OpenGL)\n{body}")
+
+    def release_gl(self) -> None:
+        """Free the 3D view's GL objects (the window calls this when it shuts down)."""
+        if self.gl_view is not None:
+            self.gl_view.release()
 
     def grab_image(self) -> QtGui.QImage:
         """The view's current pixels (the GL framebuffer when 3D, else the widget)."""

@@ -27,6 +27,7 @@ XYZ_COLORS = ((220, 50, 50), (40, 170, 60), (50, 100, 230), (90, 90, 90))
 # take Qt's slow stroking path and cost several times the frame time at 500 Hz.
 PHONE_COLORS = ((245, 150, 150), (140, 215, 150), (150, 180, 250))
 EULER_NAMES = ("yaw", "pitch", "roll")
+LEFT_AXIS_WIDTH = 62        # px, the same for every plot so their time axes line up
 
 
 class SampleBuffer:
@@ -42,6 +43,12 @@ class SampleBuffer:
         self._t = np.empty(2 * self.capacity)
         self._values = np.empty((2 * self.capacity, columns))
         self.size = 0
+        self.appended = 0           # rows ever appended since the last clear
+
+    @property
+    def first_index(self) -> int:
+        """Running number of the oldest stored row (counts every row appended since clear)."""
+        return self.appended - self.size
 
     @property
     def t(self) -> np.ndarray:
@@ -53,11 +60,13 @@ class SampleBuffer:
 
     def clear(self) -> None:
         self.size = 0
+        self.appended = 0
 
     def append(self, t: np.ndarray, values: np.ndarray) -> None:
         count = len(t)
         if count == 0:
             return
+        self.appended += count
         if count > self.capacity:
             t, values, count = t[-self.capacity:], values[-self.capacity:], self.capacity
         if self.size + count > len(self._t):
@@ -81,15 +90,116 @@ class SampleBuffer:
         return slice(start, end)
 
 
+def same_turn(angles_deg: np.ndarray, reference_deg: np.ndarray) -> np.ndarray:
+    """`angles_deg` moved by whole turns to within ±180° of `reference_deg`, element-wise.
+
+    The engine unwraps OWN's and PHONE's Euler angles each on its own, so a single jump of
+    more than 180° between samples (near gimbal lock, or across a gap in PHONE's data) can
+    leave PHONE's unwrapped yaw whole turns away from OWN's although the two agree. Drawn
+    relative to OWN, PHONE stays in OWN's turn and the curves can be compared. NaN (no
+    PHONE sample yet, or no OWN estimate) stays as it is.
+    """
+    angles = np.asarray(angles_deg, dtype=np.float64)
+    reference = np.asarray(reference_deg, dtype=np.float64)
+    difference = angles - reference
+    # Python's % is a floor modulo: the result lies in [-180, 180).
+    moved = reference + (difference + 180.0) % 360.0 - 180.0
+    return np.where(np.isfinite(difference), moved, angles)
+
+
+def peak_downsample(t: np.ndarray, values: np.ndarray, first_index: int, max_points: int
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """At most about `max_points` points per column that keep every peak: the rows are cut
+    into bins of `factor` samples and each bin becomes two points, its minimum and maximum
+    (at the bin's first and last time). Bins are aligned to the running sample number
+    (`first_index` is that of t[0]) so a scrolling window keeps the same bins frame after
+    frame instead of flickering. Rows outside whole bins at either end are kept as they are.
+
+    Args:
+        t: (n,) times, increasing. values: (n, c). first_index: running number of row 0.
+        max_points: budget, e.g. the plot's width in pixels.
+    Returns:
+        (t, values) unchanged when n <= max_points, else the reduced (m,), (m, c).
+    """
+    count = len(t)
+    if count <= max_points or max_points < 4:
+        return t, values
+    factor = int(math.ceil(2.0 * count / max_points))
+    start = (-first_index) % factor
+    bins = (count - start) // factor
+    if bins < 2:
+        return t, values
+    end = start + bins * factor
+    binned = values[start:end].reshape(bins, factor, values.shape[1])
+    peaks = np.empty((bins, 2, values.shape[1]))
+    low, high = peaks[:, 0], peaks[:, 1]
+    low[...] = binned[:, 0]
+    high[...] = binned[:, 0]
+    # Element-wise over the bins' k-th samples: three times faster than min(axis=1) on the
+    # strided (bins, factor, columns) view. NaN propagates (a gap stays a gap).
+    for k in range(1, factor):
+        np.minimum(low, binned[:, k], out=low)
+        np.maximum(high, binned[:, k], out=high)
+    times = np.empty((bins, 2))
+    times[:, 0] = t[start:end:factor]
+    times[:, 1] = t[start + factor - 1:end:factor]
+    return (np.concatenate([t[:start], times.reshape(-1), t[end:]]),
+            np.concatenate([values[:start], peaks.reshape(-1, values.shape[1]), values[end:]]))
+
+
+class _Curve(pg.PlotCurveItem):
+    """A PlotCurveItem whose bounds come with the data (computed in numpy by the panel).
+
+    pyqtgraph recomputes a curve's bounds, with pixel padding, every time the view moves,
+    i.e. on every frame while following; here they are set once per setData.
+    """
+
+    def __init__(self, **options) -> None:
+        self._rect = QtCore.QRectF()
+        super().__init__(**options)
+
+    def set_curve(self, x: np.ndarray, y: np.ndarray, finite: bool,
+                  y_bounds: tuple[float, float] | None) -> None:
+        """New points; `finite`: no NaN in y (the fast path); y_bounds: (min, max) of y."""
+        if len(x) and y_bounds is not None:
+            low, high = y_bounds
+            x_pad = 0.01 * max(float(x[-1] - x[0]), 1e-9)
+            y_pad = 0.02 * max(high - low, 1e-9)
+            self._rect = QtCore.QRectF(float(x[0]) - x_pad, low - y_pad,
+                                       float(x[-1] - x[0]) + 2 * x_pad, high - low + 2 * y_pad)
+        else:
+            self._rect = QtCore.QRectF()
+        self.setData(x, y, connect="all" if finite else "finite", skipFiniteCheck=finite)
+
+    def dataBounds(self, ax: int, frac: float = 1.0, orthoRange=None):  # noqa: N802 (pg name)
+        if self._rect.isNull():
+            return (None, None)
+        if ax == 0:
+            return (self._rect.left(), self._rect.right())
+        return (self._rect.top(), self._rect.bottom())
+
+    def boundingRect(self) -> QtCore.QRectF:  # noqa: N802 (Qt name)
+        return self._rect
+
+
+def _cache_painting(item: QtWidgets.QGraphicsItem) -> None:
+    """Paint `item` and its children from pixmaps redrawn only when they call update():
+    legends and axis titles are text, and laying out text is the slowest part of a frame."""
+    item.setCacheMode(QtWidgets.QGraphicsItem.CacheMode.DeviceCoordinateCache)
+    for child in item.childItems():
+        _cache_painting(child)
+
+
 class _Stream:
     """One buffer and the curves drawn from its columns."""
 
     def __init__(self, columns: int) -> None:
         self.buffer = SampleBuffer(columns)
-        self.curves: list[tuple[str, pg.PlotDataItem, int]] = []   # (label, curve, column)
+        self.curves: list[tuple[str, _Curve, int]] = []   # (label, curve, column)
         self.rejected_column: int | None = None
         self.rejected_scatter: pg.ScatterPlotItem | None = None
         self.norm_column: int | None = None
+        self.rejected_shown: np.ndarray = np.empty(0)     # times of the marks drawn now
 
 
 class PlotPanel(QtWidgets.QWidget):
@@ -146,24 +256,33 @@ class PlotPanel(QtWidgets.QWidget):
 
         self.graphics = pg.GraphicsLayoutWidget()
         self.graphics.setBackground((250, 250, 252))
+        # Every curve moves on every frame: keeping Qt's spatial index (a BSP tree) of the
+        # items up to date costs more than it saves.
+        self.graphics.scene().setItemIndexMethod(QtWidgets.QGraphicsScene.ItemIndexMethod.NoIndex)
         layout.addWidget(self.graphics, 1)
 
         self.plots: dict[str, pg.PlotItem] = {}
         self.streams: dict[str, _Stream] = {}
         self.cursors: dict[str, pg.InfiniteLine] = {}
         self.gate_lines: dict[str, tuple[pg.InfiniteLine, pg.InfiniteLine]] = {}
+        self.legends: list[pg.LegendItem] = []
         self._build_xyz_plot("acc", "acc", "m/s²", rejected=True)
         self._build_xyz_plot("gyr", "gyr", "rad/s", rejected=False)
         self._build_xyz_plot("mag", "mag", "µT", rejected=True)
         self._build_euler_plot()
         self._build_angle_plot()
-        first = self.plots["acc"]
+        # The plots share their time range. Not with pyqtgraph's setXLink: that re-maps every
+        # change through each view's screen geometry and costs milliseconds per frame while
+        # following; with y axes of one fixed width the views line up, and the range is
+        # simply copied (set_x_range, _on_x_range_changed).
         for name, plot in self.plots.items():
-            if plot is not first:
-                plot.setXLink(first)
-            plot.getViewBox().sigRangeChangedManually.connect(self._on_manual_range)
-            plot.getViewBox().sigXRangeChanged.connect(self._on_x_range_changed)
+            plot.getAxis("left").setWidth(LEFT_AXIS_WIDTH)
+            view_box = plot.getViewBox()
+            view_box.sigRangeChangedManually.connect(self._on_manual_range)
+            view_box.sigXRangeChanged.connect(self._on_x_range_changed)
         self.plots["angle"].setLabel("bottom", "phone time", units="s")
+        for legend in self.legends:          # complete now: every curve has its entry
+            _cache_painting(legend)
 
     # ---- construction ---------------------------------------------------------------------
 
@@ -173,12 +292,19 @@ class PlotPanel(QtWidgets.QWidget):
         # The title goes on the y axis: five stacked plots have no height to spare.
         plot.setLabel("left", title, units=units)
         plot.showGrid(x=False, y=False)
-        # Plain units: "m°" or "ks" (SI prefixes on degrees and phone time) only confuse.
-        for axis in ("left", "bottom"):
+        # Plain units: "m°" or "ks" (SI prefixes on degrees and phone time) only confuse. Off
+        # on the hidden axes too: there it would re-lay out their labels on every frame.
+        for axis in ("left", "bottom", "top", "right"):
             plot.getAxis(axis).enableAutoSIPrefix(False)
-        # Clipping to the view is done here (only the visible window is handed over) and the
-        # peak-downsampling factor is set per frame from the visible count: pyqtgraph's
-        # automatic versions redo their work on every view change, i.e. every frame.
+        # Fewer tick levels: the time axis is regenerated on every frame while following.
+        for axis in ("left", "bottom"):
+            plot.getAxis(axis).setStyle(maxTickLevel=1, maxTextLevel=1)
+        # The y axis and its title change only when the y range does: paint them from a
+        # cached pixmap instead of laying out their text on every frame.
+        _cache_painting(plot.getAxis("left"))
+        # Clipping to the view and peak downsampling are done here, in numpy, once per stream
+        # and frame (peak_downsample): pyqtgraph's own versions redo their work per curve on
+        # every view change, i.e. every frame while following.
         plot.setClipToView(False)
         plot.setDownsampling(ds=1, auto=False, mode="peak")
         # y follows the visible samples, computed in refresh(): pyqtgraph's own auto range
@@ -189,6 +315,7 @@ class PlotPanel(QtWidgets.QWidget):
         legend = plot.addLegend(offset=(4, 1), colCount=8, labelTextSize="8pt",
                                 verSpacing=-6)
         legend.setBrush(pg.mkBrush(255, 255, 255, 200))
+        self.legends.append(legend)
         # Clicking a legend entry toggles that curve (pyqtgraph); hidden curves are not
         # redrawn, so a shown-again curve needs a redraw even while paused.
         legend.sigSampleClicked.connect(self._mark_dirty)
@@ -206,8 +333,9 @@ class PlotPanel(QtWidgets.QWidget):
 
     def _add_curve(self, stream: _Stream, plot: pg.PlotItem, label: str, column: int,
                    color) -> None:
-        curve = plot.plot(pen=pg.mkPen(color, width=1), name=label, connect="finite",
-                          skipFiniteCheck=False)
+        # Solid 1-px pens without antialiasing: Qt's fast line path.
+        curve = _Curve(pen=pg.mkPen(color, width=1), name=label, antialias=False)
+        plot.addItem(curve)                  # named, so the legend lists it
         stream.curves.append((label, curve, column))
 
     def _build_xyz_plot(self, key: str, title: str, units: str, rejected: bool) -> None:
@@ -273,7 +401,7 @@ class PlotPanel(QtWidgets.QWidget):
             phone = np.asarray(chunk.phone_euler_deg, float)
             phone = phone.reshape(count, 3) if phone.size == 3 * count else np.full((count, 3),
                                                                                      np.nan)
-            self._append("euler", chunk.t_est, np.hstack([own, phone]))
+            self._append("euler", chunk.t_est, np.hstack([own, same_turn(phone, own)]))
             angle = np.asarray(chunk.angle_deg, float)
             angle = angle.reshape(count, 1) if angle.size == count else np.full((count, 1), np.nan)
             self._append("angle", chunk.t_est, angle)
@@ -284,8 +412,11 @@ class PlotPanel(QtWidgets.QWidget):
         # A replay that loops or seeks backwards restarts the phone's time: start afresh.
         if t[0] < buffer.last_time() - 1e-6:
             buffer.clear()
+            self._dirty = True
         buffer.append(t, values)
-        self._dirty = True
+        # While paused, samples after the frozen view change nothing on screen.
+        if self.following or t[0] <= self.x_range()[1]:
+            self._dirty = True
 
     def set_status(self, status: FilterStatus) -> None:
         """Draw the gate limits on the norms: g ± acc_gate and L ± mag_gate."""
@@ -348,9 +479,23 @@ class PlotPanel(QtWidgets.QWidget):
         if not self._setting_range:
             self.set_paused(True)
 
-    def _on_x_range_changed(self, *args) -> None:
-        if not self._setting_range:
-            self._dirty = True
+    def _on_x_range_changed(self, view_box, x_range) -> None:
+        """A plot's time range changed by hand (drag, zoom, its menu): the others follow."""
+        if self._setting_range:
+            return
+        self.set_x_range(*x_range, source=view_box)
+        self._dirty = True
+
+    def set_x_range(self, low: float, high: float, source=None) -> None:
+        """Show phone times low..high (s) in every plot (but `source`, which already does)."""
+        self._setting_range = True
+        try:
+            for plot in self.plots.values():
+                view_box = plot.getViewBox()
+                if view_box is not source:
+                    view_box.setXRange(low, high, padding=0.0)
+        finally:
+            self._setting_range = False
 
     def _mark_dirty(self, *args) -> None:
         self._dirty = True
@@ -363,9 +508,7 @@ class PlotPanel(QtWidgets.QWidget):
         if self.following and math.isfinite(latest):
             x_range = (latest - self.window_s, latest)
             if x_range != self._last_range:
-                self._setting_range = True
-                self.plots["acc"].setXRange(*x_range, padding=0.0)
-                self._setting_range = False
+                self.set_x_range(*x_range)
                 self._dirty = True
         if not self._dirty:
             return
@@ -373,33 +516,54 @@ class PlotPanel(QtWidgets.QWidget):
         t_start, t_end = self.x_range()
         self._last_range = (t_start, t_end) if self.following else None
         for key, stream in self.streams.items():
-            window = stream.buffer.window(t_start, t_end)
-            t = stream.buffer.t[window]
-            values = stream.buffer.values[window]
-            factor = max(1, len(t) // max(2 * int(self.plots[key].getViewBox().width()), 1))
-            for _, curve, column in stream.curves:
-                if curve.isVisible() or not len(t):
-                    if curve.opts["downsample"] != factor:
-                        curve.setDownsampling(ds=factor, auto=False, method="peak")
-                    curve.setData(t, values[:, column])
-            if stream.rejected_scatter is not None:
-                mask = values[:, stream.rejected_column] > 0.5 if len(t) else np.zeros(0, bool)
-                stream.rejected_scatter.setData(t[mask], values[mask, stream.norm_column])
-            self._fit_y(key, stream, values)
+            self._draw_stream(key, stream, t_start, t_end)
+        # Apply the new ranges now: pyqtgraph would do it lazily at the start of the paint,
+        # which moves every item once more and so asks for a second paint of each frame.
+        for plot in self.plots.values():
+            plot.getViewBox().prepareForPaint()
         if self.cursor_checkbox.isChecked():
             self._update_readout()
 
-    def _fit_y(self, key: str, stream: _Stream, values: np.ndarray) -> None:
-        """Fit the y range to the visible curves (and gate lines), with hysteresis so the
+    def _draw_stream(self, key: str, stream: _Stream, t_start: float, t_end: float) -> None:
+        """Hand one stream's visible window, peak-downsampled to the plot's width, to its curves."""
+        buffer = stream.buffer
+        window = buffer.window(t_start, t_end)
+        t = buffer.t[window]
+        values = buffer.values[window]
+        width = max(int(self.plots[key].getViewBox().width()), 1)
+        shown_t, shown = peak_downsample(t, values, buffer.first_index + window.start, width)
+        visible = [(curve, column) for _, curve, column in stream.curves if curve.isVisible()]
+        if len(shown_t):
+            columns = [column for _, column in visible] or [0]
+            finite_columns = np.isfinite(shown[:, columns]).all(axis=0)
+            # fmin/fmax skip NaN (PHONE before its first ORI) without all-NaN warnings.
+            lows = np.fmin.reduce(shown[:, columns], axis=0)
+            highs = np.fmax.reduce(shown[:, columns], axis=0)
+        for index, (curve, column) in enumerate(visible):
+            if not len(shown_t):
+                curve.set_curve(shown_t, shown[:, column], True, None)
+                continue
+            low, high = float(lows[index]), float(highs[index])
+            bounds = (low, high) if math.isfinite(low) and math.isfinite(high) else None
+            curve.set_curve(shown_t, shown[:, column], bool(finite_columns[index]), bounds)
+        # A hidden curve keeps its old points; it gets the current ones when shown again
+        # (the legend click marks the panel dirty).
+        if stream.rejected_scatter is not None:
+            mask = values[:, stream.rejected_column] > 0.5 if len(t) else np.zeros(0, bool)
+            marked_t = t[mask]
+            # Marks move with the data only when there are any; re-setting an unchanged
+            # scatter costs a millisecond a frame.
+            if not np.array_equal(marked_t, stream.rejected_shown):
+                stream.rejected_shown = marked_t
+                stream.rejected_scatter.setData(marked_t, values[mask, stream.norm_column])
+        if len(shown_t) and visible:
+            finite = np.isfinite(lows) & np.isfinite(highs)
+            if finite.any():
+                self._fit_y(key, float(lows[finite].min()), float(highs[finite].max()))
+
+    def _fit_y(self, key: str, low: float, high: float) -> None:
+        """Fit the y range to the visible curves' span (and gate lines), with hysteresis so the
         axis does not rescale, and re-layout, on every frame."""
-        columns = [column for _, curve, column in stream.curves if curve.isVisible()]
-        if not columns or not len(values):
-            return
-        shown = values[:, columns]
-        finite = shown[np.isfinite(shown)]
-        if not finite.size:
-            return
-        low, high = float(finite.min()), float(finite.max())
         for line in self.gate_lines.get(key, ()):
             if line.isVisible():
                 low, high = min(low, line.value()), max(high, line.value())

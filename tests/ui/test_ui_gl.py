@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from PySide6 import QtGui
+from PySide6 import QtGui, QtWidgets
 
 from ui_helpers import FakeEngine, make_snapshot, quat_about_z
 
@@ -105,6 +105,57 @@ def test_uncertainty_rings_appear_and_hide(make_window, qtbot):
     qtbot.wait(50)
     without_rings = _pixels(view.grab_image())
     assert (np.abs(with_rings.astype(int) - without_rings.astype(int)).sum(axis=2) > 60).sum() > 50
+
+
+def _settle(qtbot) -> None:
+    """Let Qt paint what is pending."""
+    qtbot.wait(60)
+
+
+def test_a_view_renders_again_only_when_its_picture_changes(make_window, qtbot):
+    window = make_window(FakeEngine(), use_gl=None)
+    window.resize(1400, 900)
+    window.show()
+    qtbot.waitExposed(window)
+    view = window.phone_view
+    qtbot.wait(100)
+    view.set_orientation(quat_about_z(30.0))
+    _settle(qtbot)
+    rendered, painted = view.gl_view.frames_rendered, view.gl_view.frames_painted
+    first = _pixels(view.grab_image())
+    # The same pose (and noise far below a pixel) repaints from the stored image.
+    view.set_orientation(quat_about_z(30.0 + 1e-4))
+    QtWidgets.QWidget.update(view.gl_view)      # a repaint Qt asks for (e.g. an expose)
+    _settle(qtbot)
+    assert view.gl_view.frames_rendered == rendered + 0
+    assert view.gl_view.frames_painted > painted
+    np.testing.assert_array_equal(_pixels(view.grab_image()), first)
+    # A visible turn renders once more, and the picture changes.
+    view.set_orientation(quat_about_z(60.0))
+    _settle(qtbot)
+    assert view.gl_view.frames_rendered == rendered + 1
+    turned = _pixels(view.grab_image())
+    assert (np.abs(turned.astype(int) - first.astype(int)).sum(axis=2) > 60).mean() > 0.005
+
+
+def test_the_camera_orbits_and_resets(make_window, qtbot):
+    window = make_window(FakeEngine(), use_gl=None)
+    window.resize(1400, 900)
+    window.show()
+    qtbot.waitExposed(window)
+    view = window.own_view
+    view.set_orientation(quat_about_z(0.0))
+    _settle(qtbot)
+    home = _pixels(view.grab_image())
+    rendered = view.gl_view.frames_rendered
+    view.gl_view.orbit(60.0, 20.0)                 # what dragging with the mouse does
+    _settle(qtbot)
+    assert view.gl_view.frames_rendered > rendered
+    orbited = _pixels(view.grab_image())
+    assert (np.abs(orbited.astype(int) - home.astype(int)).sum(axis=2) > 60).mean() > 0.01
+    view.reset_camera_button.click()
+    _settle(qtbot)
+    np.testing.assert_array_equal(_pixels(view.grab_image()), home)
 
 
 def _region_is_drawn(pixels: np.ndarray, top: float, bottom: float, left: float,

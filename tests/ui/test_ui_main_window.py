@@ -38,7 +38,8 @@ def test_window_builds_offscreen_with_placeholders(make_window, fake_engine):
     assert fake_engine.commands == []         # default settings: nothing to tell the engine
 
 
-def test_snapshot_stream_drives_views_lights_plots_and_counters(make_window, fake_engine):
+def test_snapshot_stream_drives_views_lights_plots_and_counters(make_window, fake_engine, qtbot):
+    from app.ui.main_window import PANEL_INTERVAL_S
     window = make_window(fake_engine)
     window.show()
     _feed(window, fake_engine, 4)
@@ -46,6 +47,9 @@ def test_snapshot_stream_drives_views_lights_plots_and_counters(make_window, fak
     snapshot.health.damaged = 17
     snapshot.health.warnings = ["ACC rate dropped to 20 Hz"]
     fake_engine.snapshots.append(snapshot)
+    window.tick()
+    # Text panels follow at their own pace, even when no new snapshot comes.
+    qtbot.wait(int(1000 * PANEL_INTERVAL_S) + 30)
     window.tick()
     assert window.snapshots_received == 5
     np.testing.assert_allclose(window.own_view.quat, snapshot.own_quat)
@@ -63,6 +67,59 @@ def test_snapshot_stream_drives_views_lights_plots_and_counters(make_window, fak
     assert window.statusBar().currentMessage() == "ACC rate dropped to 20 Hz"
     fake_engine.snapshots.append(make_snapshot(6, 2.5, phone_quat=None))
     window.tick()
+
+
+def test_text_panels_follow_at_a_lower_rate_and_only_change_when_the_text_does(
+        make_window, fake_engine, qtbot, monkeypatch):
+    from app.ui.main_window import PANEL_INTERVAL_S
+    window = make_window(fake_engine)
+    window.show()
+    _feed(window, fake_engine, 1)
+    assert "3 out of order" in window.connection.problems_label.text()   # the first at once
+    # Snapshots at display rate: the 3D views and plots take each one, the counters do not.
+    for seq in range(2, 6):
+        snapshot = make_snapshot(seq, 0.5 * (seq - 1))
+        snapshot.health.out_of_order = 100 + seq
+        fake_engine.snapshots.append(snapshot)
+        window.tick()
+        np.testing.assert_allclose(window.own_view.quat, snapshot.own_quat)
+    assert window.plots.streams["acc"].buffer.size == 5 * 50
+    assert "3 out of order" in window.connection.problems_label.text()
+    qtbot.wait(int(1000 * PANEL_INTERVAL_S) + 30)
+    window.tick()
+    assert "105 out of order" in window.connection.problems_label.text()
+    # The same text again does not touch the labels.
+    calls = []
+    original = QtWidgets.QLabel.setText
+    monkeypatch.setattr(QtWidgets.QLabel, "setText",
+                        lambda label, text: (calls.append(text), original(label, text)))
+    repeat = make_snapshot(5, 2.0)
+    repeat.health.out_of_order = 105
+    fake_engine.snapshots.append(repeat)
+    window.tick()
+    qtbot.wait(int(1000 * PANEL_INTERVAL_S) + 30)
+    window.tick()
+    assert not [text for text in calls if "out of order" in text or text.startswith("t = ")]
+
+
+def test_frame_rate_counts_painted_frames_not_timer_ticks(make_window, fake_engine, qtbot):
+    window = make_window(fake_engine)
+    window.timer.stop()                         # ticks by hand only
+    window.show()
+    qtbot.waitExposed(window)
+    for _ in range(2):                          # the empty plots, then after the layout settled
+        window.tick()
+        qtbot.wait(200)
+    painted, ticks = window.frames_painted, window.ticks
+    for _ in range(5):                          # ticks with nothing new draw nothing
+        window.tick()
+    QtWidgets.QApplication.processEvents()
+    assert window.frames_painted == painted and window.ticks == ticks + 5
+    _feed(window, fake_engine, 1)               # new samples: one frame, however many paints
+    qtbot.waitUntil(lambda: window.frames_painted == painted + 1, timeout=2000)
+    qtbot.wait(50)
+    assert window.frames_painted == painted + 1
+    assert window.frames_per_second() >= 1
 
 
 def test_shortcuts_send_commands(make_window, fake_engine, qtbot):

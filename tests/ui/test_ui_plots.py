@@ -7,7 +7,7 @@ import pytest
 from PySide6 import QtCore
 
 from app.snapshot import FilterStatus
-from app.ui.plots import PlotPanel, SampleBuffer
+from app.ui.plots import PlotPanel, SampleBuffer, peak_downsample, same_turn
 
 from ui_helpers import make_chunk
 
@@ -155,3 +155,64 @@ def test_phone_angles_may_be_missing(panel):
     panel.refresh()
     assert np.isnan(panel.streams["angle"].buffer.values).all()
     assert panel.streams["euler"].buffer.size == 20
+
+
+def test_phone_yaw_is_drawn_in_the_same_turn_as_own(panel):
+    # OWN turns steadily through three turns; PHONE agrees within a few degrees, but its own
+    # unwrapping went astray twice (a jump of more than 180° between samples), so its
+    # unwrapped yaw ends up two turns (720°) away from OWN's.
+    chunk = make_chunk(0.0, count=200)
+    own_yaw = np.linspace(0.0, 1080.0, 200)
+    phone_yaw = own_yaw + 3.0 + np.where(np.arange(200) >= 60, 360.0, 0.0) \
+        + np.where(np.arange(200) >= 140, 360.0, 0.0)
+    chunk.own_euler_deg[:, 0] = own_yaw
+    chunk.phone_euler_deg[:, 0] = phone_yaw
+    chunk.phone_euler_deg[:10] = np.nan                 # no ORI at first
+    panel.append(chunk)
+    panel.refresh()
+    stored = panel.streams["euler"].buffer.values
+    np.testing.assert_allclose(stored[:, 0], own_yaw)
+    np.testing.assert_allclose(stored[10:, 3], own_yaw[10:] + 3.0)
+    assert np.isnan(stored[:10, 3:]).all()
+    np.testing.assert_allclose(stored[10:, 4:], chunk.phone_euler_deg[10:, 1:])   # pitch, roll
+    x, y = _curve(panel, "euler", "PHONE yaw").getData()
+    assert np.nanmax(np.abs(y - np.interp(x, chunk.t_est, own_yaw))) < 3.5
+
+
+def test_same_turn_picks_the_nearest_turn_and_keeps_nan():
+    reference = np.array([0.0, 350.0, -725.0, 10.0, np.nan])
+    angles = np.array([719.0, -5.0, 0.0, np.nan, 40.0])
+    np.testing.assert_allclose(same_turn(angles, reference)[:3], [-1.0, 355.0, -720.0])
+    assert np.isnan(same_turn(angles, reference)[3])
+    assert same_turn(angles, reference)[4] == 40.0          # no OWN: left as it came
+
+
+def test_peak_downsample_keeps_every_peak_with_stable_bins():
+    t = np.arange(10_000) / 500.0
+    values = np.column_stack([np.sin(t), np.zeros_like(t)])
+    values[4321, 1] = 7.0                                  # a one-sample spike
+    values[8765, 1] = -3.0
+    shown_t, shown = peak_downsample(t, values, first_index=0, max_points=1000)
+    assert len(shown_t) <= 1100 and np.all(np.diff(shown_t) >= 0)
+    assert shown[:, 1].max() == 7.0 and shown[:, 1].min() == -3.0
+    assert shown[:, 0].max() == pytest.approx(values[:, 0].max())
+    # One sample later the window has scrolled by one: the bins are the same samples.
+    later_t, later = peak_downsample(t[1:], values[1:], first_index=1, max_points=1000)
+    common = np.intersect1d(shown_t, later_t)
+    assert len(common) > 0.9 * len(shown_t)
+    np.testing.assert_array_equal(peak_downsample(t[:500], values[:500], 0, 1000)[1], values[:500])
+
+
+def test_all_plots_share_one_time_range(panel):
+    panel.append(make_chunk(0.0, count=300))
+    panel.refresh()
+    ranges = {key: plot.getViewBox().viewRange()[0] for key, plot in panel.plots.items()}
+    assert all(r == pytest.approx(ranges["acc"]) for r in ranges.values())
+    panel.set_paused(True)
+    panel.plots["mag"].getViewBox().setXRange(1.0, 2.0, padding=0.0)   # e.g. dragged by hand
+    for plot in panel.plots.values():
+        assert plot.getViewBox().viewRange()[0] == pytest.approx([1.0, 2.0])
+    # The views line up: the same time is at the same x on the screen in every plot.
+    xs = {key: plot.getViewBox().mapViewToScene(QtCore.QPointF(1.5, 0.0)).x()
+          for key, plot in panel.plots.items()}
+    assert max(xs.values()) - min(xs.values()) < 1.0
