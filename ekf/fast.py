@@ -163,7 +163,8 @@ _C_GYR_SCALE_NOISE = 55
 _C_UPDATE_PERIOD = 56
 _C_GYR_RATE_BEFORE = 58
 _C_MAG_NIS_GATE = 59
-_CFG_SIZE = 60
+_C_GYR_COV_ISOTROPIC = 60    # R_w = r I (a shortcut for G R_w G^T)
+_CFG_SIZE = 61
 
 # sample kinds (the order of `step`)
 KIND_GYR = 0
@@ -211,6 +212,8 @@ def pack_settings(settings: EKFSettings) -> np.ndarray:
     c[_C_UPDATE_PERIOD] = s.update_period_s
     c[_C_GYR_RATE_BEFORE] = float(bool(s.gyr_rate_before_sample))
     c[_C_MAG_NIS_GATE] = s.mag_nis_gate
+    R_w = np.asarray(s.gyr_noise_cov, float)
+    c[_C_GYR_COV_ISOTROPIC] = float(np.array_equal(R_w, R_w[0, 0] * np.eye(3)))
     c[_C_MAG_DIP_FROM_ESTIMATE] = float(bool(s.mag_dip_from_estimate))
     return c
 
@@ -616,19 +619,35 @@ def _time_update_gyro_n(s, c, T, n):
     # G R_w G^T, R_w grown by the scale-factor noise (k |w|)^2 I
     R = _C_GYR_COV
     extra = c[_C_GYR_SCALE_NOISE] ** 2 * (wx * wx + wy * wy + wz * wz)
-    for i in range(4):
-        gr0 = G[i][0] * (c[R + 0] + extra) + G[i][1] * c[R + 3] + G[i][2] * c[R + 6]
-        gr1 = G[i][0] * c[R + 1] + G[i][1] * (c[R + 4] + extra) + G[i][2] * c[R + 7]
-        gr2 = G[i][0] * c[R + 2] + G[i][1] * c[R + 5] + G[i][2] * (c[R + 8] + extra)
-        for j in range(i, 4):
-            v = (s[AP + 7 * i] * F[j][0] + s[AP + 7 * i + 1] * F[j][1]
-                 + s[AP + 7 * i + 2] * F[j][2] + s[AP + 7 * i + 3] * F[j][3])
-            if n == 7:
-                v -= (s[AP + 7 * i + 4] * G[j][0] + s[AP + 7 * i + 5] * G[j][1]
-                      + s[AP + 7 * i + 6] * G[j][2])
-            v += gr0 * G[j][0] + gr1 * G[j][1] + gr2 * G[j][2]
-            s[P + 7 * i + j] = v
-            s[P + 7 * j + i] = v
+    if c[_C_GYR_COV_ISOTROPIC] != 0.0:
+        # R_w = r I: G R_w G^T = r (T/2)^2 S̄ S̄^T = r (T/2)^2 (|q|^2 I - q q^T)
+        r = (c[R] + extra) * h * h
+        qv = (q0, q1, q2, q3)
+        qq = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
+        for i in range(4):
+            for j in range(i, 4):
+                v = (s[AP + 7 * i] * F[j][0] + s[AP + 7 * i + 1] * F[j][1]
+                     + s[AP + 7 * i + 2] * F[j][2] + s[AP + 7 * i + 3] * F[j][3])
+                if n == 7:
+                    v -= (s[AP + 7 * i + 4] * G[j][0] + s[AP + 7 * i + 5] * G[j][1]
+                          + s[AP + 7 * i + 6] * G[j][2])
+                v += r * ((qq if i == j else 0.0) - qv[i] * qv[j])
+                s[P + 7 * i + j] = v
+                s[P + 7 * j + i] = v
+    else:
+        for i in range(4):
+            gr0 = G[i][0] * (c[R + 0] + extra) + G[i][1] * c[R + 3] + G[i][2] * c[R + 6]
+            gr1 = G[i][0] * c[R + 1] + G[i][1] * (c[R + 4] + extra) + G[i][2] * c[R + 7]
+            gr2 = G[i][0] * c[R + 2] + G[i][1] * c[R + 5] + G[i][2] * (c[R + 8] + extra)
+            for j in range(i, 4):
+                v = (s[AP + 7 * i] * F[j][0] + s[AP + 7 * i + 1] * F[j][1]
+                     + s[AP + 7 * i + 2] * F[j][2] + s[AP + 7 * i + 3] * F[j][3])
+                if n == 7:
+                    v -= (s[AP + 7 * i + 4] * G[j][0] + s[AP + 7 * i + 5] * G[j][1]
+                          + s[AP + 7 * i + 6] * G[j][2])
+                v += gr0 * G[j][0] + gr1 * G[j][1] + gr2 * G[j][2]
+                s[P + 7 * i + j] = v
+                s[P + 7 * j + i] = v
     if n == 7:
         for i in range(4):
             for j in range(4, 7):
