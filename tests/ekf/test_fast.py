@@ -45,6 +45,10 @@ SETTINGS = {
     "lowpass_course_timing": PRESETS["default"].with_changes(
         exact_discretisation=False, gyr_rate_before_sample=False, update_period_s=0.0,
         acc_nis_gate=7.8, mag_dip_from_estimate=False, mag_relearn_s=1.0, mag_settle_s=0.2),
+    # a calibrated, anisotropic R_w (the compiled path has a closed form for R_w = r I only)
+    "anisotropic_rw": PRESETS["default"].with_changes(
+        gyr_noise_cov=[[1e-4, 2e-5, 0.0], [2e-5, 3e-4, -1e-5], [0.0, -1e-5, 2e-4]],
+        gyr_scale_noise=0.02, mag_relearn_s=1.0),
 }
 
 
