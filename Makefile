@@ -12,12 +12,18 @@ $(PY):
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 
+# After installing, compile the filter's kernels once (numba caches them on disk; about half a
+# minute the first time) so the first window does not wait for the compiler.
+WARM := @echo "compiling the filter kernels (first time only)..." && $(PY) -c "import app.pipeline as p; p.warm_up()"
+
 $(STAMP_RUN): pyproject.toml | $(PY)
 	$(PY) -m pip install -q -e .
+	$(WARM)
 	touch $@
 
 $(STAMP_TEST): pyproject.toml | $(PY)
 	$(PY) -m pip install -q -e '.[test]'
+	$(WARM)
 	touch $@ $(STAMP_RUN)
 
 $(STAMP_BENCH): pyproject.toml | $(PY)

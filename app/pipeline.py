@@ -512,3 +512,28 @@ def run_offline(samples: Iterable[Sample], estimator_name: str = "ekf",
     runner.feed_many(samples)
     runner.finish()
     return runner.take_rows()
+
+
+def warm_up() -> None:
+    """Compile (the first time: about half a minute) or load from numba's on-disk cache every
+    kernel the engine uses: the EKF, the parser, the time orderer and the runner's own, by
+    running two seconds of a simulated phone through them. `make run` and `make test` call it
+    once after installing, so the first window does not wait for the compiler."""
+    import tempfile
+    from pathlib import Path
+
+    from app.io import fastparse, ordering
+    from app.io.demo import write_session
+    from app.io.logfile import read_log
+    from ekf import fast
+    from ekf.simulate import simulate
+
+    fast.warm_up()
+    fastparse.warm_up()
+    ordering.warm_up()
+    with tempfile.TemporaryDirectory() as directory:
+        log = read_log(write_session(simulate(duration_s=2.0, seed=0), Path(directory) / "w.txt"))
+    runner = EstimatorRunner(comparisons=True, collect_plot=True)
+    runner.feed_many(log.samples)
+    runner.finish()
+    runner.take_rows()

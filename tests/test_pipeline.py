@@ -180,3 +180,9 @@ def test_batch_path_equals_feeding_sample_by_sample_on_real_logs():
         assert out.quat.tolist() == [row[1] for row in rows], path.name
         assert plot["acc_rejected"].tolist() == acc_flags, path.name
         assert plot["mag_rejected"].tolist() == mag_flags, path.name
+
+
+def test_warm_up_runs_every_kernel_the_engine_uses():
+    """`make run` / `make test` call it after installing; it must keep working."""
+    from app import pipeline
+    pipeline.warm_up()
