@@ -32,7 +32,7 @@ TAG_WIDTHS = (3, 3, 3, 4)
 
 _POW10 = np.array([float(10 ** k) for k in range(23)])   # exact doubles
 _TWO_POW_53 = 2 ** 53
-_MAX_TIME_DIGITS = 18            # fits int64; longer times go to Python (same int value)
+_MAX_TIME_DIGITS = 18            # fits int64; longer times go to Python (damaged there)
 
 _jit = njit(cache=True, nogil=True)
 

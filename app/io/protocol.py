@@ -32,6 +32,7 @@ TAG_PRIORITY: dict[str, int] = {tag: index for index, tag in enumerate(FILTER_TA
 
 MAX_LINE_BYTES = 4096          # longer lines are discarded (bounded memory whatever a client sends)
 PARSE_ERROR_KINDS = ("damaged", "unknown_tag", "empty", "too_long")
+MAX_TIME_DIGITS = 18   # a time stamp with more digits is damaged (it would not fit int64)
 
 
 class Sample(NamedTuple):
@@ -94,7 +95,8 @@ def parse_line(line: str) -> Sample:
     if len(fields) < 2:
         raise ParseError("damaged", f"no TAB-separated tag in {_preview(line)}")
     time_text, tag = fields[0], fields[1]
-    if not (time_text.isascii() and time_text.isdigit()):
+    if not (time_text.isascii() and time_text.isdigit()) or len(time_text) > MAX_TIME_DIGITS:
+        # More than 18 digits does not fit the int64 times downstream (epoch ms has 13).
         raise ParseError("damaged", f"bad time {_preview(time_text)}")
     t_ms = int(time_text)
     count = NUMERIC_TAG_COUNTS.get(tag)

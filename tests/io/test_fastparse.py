@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import random
 
+import pytest
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -78,6 +80,16 @@ _LINES = st.builds(
 def test_fast_parser_equals_line_parser_on_any_bytes_and_chunking(parts, cuts, max_line_bytes):
     data = b"".join(parts)
     assert _fast(data, cuts, max_line_bytes) == _reference(data, cuts, max_line_bytes)
+
+
+@pytest.mark.parametrize("end", [b"", b"\n"])
+def test_a_time_beyond_int64_is_a_damaged_line_not_a_crash(end):
+    """Found by the property test: 34 digits of time glued onto a GYR line."""
+    data = b"12345678901234567" * 2 + b"0\tGYR\t0.0\t0.0\t0.0" + end + b"5\tACC\t0\t0\t9.8\n"
+    fast = _fast(data, [], 4096)
+    assert fast == _reference(data, [], 4096)
+    samples, stats = fast[0], fast[1]
+    assert stats.damaged == 1 and len(samples) == (1 if end else 0)
 
 
 def test_fast_parser_equals_line_parser_on_real_logs(realphone_dir):

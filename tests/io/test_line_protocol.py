@@ -40,6 +40,7 @@ def test_ori_three_values_gets_w_and_four_values_get_w_nonnegative():
     ("123\tRAWGYR\t1\t2\t3\t4\t5\t6\t7\t8\t9\t10", "damaged"),
     ("12x\tACC\t1\t2\t3", "damaged"),                  # bad time
     ("-5\tACC\t1\t2\t3", "damaged"),
+    ("1234567890123456789\tACC\t1\t2\t3", "damaged"),  # 19 digits: beyond int64 times
     ("123\tACC\t1\tabc\t3", "damaged"),                # bad number
     ("123\tACC\t1\tnan\t3", "damaged"),                # non-finite
     ("123\tACC\t1\t1_0\t3", "damaged"),
