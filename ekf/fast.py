@@ -1000,6 +1000,11 @@ def _initialise(s, c, t):
     m1 = s[_S_LAST_MAG + 1]
     m2 = s[_S_LAST_MAG + 2]
     if acc_ok and mag_ok:
+        x0, x1, x2 = _cross(m0, m1, m2, a0, a1, a2)
+        if (math.sqrt(x0 * x0 + x1 * x1 + x2 * x2) <= 1e-6 * math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+                * math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)):
+            mag_ok = False   # a field along gravity has no heading: tilt now, heading later
+    if acc_ok and mag_ok:
         q = _acc_mag_quaternion(a0, a1, a2, m0, m1, m2)
         s[_S_HEADING_FROM_MAG] = 1.0
     elif acc_ok:

@@ -611,6 +611,10 @@ class OrientationEKF:
         acc_ok = self._enabled["acc"] and self._last_acc is not None
         mag_ok = (self._enabled["mag"] and self._last_mag is not None
                   and t - self._last_mag_t <= 0.1)
+        if acc_ok and mag_ok and (np.linalg.norm(np.cross(self._last_mag, self._last_acc))
+                                  <= 1e-6 * np.linalg.norm(self._last_mag)
+                                  * np.linalg.norm(self._last_acc)):
+            mag_ok = False   # a field along gravity has no heading: tilt now, heading later
         if acc_ok and mag_ok:
             q = acc_mag_quaternion(self._last_acc, self._last_mag)
             self._heading_from_mag = True

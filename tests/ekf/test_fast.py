@@ -289,3 +289,17 @@ def test_real_log_matches_reference(realphone_dir):
         ref, fast, out = _run_both(settings, t, gyr, acc, mag)
         batch = FastEKF(settings).run_batch(t, gyr, acc, mag)
         np.testing.assert_array_equal(batch.quat, out)
+
+
+@pytest.mark.parametrize("preset", ["default", "course"])
+def test_a_field_along_gravity_at_the_start_gives_no_nan(preset):
+    """Found by the invariant property test: the first readings have acc parallel to mag."""
+    ref, fast = OrientationEKF(preset), FastEKF(preset)
+    for f in (ref, fast):
+        f.update_mag(0.0, [1.0, 0.0, 0.0])
+        f.update_acc(0.0, [1.0, 0.0, 0.0])
+        assert f.initialised and np.all(np.isfinite(f.quat))
+        f.update_mag(0.01, [0.0, 20.0, -40.0])       # a usable field then sets the heading
+        f.update_acc(0.01, [0.0, 0.0, 9.81])
+        assert np.all(np.isfinite(f.quat)) and np.all(np.isfinite(f.cov))
+    np.testing.assert_allclose(fast.quat, ref.quat, atol=TOL)
