@@ -616,38 +616,33 @@ def _time_update_gyro_n(s, c, T, n):
                 v -= (G[i][0] * s[P + 28 + j] + G[i][1] * s[P + 35 + j]
                       + G[i][2] * s[P + 42 + j])
             s[AP + 7 * i + j] = v
-    # G R_w G^T, R_w grown by the scale-factor noise (k |w|)^2 I
+    # G R_w G^T, R_w grown by the scale-factor noise (k |w|)^2 I. For R_w = r I it is
+    # r (T/2)^2 S̄ S̄^T = r (T/2)^2 (|q|^2 I - q q^T), cheaper than the general product.
     R = _C_GYR_COV
     extra = c[_C_GYR_SCALE_NOISE] ** 2 * (wx * wx + wy * wy + wz * wz)
-    if c[_C_GYR_COV_ISOTROPIC] != 0.0:
-        # R_w = r I: G R_w G^T = r (T/2)^2 S̄ S̄^T = r (T/2)^2 (|q|^2 I - q q^T)
-        r = (c[R] + extra) * h * h
-        qv = (q0, q1, q2, q3)
-        qq = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
-        for i in range(4):
-            for j in range(i, 4):
-                v = (s[AP + 7 * i] * F[j][0] + s[AP + 7 * i + 1] * F[j][1]
-                     + s[AP + 7 * i + 2] * F[j][2] + s[AP + 7 * i + 3] * F[j][3])
-                if n == 7:
-                    v -= (s[AP + 7 * i + 4] * G[j][0] + s[AP + 7 * i + 5] * G[j][1]
-                          + s[AP + 7 * i + 6] * G[j][2])
-                v += r * ((qq if i == j else 0.0) - qv[i] * qv[j])
-                s[P + 7 * i + j] = v
-                s[P + 7 * j + i] = v
-    else:
-        for i in range(4):
+    isotropic = c[_C_GYR_COV_ISOTROPIC] != 0.0
+    r = (c[R] + extra) * h * h
+    qv = (q0, q1, q2, q3)
+    qq = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
+    for i in range(4):
+        if isotropic:
+            gr0 = gr1 = gr2 = 0.0
+        else:
             gr0 = G[i][0] * (c[R + 0] + extra) + G[i][1] * c[R + 3] + G[i][2] * c[R + 6]
             gr1 = G[i][0] * c[R + 1] + G[i][1] * (c[R + 4] + extra) + G[i][2] * c[R + 7]
             gr2 = G[i][0] * c[R + 2] + G[i][1] * c[R + 5] + G[i][2] * (c[R + 8] + extra)
-            for j in range(i, 4):
-                v = (s[AP + 7 * i] * F[j][0] + s[AP + 7 * i + 1] * F[j][1]
-                     + s[AP + 7 * i + 2] * F[j][2] + s[AP + 7 * i + 3] * F[j][3])
-                if n == 7:
-                    v -= (s[AP + 7 * i + 4] * G[j][0] + s[AP + 7 * i + 5] * G[j][1]
-                          + s[AP + 7 * i + 6] * G[j][2])
+        for j in range(i, 4):
+            v = (s[AP + 7 * i] * F[j][0] + s[AP + 7 * i + 1] * F[j][1]
+                 + s[AP + 7 * i + 2] * F[j][2] + s[AP + 7 * i + 3] * F[j][3])
+            if n == 7:
+                v -= (s[AP + 7 * i + 4] * G[j][0] + s[AP + 7 * i + 5] * G[j][1]
+                      + s[AP + 7 * i + 6] * G[j][2])
+            if isotropic:
+                v += r * ((qq if i == j else 0.0) - qv[i] * qv[j])
+            else:
                 v += gr0 * G[j][0] + gr1 * G[j][1] + gr2 * G[j][2]
-                s[P + 7 * i + j] = v
-                s[P + 7 * j + i] = v
+            s[P + 7 * i + j] = v
+            s[P + 7 * j + i] = v
     if n == 7:
         for i in range(4):
             for j in range(4, 7):

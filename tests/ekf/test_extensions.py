@@ -86,18 +86,19 @@ def test_norm_gate_only_flags_when_lowpass_is_on():
 
 
 def test_gyro_sample_convention():
-    """A rate sample that ends an interval drives the state up to its own time stamp."""
+    """Turning at 1 rad/s about up for 0.5 s (50 samples at 100 Hz, the first at rest): a sample
+    that ends its interval brings the state to its own time stamp (0.50 rad); the course's
+    convention is one sample behind (0.49 rad)."""
     hz = 100.0
-    for before, expected_deg in ((True, 1.0 * 0.5 / math.pi * 180), (False, 1.0 * 0.49 / math.pi * 180)):
+    for before, expected_rad in ((True, 0.50), (False, 0.49)):
         s = PRESETS["course"].with_changes(exact_discretisation=True, gyr_rate_before_sample=before,
                                            acc_gate=0.0, mag_gate=0.0)
         f = OrientationEKF(s)
-        f.step(0.0, gyr=[0, 0, 0], acc=G0, mag=M0)
-        for k in range(1, 51):   # 0.5 s at 1 rad/s about z
+        f.step(0.0, gyr=[0, 0, 0], acc=G0, mag=M0)   # level, facing north: yaw 0
+        assert abs(Q.to_euler(f.quat)[0]) < 1e-12
+        for k in range(1, 51):
             f.step(k / hz, gyr=[0, 0, 1.0])
-        yaw = math.degrees(Q.to_euler(f.quat)[0] - Q.to_euler(Q.IDENTITY)[0])
-        assert abs(yaw - Q.to_euler(acc_mag := ekf.reference.acc_mag_quaternion(G0, M0))[0] * 0
-                   - expected_deg) < 1e-6, (before, yaw)
+        assert Q.to_euler(f.quat)[0] == pytest.approx(expected_rad, abs=1e-9), before
 
 
 def test_gyro_scale_noise_grows_the_covariance_in_fast_turns():
