@@ -14,7 +14,7 @@ $(PY):
 
 # After installing, compile the filter's kernels once (numba caches them on disk; about half a
 # minute the first time) so the first window does not wait for the compiler.
-WARM := @echo "compiling the filter kernels (first time only)..." && $(PY) -c "import app.pipeline as p; p.warm_up()"
+WARM := @echo "compiling the filter kernels (first time only)..." && $(PY) -c "import app.engine.warmup as w; w.warm_up()"
 
 $(STAMP_RUN): pyproject.toml | $(PY)
 	$(PY) -m pip install -q -e .

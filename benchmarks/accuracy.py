@@ -29,7 +29,7 @@ sys.path.insert(0, str(REPO))
 import ekf  # noqa: E402
 from ekf import quaternion as Q  # noqa: E402
 from ekf.metrics import intervals_mask  # noqa: E402
-from app.io.logfile import read_log  # noqa: E402
+from app.stream.logfile import read_log  # noqa: E402
 
 SHARED = REPO.parent / "shared" / "data"
 NED_TO_ENU = np.array([0.0, np.sqrt(0.5), np.sqrt(0.5), 0.0])   # world NED -> ENU

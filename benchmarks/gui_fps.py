@@ -6,9 +6,9 @@ the GUI thread never does filter work.
 
 A "frame" is one display tick whose changes were painted (MainWindow.frames_painted, counted
 from paint events, not timer ticks); the plots' view (its paint events) and each 3D view (its
-frame_painted signal) are counted on their own as well, and the figure is the lowest of them.
+frames_painted counter) are counted on their own as well, and the figure is the lowest of them.
 CPU is the process time of all threads (engine, GUI, Mesa llvmpipe's rasteriser threads). The 500 Hz session comes
-from the simulator (ekf.simulate) written in the phone's format (app.io.protocol).
+from the simulator (ekf.simulate) written in the phone's format (app.stream.protocol).
 
 Run under a display; without one it re-runs itself under xvfb-run:
     cd /work/main && .venv/bin/python benchmarks/gui_fps.py [--seconds 10]
@@ -36,7 +36,7 @@ def write_session(path: Path, duration_s: float) -> Path:
     """A simulated 500 Hz session as a phone log (the standard script, seed 0)."""
     from ekf.simulate import simulate
 
-    from app.io.protocol import Sample, format_line
+    from app.stream.protocol import Sample, format_line
     session = simulate(duration_s=duration_s, rates_hz=RATES_HZ, seed=0)
     with open(path, "w", newline="\n") as file:
         for t_ms, tag, values in session.to_rows():
@@ -45,13 +45,14 @@ def write_session(path: Path, duration_s: float) -> Path:
 
 
 class FrameCounter:
-    """Counts paint events of the plots' view and frames painted by the 3D views."""
+    """Counts paint events of the plots' view; the 3D views count their own frames."""
 
     def __init__(self, window) -> None:
         from PySide6 import QtCore
 
         self.plot_paints = 0
-        self.gl_paints = 0
+        self.views = [view.gl_view for view in (window.own_view, window.phone_view)
+                      if view.gl_view is not None]
         counter = self
 
         class _Filter(QtCore.QObject):
@@ -62,12 +63,10 @@ class FrameCounter:
 
         self._filter = _Filter()
         window.plots.graphics.viewport().installEventFilter(self._filter)
-        for view in (window.own_view, window.phone_view):
-            if view.gl_view is not None:
-                view.gl_view.frame_painted.connect(self._on_gl_frame)
 
-    def _on_gl_frame(self) -> None:
-        self.gl_paints += 1
+    @property
+    def gl_paints(self) -> int:
+        return sum(view.frames_painted for view in self.views)
 
 
 def measure(app, window, counter: FrameCounter, seconds: float) -> dict[str, float]:
@@ -127,9 +126,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.switch_interval:
         sys.setswitchinterval(args.switch_interval)
 
-    from app.engine import Engine
-    from app.io.sources import LogFileSource
-    from app.snapshot import ReplayControl
+    from app.engine.worker import Engine
+    from app.stream.sources import LogFileSource
+    from app.engine.commands import ReplayControl
     from app.ui import phone_view
     from app.ui.main_window import MainWindow
     if args.render_every_frame:

@@ -60,10 +60,10 @@ def test_ekf_source_never_imports_sockets_files_or_the_app():
 
 def test_io_engine_and_headless_commands_import_no_qt():
     r = run_blocked(QT, """
-        import pkgutil, importlib, app.io
-        for m in pkgutil.walk_packages(app.io.__path__, "app.io."):
+        import pkgutil, importlib, app.stream
+        for m in pkgutil.walk_packages(app.stream.__path__, "app.stream."):
             importlib.import_module(m.name)
-        import app.engine, app.pipeline, app.snapshot, app.cli
+        import app.engine, app.engine.runner, app.engine.snapshot, app.cli
         parser = app.cli.build_parser()
         for cmd in ("filter", "evaluate", "calibrate", "simulate", "send", "serve"):
             parser.parse_args([cmd, "x"] if cmd not in ("simulate", "serve") else

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from app import cli
+from app.engine.offline import evaluate_log
 
 
 def test_simulate_filter_evaluate_round_trip(tmp_path, capsys):
@@ -63,7 +64,7 @@ def test_bad_input_gives_one_line_and_exit_2(tmp_path, capsys, argv, needle):
 
 def test_calibrate_writes_settings_the_filter_accepts(tmp_path, capsys):
     from ekf.simulate import simulate
-    from app.io.demo import write_session
+    from app.stream.demo import write_session
     log = tmp_path / "rest.txt"
     write_session(simulate(duration_s=8, script="rest", seed=4, gyro_bias=(0.01, 0, 0)), log)
     settings = tmp_path / "s.json"
@@ -86,11 +87,11 @@ def ekf_default_acc_cov():
 
 
 def test_real_rotation_log_within_10_degrees_of_the_phone(realphone_dir):
-    from app.io.logfile import read_log
+    from app.stream.logfile import read_log
     import ekf
     log = read_log(realphone_dir / "tsrt14_lab2_rotation.txt")
-    s = cli.evaluate_log(log, "ekf", None, ("gyr", "acc", "mag"), None, 3.0)
+    s = evaluate_log(log, "ekf", None, ("gyr", "acc", "mag"), None, 3.0)
     assert s.samples > 1500
     assert s.total_rmse_deg < 10.0
-    course = cli.evaluate_log(log, "ekf", ekf.PRESETS["course"], ("gyr", "acc", "mag"), None, 3.0)
+    course = evaluate_log(log, "ekf", ekf.PRESETS["course"], ("gyr", "acc", "mag"), None, 3.0)
     assert course.total_rmse_deg < 10.0

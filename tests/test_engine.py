@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.engine import Engine
-from app.io.logfile import read_log
-from app.io.recorder import Recorder
-from app.io.sources import LineReplaySource, LogFileSource
-from app.pipeline import run_offline
-from app.snapshot import (AlignHeading, ReplayControl, ResetFilter, SetComparisonsEnabled,
-                          SetEstimator, SetSensorEnabled)
+from app.engine.worker import Engine
+from app.stream.logfile import read_log
+from app.stream.recorder import Recorder
+from app.stream.sources import LineReplaySource, LogFileSource
+from app.engine.offline import run_offline
+from app.engine.commands import (AlignHeading, ReplayControl, ResetFilter, SetComparisonsEnabled,
+                                 SetEstimator, SetSensorEnabled)
 
 REALPHONE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "realphone"
 
@@ -110,9 +110,9 @@ def test_commands_apply_in_the_engine_thread(tmp_path):
 def test_simulated_session_through_tcp_equals_run_offline_and_is_recorded(tmp_path):
     from ekf.simulate import simulate
 
-    from app.io.emulator import PhoneEmulator
-    from app.io.protocol import Sample, format_line
-    from app.io.sources import TcpSource
+    from app.stream.emulator import PhoneEmulator
+    from app.stream.protocol import Sample, format_line
+    from app.stream.sources import TcpSource
     session = simulate(duration_s=20.0, rates_hz={"gyr": 200.0, "acc": 200.0, "mag": 100.0,
                                                   "ori": 100.0}, seed=4)
     lines = [(format_line(Sample(t, tag, values)) + "\n").encode()

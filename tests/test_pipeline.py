@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 import ekf
-from app.io.logfile import read_log
-from app.io.protocol import Sample
-from app.pipeline import COMBINATIONS, EstimatorRunner, angle_deg, run_offline
+from app.stream.logfile import read_log
+from app.stream.protocol import Sample
+from app.engine.offline import run_offline
+from app.engine.runner import COMBINATIONS, EstimatorRunner, angle_deg
 
 REALPHONE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "realphone"
 
@@ -184,5 +185,5 @@ def test_batch_path_equals_feeding_sample_by_sample_on_real_logs():
 
 def test_warm_up_runs_every_kernel_the_engine_uses():
     """`make run` / `make test` call it after installing; it must keep working."""
-    from app import pipeline
-    pipeline.warm_up()
+    from app.engine import warmup
+    warmup.warm_up()

@@ -10,7 +10,8 @@ from typing import Any, Callable
 
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from app.snapshot import ReplayControl, StreamHealth
+from app.engine.commands import ReplayControl
+from app.engine.snapshot import StreamHealth
 
 SEEK_STEPS = 1000
 SPEEDS = (0.25, 0.5, 1.0, 2.0, 5.0, 10.0)

@@ -13,8 +13,9 @@ from typing import Callable
 
 from PySide6 import QtCore, QtWidgets
 
-from app.snapshot import (AlignHeading, Comparison, FilterStatus, ResetFilter,
-                          SetComparisonsEnabled, SetEstimator, SetSensorEnabled)
+from app.engine.commands import (AlignHeading, ResetFilter, SetComparisonsEnabled, SetEstimator,
+                                 SetSensorEnabled)
+from app.engine.snapshot import Comparison, FilterStatus
 
 ESTIMATOR_CHOICES = (
     ("ekf", "EKF (default preset)"),

@@ -11,7 +11,7 @@ import math
 
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from app.snapshot import FilterStatus
+from app.engine.snapshot import FilterStatus
 
 STATE_COLORS = {
     "off": QtGui.QColor(95, 98, 105),

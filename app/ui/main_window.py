@@ -18,15 +18,17 @@ import math
 import platform
 import time
 from collections import deque
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from app import __version__
-from app.snapshot import Snapshot
+from app.engine.snapshot import Snapshot
 from app.ui.connection import ConnectionPanel, connection_text
 from app.ui.controls import ControlsPanel
+from app.ui.failures import FailureDialog
 from app.ui.lights import LightsPanel
 from app.ui.phone_view import PhoneView, software_gl
 from app.ui.plots import PlotPanel
@@ -74,12 +76,16 @@ class MainWindow(QtWidgets.QMainWindow):
         use_gl: force 3D views on/off; None detects (never GL on the offscreen platform).
         frame_interval_ms: display refresh period; None: FRAME_INTERVAL_MS, or
             SOFTWARE_GL_FRAME_INTERVAL_MS when the 3D views render in software.
+        log_path: where engine failures are logged (named in the failure dialog).
     """
 
     def __init__(self, engine: EngineLike, settings: QtCore.QSettings | None = None,
-                 use_gl: bool | None = None, frame_interval_ms: int | None = None) -> None:
+                 use_gl: bool | None = None, frame_interval_ms: int | None = None,
+                 log_path: Path | None = None) -> None:
         super().__init__()
         self.engine = engine
+        self.failure_dialog = FailureDialog(self, log_path)
+        self._failures_shown = 0
         self.settings = settings if settings is not None else default_settings()
         self.last_snapshot: Snapshot | None = None
         self.ticks = 0                      # display ticks (timer callbacks)
@@ -212,7 +218,7 @@ class MainWindow(QtWidgets.QMainWindow):
     # ---- engine --------------------------------------------------------------------------
 
     def send(self, command: Any) -> None:
-        """Forward one command to the engine (applied before its next sample)."""
+        """Forward one command to the engine (applied between two batches of samples)."""
         self.engine.send(command)
 
     def tick(self) -> None:
@@ -238,6 +244,11 @@ class MainWindow(QtWidgets.QMainWindow):
         self.plots.set_status(snapshot.status)
         self.connection.update_replay(snapshot.replay)
         self._panel_snapshot = snapshot
+        if snapshot.failures and snapshot.failures[-1].number > self._failures_shown:
+            latest = snapshot.failures[-1]
+            self._failures_shown = latest.number
+            self.failure_dialog.show_failure(latest, latest.number)
+            self.statusBar().showMessage(f"engine error: {latest.message}", 15000)
 
     def refresh_panels(self) -> None:
         """Show the latest snapshot in the comparison table, connection panel and status bar

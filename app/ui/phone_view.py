@@ -433,11 +433,9 @@ def _make_scene_view_class():
 
         Rendering happens in paintEvent and only when something changed (the scene, the
         camera, the size): `update()` marks the scene for rendering and asks Qt for a repaint, and Qt
-        merges all repaints of one event-loop pass into one painted frame. `frame_painted`
-        is emitted for each frame this widget actually paints.
+        merges all repaints of one event-loop pass into one painted frame; `frames_painted`
+        counts the frames this widget actually painted.
         """
-
-        frame_painted = QtCore.Signal()
 
         def __init__(self) -> None:
             self._needs_render = True
@@ -527,7 +525,6 @@ def _make_scene_view_class():
                 self._paint_labels(painter)
             painter.end()
             self.frames_painted += 1
-            self.frame_painted.emit()
 
         def _paint_labels(self, painter: QtGui.QPainter) -> None:
             if self.scene is None:
@@ -595,7 +592,7 @@ class PhoneView(QtWidgets.QFrame):
 
     Public API: set_orientation(quat, cov), set_uncertainty_visible(bool), reset_camera(),
     `gl_view` (the offscreen-rendered 3D scene widget, None without OpenGL; its
-    `frame_painted` signal fires for every frame it paints).
+    `frames_painted` counts the frames it painted).
     """
 
     def __init__(self, title: str, parent: QtWidgets.QWidget | None = None,

@@ -15,7 +15,7 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6 import QtCore, QtWidgets
 
-from app.snapshot import FilterStatus, PlotChunk
+from app.engine.snapshot import FilterStatus, PlotChunk
 
 DEFAULT_WINDOW_S = 10.0
 MAX_WINDOW_S = 120.0

@@ -14,7 +14,7 @@ from PySide6 import QtCore
 def small_log(tmp_path: Path) -> Path:
     from ekf.simulate import simulate
 
-    from app.io.protocol import Sample, format_line
+    from app.stream.protocol import Sample, format_line
     session = simulate(duration_s=20.0, seed=3)
     path = tmp_path / "small.txt"
     with open(path, "w", newline="\n") as file:
@@ -24,8 +24,8 @@ def small_log(tmp_path: Path) -> Path:
 
 
 def test_window_on_a_real_engine_replay(make_window, small_log, qtbot):
-    from app.engine import Engine
-    from app.io.sources import LogFileSource
+    from app.engine.worker import Engine
+    from app.stream.sources import LogFileSource
 
     engine = Engine(LogFileSource(small_log, speed=2.0, loop=True))
     engine.start()

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from app.snapshot import (AlignHeading, ReplayControl, ResetFilter, SetComparisonsEnabled,
-                          SetEstimator, SetSensorEnabled)
+from app.engine.commands import (AlignHeading, ReplayControl, ResetFilter, SetComparisonsEnabled,
+                                 SetEstimator, SetSensorEnabled)
 
 from ui_helpers import make_snapshot
 

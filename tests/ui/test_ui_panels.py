@@ -5,8 +5,9 @@ from __future__ import annotations
 import pytest
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from app.snapshot import (AlignHeading, Comparison, FilterStatus, ReplayControl, ResetFilter,
-                          SetComparisonsEnabled, SetEstimator, SetSensorEnabled, StreamHealth)
+from app.engine.commands import (AlignHeading, ReplayControl, ResetFilter, SetComparisonsEnabled,
+                                 SetEstimator, SetSensorEnabled)
+from app.engine.snapshot import Comparison, FilterStatus, StreamHealth
 from app.ui.connection import ConnectionPanel
 from app.ui.controls import ControlsPanel
 from app.ui.lights import LightsPanel, light_states

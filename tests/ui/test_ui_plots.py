@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from PySide6 import QtCore
 
-from app.snapshot import FilterStatus
+from app.engine.snapshot import FilterStatus
 from app.ui.plots import PlotPanel, SampleBuffer, peak_downsample, same_turn
 
 from ui_helpers import make_chunk

@@ -11,7 +11,7 @@ from collections import deque
 
 import numpy as np
 
-from app.snapshot import FilterStatus, PlotChunk, Snapshot, StreamHealth
+from app.engine.snapshot import FilterStatus, PlotChunk, Snapshot, StreamHealth
 
 
 class FakeEngine:

@@ -1,7 +1,7 @@
 """Ordered samples -> estimator steps -> rows of estimates. One code path for live and offline.
 
 :class:`EstimatorRunner` feeds time-ordered filter-tag samples (from
-:class:`app.io.ordering.TimeOrderer`) into the main estimator and, optionally, the comparison
+:class:`app.stream.ordering.TimeOrderer`) into the main estimator and, optionally, the comparison
 estimators; ORI is the phone's own estimate and never reaches a filter. It produces one row
 per distinct phone time. The live engine and :func:`run_offline` both use it on the same
 ordered samples (chunk by chunk: each estimator runs over a chunk in one compiled call) and the
@@ -23,10 +23,10 @@ import numpy as np
 from numba import njit
 
 import ekf
-from app.io.fastparse import samples_to_arrays
-from app.io.protocol import Sample
+from ekf import SENSORS
+from app.stream.fastparse import samples_to_arrays
+from app.stream.protocol import Sample
 
-SENSORS = ("gyr", "acc", "mag")
 #: The 7 non-empty sensor combinations of the EKF, "gyr+acc+mag" first.
 COMBINATIONS: tuple[tuple[str, ...], ...] = tuple(
     combo for size in (3, 2, 1) for combo in itertools.combinations(SENSORS, size))
@@ -64,7 +64,8 @@ class Rows:
 
     t_ms (N,) int64; quat (N, 4) the main estimate after every sample at that time; phone_quat
     (N, 4) the latest ORI at or before that time (NaN before the first); angle_deg (N,) OWN vs
-    PHONE; acc_rejected, mag_rejected, at_rest (N,) bool: the main estimator's lights.
+    PHONE; acc_rejected, mag_rejected, at_rest (N,) bool: the main estimator's lights;
+    has_sample (N,) bool: a GYR, ACC or MAG sample has this time (False: ORI only).
     """
 
     t_ms: np.ndarray
@@ -74,6 +75,7 @@ class Rows:
     acc_rejected: np.ndarray
     mag_rejected: np.ndarray
     at_rest: np.ndarray
+    has_sample: np.ndarray
 
     def __len__(self) -> int:
         return len(self.t_ms)
@@ -85,7 +87,19 @@ class Rows:
     @staticmethod
     def empty() -> Rows:
         return Rows(np.empty(0, np.int64), np.empty((0, 4)), np.empty((0, 4)), np.empty(0),
-                    np.empty(0, bool), np.empty(0, bool), np.empty(0, bool))
+                    np.empty(0, bool), np.empty(0, bool), np.empty(0, bool), np.empty(0, bool))
+
+    def select(self, mask: np.ndarray) -> Rows:
+        """The rows where `mask` is true."""
+        return Rows(*(getattr(self, name)[mask] for name in self.__dataclass_fields__))
+
+    @staticmethod
+    def concatenate(parts: list[Rows]) -> Rows:
+        """Rows of several pieces, in order."""
+        if not parts:
+            return Rows.empty()
+        return Rows(*(np.concatenate([getattr(part, name) for part in parts])
+                      for name in Rows.__dataclass_fields__))
 
 
 @dataclass
@@ -230,7 +244,7 @@ class EstimatorRunner:
 
     Samples must come in time order (at equal times GYR, ACC, MAG, as TimeOrderer releases
     them). :meth:`feed_arrays` takes a chunk as arrays and runs each estimator over it in one
-    compiled call; :meth:`feed` / :meth:`feed_many` take Samples through the same path. The
+    compiled call; :meth:`feed_many` takes Samples through the same path. The
     result does not depend on the chunking: it is what feeding the samples one by one with
     update_gyr/acc/mag gives, bit for bit, with one row per distinct time committed when a
     later time arrives (or at :meth:`finish`) from the estimators' state at that moment.
@@ -238,21 +252,19 @@ class EstimatorRunner:
 
     def __init__(self, estimator: str = "ekf", settings: ekf.EKFSettings | None = None,
                  sensors: Iterable[str] = SENSORS, comparisons: bool = False,
-                 collect_plot: bool = False, max_rows: int | None = None) -> None:
+                 collect_plot: bool = False) -> None:
         self.estimator_name = estimator
         self.settings = settings if settings is not None else ekf.PRESETS["default"]
         self._sensors = tuple(s for s in SENSORS if s in tuple(sensors))
         self.main = ekf.make_estimator(estimator, self.settings, self._sensors)
         self.collect_plot = collect_plot
-        self.max_rows = max_rows       # bound on rows kept between take_rows() calls (live)
         self.comparisons: list[ComparisonState] = []
         if comparisons:
             self.set_comparisons_enabled(True)
         self.phone_quat: tuple[float, float, float, float] | None = None
         self.latest_t_ms: int | None = None
-        self.samples_fed = 0
-        self.dropped_rows = 0
-        self._row_t: int | None = None
+        self._row_t: int | None = None           # the latest time: its row is still open
+        self._row_has_sample = False             # ... and whether it has a sensor sample
         self._reset_rows()
         self._reset_plot()
 
@@ -310,10 +322,6 @@ class EstimatorRunner:
 
     # -- samples ------------------------------------------------------------------------------
 
-    def feed(self, sample: Sample) -> None:
-        """One sample (non-filter tags are ignored)."""
-        self.feed_many((sample,))
-
     def feed_many(self, samples: Iterable[Sample]) -> None:
         """Samples in order (non-filter tags are ignored)."""
         arrays = samples_to_arrays(list(samples))
@@ -328,7 +336,8 @@ class EstimatorRunner:
         t_ms = np.ascontiguousarray(t_ms, dtype=np.int64)
         tag = np.ascontiguousarray(tag, dtype=np.int64)
         first_t = int(t_ms[0])
-        if self._row_t is not None and first_t != self._row_t:
+        continuing = self._row_t is not None and first_t == self._row_t
+        if self._row_t is not None and not continuing:
             self._commit_row()
         row_of = np.empty(n, np.int64)
         row_t = np.empty(n, np.int64)
@@ -339,6 +348,11 @@ class EstimatorRunner:
         group_last = group_last[:n_groups]
         group_row = group_row[:n_groups]
         group_ori = group_ori[:n_groups]
+        # whether each distinct time has a sensor sample of its own (not only ORI)
+        group_first = np.concatenate(([0], group_last[:-1] + 1))
+        own_sample = np.maximum.reduceat((tag < 3).astype(np.int8), group_first) > 0
+        if continuing:
+            own_sample[0] |= self._row_has_sample
 
         # State before this chunk: what groups without a row of their own show.
         main = self.main
@@ -389,7 +403,7 @@ class EstimatorRunner:
                     comparison.squared_sum, comparison.count, comparison.angle_to_phone_deg = \
                         _accumulate_errors(compared_rows, phone, comparison.squared_sum,
                                            comparison.count, comparison.angle_to_phone_deg)
-            self._add_rows(t_ms[group_last[:done]], quat, phone, flags)
+            self._add_rows(t_ms[group_last[:done]], quat, phone, flags, own_sample[:done])
         ori = np.flatnonzero(tag == 3)
         if len(ori):
             self.phone_quat = tuple(values[ori[-1]].tolist())
@@ -405,9 +419,9 @@ class EstimatorRunner:
                     pieces[2].append(result.acc_rejected[row_of[chosen]])
                 elif code == 2:
                     pieces[2].append(result.mag_rejected[row_of[chosen]])
-        self.samples_fed += n
         self.latest_t_ms = int(t_ms[-1])
         self._row_t = self.latest_t_ms
+        self._row_has_sample = bool(own_sample[-1])
 
     def finish(self) -> None:
         """End of stream: commit the row of the last time."""
@@ -431,22 +445,13 @@ class EstimatorRunner:
     # -- rows ---------------------------------------------------------------------------------
 
     def _reset_rows(self) -> None:
-        self._rows: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
-        self._rows_count = 0
+        self._rows: list[tuple[np.ndarray, ...]] = []
 
     def _add_rows(self, t_ms: np.ndarray, quat: np.ndarray, phone: np.ndarray,
-                  flags: np.ndarray) -> None:
-        self._rows.append((t_ms, quat, phone, flags))
-        self._rows_count += len(t_ms)
-        if self.max_rows is not None and self._rows_count > self.max_rows:
-            # Nobody took the rows for a long time (GUI stalled): keep the newest.
-            drop = self._rows_count - self.max_rows
-            merged = self._merged_rows()
-            self._rows = [tuple(array[drop:] for array in merged)]
-            self._rows_count = self.max_rows
-            self.dropped_rows += drop
+                  flags: np.ndarray, has_sample: np.ndarray) -> None:
+        self._rows.append((t_ms, quat, phone, flags, has_sample))
 
-    def _merged_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _merged_rows(self) -> tuple[np.ndarray, ...]:
         if len(self._rows) == 1:
             return self._rows[0]
         return tuple(np.concatenate(parts) for parts in zip(*self._rows))
@@ -466,18 +471,19 @@ class EstimatorRunner:
         self._add_rows(np.array([self._row_t], np.int64), q.reshape(1, 4),
                        np.array([phone if phone is not None else _NAN4], np.float64),
                        np.array([[status.acc_rejected, status.mag_rejected, status.at_rest]],
-                                bool))
+                                bool), np.array([self._row_has_sample]))
 
     def take_rows(self) -> Rows:
         """The rows committed since the previous call (the row of the latest time is committed
         when a later time arrives or at finish())."""
         if not self._rows:
             return Rows.empty()
-        t_ms, quat, phone, flags = self._merged_rows()
+        t_ms, quat, phone, flags, has_sample = self._merged_rows()
         quat = np.ascontiguousarray(quat, dtype=np.float64)
         phone = np.ascontiguousarray(phone, dtype=np.float64)
         rows = Rows(np.asarray(t_ms, dtype=np.int64), quat, phone, angles_deg(quat, phone),
-                    flags[:, 0].copy(), flags[:, 1].copy(), flags[:, 2].copy())
+                    flags[:, 0].copy(), flags[:, 1].copy(), flags[:, 2].copy(),
+                    np.asarray(has_sample, dtype=bool))
         self._reset_rows()
         return rows
 
@@ -501,39 +507,3 @@ class EstimatorRunner:
                                            else np.empty(0, bool))
         self._reset_plot()
         return out
-
-
-def run_offline(samples: Iterable[Sample], estimator_name: str = "ekf",
-                settings: ekf.EKFSettings | None = None,
-                sensors: Iterable[str] = SENSORS) -> Rows:
-    """Run one estimator over ordered samples (e.g. ``read_log(path).samples``): one row per
-    distinct phone time. Bit-identical to the live engine on the same samples."""
-    runner = EstimatorRunner(estimator_name, settings, sensors)
-    runner.feed_many(samples)
-    runner.finish()
-    return runner.take_rows()
-
-
-def warm_up() -> None:
-    """Compile (the first time: about half a minute) or load from numba's on-disk cache every
-    kernel the engine uses: the EKF, the parser, the time orderer and the runner's own, by
-    running two seconds of a simulated phone through them. `make run` and `make test` call it
-    once after installing, so the first window does not wait for the compiler."""
-    import tempfile
-    from pathlib import Path
-
-    from app.io import fastparse, ordering
-    from app.io.demo import write_session
-    from app.io.logfile import read_log
-    from ekf import fast
-    from ekf.simulate import simulate
-
-    fast.warm_up()
-    fastparse.warm_up()
-    ordering.warm_up()
-    with tempfile.TemporaryDirectory() as directory:
-        log = read_log(write_session(simulate(duration_s=2.0, seed=0), Path(directory) / "w.txt"))
-    runner = EstimatorRunner(comparisons=True, collect_plot=True)
-    runner.feed_many(log.samples)
-    runner.finish()
-    runner.take_rows()

@@ -3,44 +3,61 @@
 One plain ``threading`` thread (no Qt) runs the filter at the sample rate; the GUI (or the
 ``serve`` command) calls :meth:`Engine.poll` at its own frame rate and gets the latest
 estimates, status and stream health plus every plot sample since its previous poll, merged into
-one :class:`~app.snapshot.PlotChunk`. Neither side waits for the other; buffers are bounded.
-Commands (app/snapshot.py) go in with :meth:`Engine.send` and are applied before the next chunk.
+one :class:`~app.engine.snapshot.PlotChunk`. Neither side waits for the other; buffers are
+bounded. Commands (:mod:`app.engine.commands`) go in with :meth:`Engine.send` and are applied
+between two batches of samples, in the order they were sent.
+
+A failure while processing a batch never ends the engine silently: it is logged with its
+traceback, published in the snapshots (:class:`~app.engine.snapshot.EngineFailure`, which the
+window shows with a "copy details" button and `serve` prints) and the engine goes on with the
+next batch; after MAX_FAILURES failures within FAILURE_WINDOW_S it stops cleanly instead
+(source closed, state "stopped", the reason published).
 
 The engine thread works chunk by chunk: everything the source has is parsed in one compiled call
-(:class:`~app.io.fastparse.FastLineParser`), ordered in one (:class:`~app.io.ordering.TimeOrderer`)
-and run through each estimator in one (:meth:`~app.pipeline.EstimatorRunner.feed_arrays`); the
+(:class:`~app.stream.fastparse.FastLineParser`), ordered in one (:class:`~app.stream.ordering.TimeOrderer`)
+and run through each estimator in one (:meth:`~app.engine.runner.EstimatorRunner.feed_arrays`); the
 kernels release the GIL, so the GUI thread keeps running while the engine computes.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import queue
 import threading
 import time
+import traceback
 from collections import deque
+from datetime import datetime, timezone
+from pathlib import Path
 from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
 
 import ekf
-from app.io import fastparse, ordering
-from app.io.fastparse import ParsedArrays
-from app.io.ordering import OrderedArrays, TimeOrderer
-from app.io.protocol import FILTER_TAGS
-from app.io.recorder import Recorder
-from app.io.sources import Source
-from app.io.tcp_server import Chunk, SourceEvent
-from app.pipeline import SENSORS, EstimatorRunner, Rows
-from app.snapshot import (AlignHeading, Comparison, FilterStatus, PlotChunk, ReplayControl,
-                          ResetFilter, SetComparisonsEnabled, SetEstimator, SetSensorEnabled,
-                          SetSettings, Snapshot, StreamHealth)
+from app.engine.commands import (AlignHeading, ReplayControl, ResetFilter, SetComparisonsEnabled,
+                                 SetEstimator, SetSensorEnabled, SetSettings)
+from app.engine.estimates import EstimatesWriter
+from app.engine.runner import SENSORS, EstimatorRunner, Rows
+from app.engine.snapshot import (Comparison, EngineFailure, FilterStatus, PlotChunk, Snapshot,
+                                 StreamHealth)
+from app.stream import fastparse, ordering
+from app.stream.events import Chunk, SourceEvent
+from app.stream.fastparse import ParsedArrays
+from app.stream.ordering import OrderedArrays, TimeOrderer
+from app.stream.protocol import FILTER_TAGS
+from app.stream.recorder import Recorder
+from app.stream.sources import Source
+
+log = logging.getLogger("orientation_lab.engine")
 
 RATE_WINDOW_MS = 2000          # per-tag rates are measured over this much phone time
 MAX_BYTES_PER_PASS = 1 << 20    # received bytes processed between two publishes (~25k lines)
 PUBLISH_IDLE_S = 0.25          # publish health at least this often without data
 WARNING_INTERVAL_S = 5.0       # one warning of a kind per this many seconds
+MAX_FAILURES = 5               # this many failures within FAILURE_WINDOW_S stop the engine
+FAILURE_WINDOW_S = 10.0
 
 
 def _unwrap_continuing(angles_deg: np.ndarray, previous: np.ndarray | None) -> np.ndarray:
@@ -61,16 +78,13 @@ class _PlotBuffer:
         self.max_rows = max_rows
         self.pieces: deque[PlotChunk] = deque()
         self.rows = 0
-        self.dropped = 0
 
     def add(self, piece: PlotChunk) -> None:
         self.pieces.append(piece)
         self.rows += max(len(piece.t_est), len(piece.t_acc), len(piece.t_gyr))
         while self.rows > self.max_rows and len(self.pieces) > 1:
             old = self.pieces.popleft()
-            size = max(len(old.t_est), len(old.t_acc), len(old.t_gyr))
-            self.rows -= size
-            self.dropped += size
+            self.rows -= max(len(old.t_est), len(old.t_acc), len(old.t_gyr))
 
     def take(self) -> PlotChunk:
         pieces = list(self.pieces)
@@ -87,31 +101,31 @@ class _PlotBuffer:
 class Engine:
     """Run a source through the estimators in a background thread.
 
-    source: any :class:`app.io.sources.Source`; settings: ekf.EKFSettings (None: default
+    source: any :class:`app.stream.sources.Source`; settings: ekf.EKFSettings (None: default
     preset); estimator: name from ekf.ESTIMATORS; comparisons: run the 7 EKF sensor
-    combinations too; recorder: an :class:`app.io.recorder.Recorder` that gets every received
-    known-tag line; record_rows: keep every estimate row in :attr:`rows_log` (tests/benchmarks:
-    unbounded memory).
+    combinations too; recorder: an :class:`app.stream.recorder.Recorder` that gets every received
+    known-tag line; estimates: an :class:`~app.engine.estimates.EstimatesWriter` that gets every
+    estimate row (a recording's estimates.csv); record_rows: keep every estimate row in
+    :attr:`rows_log` (tests/benchmarks: unbounded memory).
     """
 
     def __init__(self, source: Source, settings: ekf.EKFSettings | None = None,
                  estimator: str = "ekf", comparisons: bool = True,
                  sensors: Iterable[str] = SENSORS, recorder: Recorder | None = None,
-                 record_rows: bool = False, max_plot_rows: int = 60_000,
+                 estimates: EstimatesWriter | None = None, record_rows: bool = False,
+                 max_plot_rows: int = 60_000,
                  orderer_options: dict[str, Any] | None = None) -> None:
         if estimator not in ekf.ESTIMATORS:
             raise ValueError(f"unknown estimator {estimator!r}; choose from "
                              f"{', '.join(ekf.ESTIMATORS)}")
         self.source = source
         self.recorder = recorder
+        self.estimates = estimates
         self.record_rows = record_rows
         self.rows_log: list[Rows] = []
         self._orderer_options = dict(orderer_options or {})
-        # The engine takes the rows at every publish; the bound only guards a pass (a sample
-        # line has >= 8 bytes, a pass about MAX_BYTES_PER_PASS) from losing rows.
         self._runner = EstimatorRunner(estimator, settings, sensors, comparisons,
-                                       collect_plot=True,
-                                       max_rows=max(max_plot_rows, MAX_BYTES_PER_PASS // 4))
+                                       collect_plot=True)
         self._parser = self._new_parser()
         self._orderer = TimeOrderer(**self._orderer_options)
         self._commands: queue.SimpleQueue = queue.SimpleQueue()
@@ -131,15 +145,18 @@ class Engine:
         self._previous_own_euler: np.ndarray | None = None
         self._previous_phone_euler: np.ndarray | None = None
         self._last_publish = 0.0
+        self._backlog: list[Chunk | SourceEvent] = []   # read but not yet processed
         # (chunk arrival time, orderer sequence after it): a chunk's estimates are out once
         # the orderer holds nothing pushed up to that sequence
-        self._backlog: list[Chunk | SourceEvent] = []   # read but not yet processed
         self._pending_host_times: deque[tuple[float, int]] = deque(maxlen=100_000)
         # chunk arrival -> the estimates of all its samples published (time held for reordering
         # included)
         self.latencies_s: deque[float] = deque(maxlen=200_000)
         self.latency_arrivals_s: deque[float] = deque(maxlen=200_000)   # their chunks' t_host
-        self.error: str | None = None
+        self.failures: deque[EngineFailure] = deque(maxlen=20)   # the latest, oldest first
+        self.failure_count = 0
+        self.stopped_by_failure = False
+        self._failure_times: deque[float] = deque(maxlen=MAX_FAILURES)
         # monotonic time since which the source has had nothing for the engine (None: busy)
         self.waiting_since: float | None = None
         self.samples_processed = 0
@@ -160,12 +177,23 @@ class Engine:
         self._thread.start()
 
     def stop(self) -> None:
-        """Stop the thread, the source and the recorder. Idempotent."""
+        """Stop the thread, the source, the recorder and the estimates file. Idempotent.
+
+        The row of the latest time is committed first, so a recording's estimates.csv ends
+        where `orientation-lab filter` on its raw.txt ends."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=10.0)
             self._thread = None
         self.source.stop()
+        if self.estimates is not None:
+            try:
+                self._end_of_stream(partial_line_damaged=False)
+                self.estimates.write(self._runner.take_rows())
+            except Exception as error:   # the thread is gone: nothing else would report it
+                self._on_failure(error)
+            self.estimates.close()
+            self.estimates = None
         if self.recorder is not None and not self.recorder.closed:
             self.recorder.set_stats(self._stats_dict())
             self.recorder.close()
@@ -184,7 +212,7 @@ class Engine:
     # -- GUI side -----------------------------------------------------------------------------------
 
     def send(self, command: Any) -> None:
-        """Queue a command (app.snapshot); the engine applies it before its next sample."""
+        """Queue a command (app.engine.commands); applied between two batches, in order."""
         self._commands.put(command)
 
     def poll(self) -> Snapshot | None:
@@ -193,25 +221,21 @@ class Engine:
         with self._lock:
             if self._seq == self._polled_seq:
                 return None
-            return self._take_snapshot()
+            self._polled_seq = self._seq
+            return self._copy_latest(self._plot.take())
 
     def snapshot_now(self) -> Snapshot:
         """The latest state, always (for tests): unlike poll() it leaves the plot samples and
         the "changed" mark for the next poll (its plot is empty)."""
         with self._lock:
-            latest = self._latest
-            return Snapshot(seq=self._seq, t_ms=latest.t_ms, own_quat=latest.own_quat,
-                            own_cov=latest.own_cov, phone_quat=latest.phone_quat,
-                            status=latest.status, comparisons=latest.comparisons,
-                            plot=PlotChunk(), health=latest.health, replay=latest.replay)
+            return self._copy_latest(PlotChunk())
 
-    def _take_snapshot(self) -> Snapshot:
-        self._polled_seq = self._seq
+    def _copy_latest(self, plot: PlotChunk) -> Snapshot:
         latest = self._latest
         return Snapshot(seq=self._seq, t_ms=latest.t_ms, own_quat=latest.own_quat,
                         own_cov=latest.own_cov, phone_quat=latest.phone_quat,
-                        status=latest.status, comparisons=latest.comparisons,
-                        plot=self._plot.take(), health=latest.health, replay=latest.replay)
+                        status=latest.status, comparisons=latest.comparisons, plot=plot,
+                        health=latest.health, replay=latest.replay, failures=latest.failures)
 
     # -- engine thread ----------------------------------------------------------------------------
 
@@ -222,51 +246,99 @@ class Engine:
                                         raw_block_sink=self.recorder.write_block)
 
     def _run(self) -> None:
-        try:
-            while not self._stop.is_set():
+        while not self._stop.is_set():
+            try:
+                self._pass()
+            except Exception as error:
+                if self._on_failure(error):
+                    self._stop_after_failures()
+                    return
+
+    def _pass(self) -> None:
+        """Read what the source has, process it (at most MAX_BYTES_PER_PASS of chunks, the rest
+        waits in the backlog) and publish."""
+        self._apply_commands()
+        if self._backlog:
+            items, self._backlog = self._backlog, []
+        else:
+            items = self.source.read(0.02)
+        if items:
+            self.waiting_since = None
+        elif self.waiting_since is None:
+            self.waiting_since = time.monotonic()
+        changed = False
+        chunks: list[Chunk] = []
+        size = 0
+        for index, item in enumerate(items):
+            if isinstance(item, Chunk):
+                chunks.append(item)
+                size += len(item.data)
+                if size < MAX_BYTES_PER_PASS:
+                    continue
+                # Enough for one pass: publish, then go on with the rest (bounded work and
+                # rows between publishes, commands between passes).
+                self._backlog = items[index + 1:]
+                break
+            if chunks:
                 self._apply_commands()
-                if self._backlog:
-                    items, self._backlog = self._backlog, []
-                else:
-                    items = self.source.read(0.02)
-                if items:
-                    self.waiting_since = None
-                elif self.waiting_since is None:
-                    self.waiting_since = time.monotonic()
-                changed = False
-                chunks: list[Chunk] = []
-                size = 0
-                for index, item in enumerate(items):
-                    if isinstance(item, Chunk):
-                        chunks.append(item)
-                        size += len(item.data)
-                        if size < MAX_BYTES_PER_PASS:
-                            continue
-                        # Enough for one pass: publish, then go on with the rest (bounded work
-                        # and rows between publishes, commands between passes).
-                        self._backlog = items[index + 1:]
-                        break
-                    if chunks:
-                        self._apply_commands()
-                        self._on_chunks(chunks)
-                        chunks = []
-                    self._apply_commands()
-                    self._on_event(item)
-                    changed = True
-                if chunks:
-                    self._apply_commands()
-                    self._on_chunks(chunks)
-                    changed = True
-                now = time.perf_counter()
-                if changed or now - self._last_publish >= PUBLISH_IDLE_S:
-                    self._publish(now)
-                if self.recorder is not None:
-                    self.recorder.tick()
-        except Exception as error:   # report in the health panel instead of dying silently
-            self.error = f"engine failed: {error!r}"
-            self._warn("engine", self.error, force=True)
+                self._on_chunks(chunks)
+                chunks = []
+            self._apply_commands()
+            self._on_event(item)
+            changed = True
+        if chunks:
+            self._apply_commands()
+            self._on_chunks(chunks)
+            changed = True
+        now = time.perf_counter()
+        if changed or now - self._last_publish >= PUBLISH_IDLE_S:
+            self._publish(now)
+        if self.recorder is not None:
+            self.recorder.tick()
+        if self.estimates is not None:
+            self.estimates.flush()
+
+    def _on_failure(self, error: BaseException) -> bool:
+        """Log and publish a failure; True when there were too many to go on."""
+        frames = traceback.extract_tb(error.__traceback__)
+        where = ""
+        if frames:
+            last = frames[-1]
+            where = f" ({Path(last.filename).name}, line {last.lineno}, in {last.name})"
+        message = f"{type(error).__name__}: {error}{where}"
+        details = "".join(traceback.format_exception(type(error), error, error.__traceback__))
+        now = time.monotonic()
+        self._failure_times.append(now)
+        fatal = (len(self._failure_times) == MAX_FAILURES
+                 and now - self._failure_times[0] <= FAILURE_WINDOW_S)
+        self.failure_count += 1
+        failure = EngineFailure(self.failure_count, message, details,
+                                datetime.now(timezone.utc).isoformat(timespec="seconds"), fatal)
+        self.failures.append(failure)
+        log.error("engine failure %d%s: %s\n%s", failure.number,
+                  " (engine stopped)" if fatal else " (going on with the next batch)",
+                  message, details)
+        self._warn("failure", f"engine error: {message}", force=True)
+        try:
             self._publish(time.perf_counter())
-            raise
+        except Exception:   # the failure may be in publishing itself: it is logged above
+            with self._lock:
+                self._latest.failures = list(self.failures)
+                self._seq += 1
+        return fatal
+
+    def _stop_after_failures(self) -> None:
+        self.stopped_by_failure = True
+        self._connection_state = "stopped"
+        try:
+            self.source.stop()
+        except Exception as error:   # noqa: BLE001 (reported, then nothing more to do)
+            log.error("stopping the source after failures: %r", error)
+        with self._lock:
+            health = self._latest.health
+            health.connection_state = "stopped"
+            self._latest.failures = list(self.failures)
+            self._seq += 1
 
     def _feed(self, ordered: OrderedArrays) -> None:
         if len(ordered):
@@ -460,6 +532,12 @@ class Engine:
         plot = runner.take_plot_samples()
         if self.record_rows and len(rows):
             self.rows_log.append(rows)
+        if self.estimates is not None:
+            self.estimates.write(rows)
+            if self.estimates.error is not None:
+                self._warn("estimates", f"estimates.csv stopped: {self.estimates.error}",
+                           force=True)
+                self.estimates = None
         if len(rows):
             # one call for both series (the per-call overhead dominates at live chunk sizes)
             euler = np.degrees(ekf.quaternion.to_euler(np.concatenate([rows.quat,
@@ -514,7 +592,8 @@ class Engine:
         snapshot = Snapshot(
             t_ms=runner.latest_t_ms, own_quat=main.quat, own_cov=own_cov,
             phone_quat=None if phone is None else np.array(phone), status=filter_status,
-            comparisons=comparisons, health=health, replay=info.get("replay"))
+            comparisons=comparisons, health=health, replay=info.get("replay"),
+            failures=list(self.failures))
         published = time.perf_counter()
         with self._lock:
             self._plot.add(piece)

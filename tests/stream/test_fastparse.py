@@ -10,8 +10,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.io.fastparse import FastLineParser
-from app.io.protocol import LineParser, java_float_text
+from app.stream.fastparse import FastLineParser
+from app.stream.protocol import LineParser, java_float_text
 
 
 def _key(samples):

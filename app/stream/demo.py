@@ -3,7 +3,7 @@
 `write_demo_session` turns `ekf.simulate.simulate` into phone lines (PROTOCOL.md, values as the
 phone's float32 Java text, ORI = the true orientation) and gzips them reproducibly. The committed
 file `resources/demo_session.txt.gz` is its output with the defaults; a test keeps the two equal.
-Regenerate it with ``python -m app.io.demo``.
+Regenerate it with ``python -m app.stream.demo``.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.io.protocol import Sample, format_line
+from app.stream.protocol import Sample, format_line
 from ekf.simulate import SENSOR_TAGS, SimulatedSession, simulate
 
 DEMO_SESSION_PATH = Path(__file__).resolve().parents[2] / "resources" / "demo_session.txt.gz"
@@ -84,7 +84,7 @@ def write_demo_session(path: str | Path, seed: int = 7, duration_s: float = 90.0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m app.io.demo [PATH]``: (re)write the demo session (default: DEMO_SESSION_PATH)."""
+    """``python -m app.stream.demo [PATH]``: (re)write the demo session (default: DEMO_SESSION_PATH)."""
     args = list(sys.argv[1:] if argv is None else argv)
     target = Path(args[0]) if args else DEMO_SESSION_PATH
     written = write_demo_session(target)

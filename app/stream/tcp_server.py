@@ -14,34 +14,11 @@ import selectors
 import socket
 import threading
 import time
-from dataclasses import dataclass
+
+from app.stream.events import Chunk, SourceEvent
 
 DEFAULT_PORT = 3400
 RECV_BYTES = 65536
-
-
-@dataclass(frozen=True)
-class Chunk:
-    """Bytes received on connection number ``connection`` at host time ``t_host`` (perf_counter, s)."""
-
-    connection: int
-    data: bytes
-    t_host: float
-
-
-@dataclass(frozen=True)
-class SourceEvent:
-    """Something that happened to a source.
-
-    kind: "listening" | "connected" | "disconnected" | "finished" | "loop" | "seek" | "error".
-    peer: "ip:port" for connection events; detail: human-readable text.
-    """
-
-    kind: str
-    connection: int = 0
-    peer: str | None = None
-    detail: str = ""
-    t_host: float = 0.0
 
 
 def _peer_text(address) -> str:

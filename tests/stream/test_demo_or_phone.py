@@ -5,8 +5,8 @@ from __future__ import annotations
 import socket
 import time
 
-from app.engine import Engine
-from app.io.sources import DemoOrPhoneSource, TcpSource, demo_source
+from app.engine.worker import Engine
+from app.stream.sources import DemoOrPhoneSource, TcpSource, demo_source
 
 
 def test_demo_plays_while_listening_and_the_phone_takes_over():

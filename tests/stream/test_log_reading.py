@@ -7,7 +7,8 @@ import gzip
 import numpy as np
 import pytest
 
-from app.io.logfile import LogError, read_log
+from app.stream.lines import LogError
+from app.stream.logfile import read_log
 
 EXPECTED_DAMAGED = {"sensorLog_20221024T182616_standstill.txt": 2}
 

@@ -38,7 +38,7 @@ MAX_TIME_DIGITS = 18   # a time stamp with more digits is damaged (it would not 
 class Sample(NamedTuple):
     """One parsed line.
 
-    t_ms: phone time in ms (after :class:`app.io.ordering.TimeOrderer`, the aligned time).
+    t_ms: phone time in ms (after :class:`app.stream.ordering.TimeOrderer`, the aligned time).
     tag: "ACC", "GYR", ...; values: floats (ORI always 4 values w, x, y, z with w >= 0;
     empty for text tags); text: the string fields of RSSWIFI/RSSCELL/RSSBLE, else None.
     """

@@ -1,6 +1,6 @@
-"""What the engine hands the GUI once per display frame, and the commands the GUI sends back.
+"""What the engine hands the GUI (or `serve`) once per display frame.
 
-Plain data only (numpy arrays, dataclasses): no Qt, no sockets, so both the engine thread
+The commands going the other way are in :mod:`app.engine.commands`. Plain data only (numpy arrays, dataclasses): no Qt, no sockets, so both the engine thread
 and the widgets can import it, and tests can build snapshots by hand.
 
 Frames and units: quaternions are w-first, sensor -> ENU, w >= 0. Times are the phone's
@@ -14,7 +14,6 @@ from typing import Any
 
 import numpy as np
 
-SENSORS = ("gyr", "acc", "mag")
 
 
 @dataclass
@@ -83,6 +82,21 @@ class PlotChunk:
     angle_deg: np.ndarray = field(default_factory=lambda: np.empty(0))              # angle OWN vs PHONE
 
 
+@dataclass(frozen=True)
+class EngineFailure:
+    """An exception inside the engine: what the window shows and `serve` prints.
+
+    number counts failures from 1; message is one line with the exception and where it was
+    raised (file, line, function); details the whole traceback (the "copy details" text);
+    when the UTC time; fatal: the engine stopped after it (too many failures in a row)."""
+
+    number: int
+    message: str
+    details: str
+    when: str
+    fatal: bool = False
+
+
 @dataclass
 class Snapshot:
     seq: int = 0
@@ -95,47 +109,4 @@ class Snapshot:
     plot: PlotChunk = field(default_factory=PlotChunk)
     health: StreamHealth = field(default_factory=StreamHealth)
     replay: dict[str, Any] | None = None      # {"position_s", "duration_s", "speed", "paused", "loop"} when replaying
-
-
-# ---- commands: GUI (or CLI) -> engine; applied before the next sample ----------------------
-
-@dataclass(frozen=True)
-class SetSensorEnabled:
-    sensor: str        # "gyr" | "acc" | "mag"
-    enabled: bool
-
-
-@dataclass(frozen=True)
-class SetEstimator:
-    name: str          # "ekf" | "course" | "complementary" | "gyro" | "accmag" (see ekf.ESTIMATORS)
-
-
-@dataclass(frozen=True)
-class SetSettings:
-    settings: Any      # ekf.EKFSettings
-
-
-@dataclass(frozen=True)
-class ResetFilter:
-    pass
-
-
-@dataclass(frozen=True)
-class AlignHeading:
-    """Turn OWN's world about up so its heading matches PHONE's."""
-
-
-@dataclass(frozen=True)
-class SetComparisonsEnabled:
-    enabled: bool
-
-
-@dataclass(frozen=True)
-class ReplayControl:
-    """Replay only: any field left None is unchanged."""
-
-    paused: bool | None = None
-    speed: float | None = None
-    loop: bool | None = None
-    seek_s: float | None = None   # position from the start of the log, seconds
-    step: int | None = None       # advance N samples while paused
+    failures: list[EngineFailure] = field(default_factory=list)   # the latest, oldest first

@@ -11,8 +11,7 @@ import threading
 import time
 from pathlib import Path
 
-from app.io.logfile import LogError, open_log_bytes
-from app.io.sources import pacing_times, split_lines
+from app.stream.lines import pacing_times, read_lines
 
 _BLOCK_BYTES = 1 << 18
 
@@ -94,21 +93,6 @@ class PhoneEmulator:
             if not loop or (stop is not None and stop.is_set()):
                 self.lines_sent = sent
                 return sent
-
-
-def read_lines(path: str | Path) -> list[bytes]:
-    """A log's lines verbatim (each ending in LF); LogError when it cannot be used."""
-    path = Path(path)
-    with open_log_bytes(path) as stream:
-        try:
-            data = stream.read()
-        except (OSError, EOFError) as error:
-            raise LogError(f"{path}: cannot read ({error})") from None
-    if not data:
-        raise LogError(f"{path}: empty file")
-    if b"\x00" in data[:8192]:
-        raise LogError(f"{path}: binary data (NUL bytes at the start), not a text log")
-    return split_lines(data)
 
 
 def send_log(path: str | Path, host: str = "127.0.0.1", port: int = 3400, speed: float = 1.0,

@@ -1,8 +1,8 @@
 """Where samples come from: the phone over TCP, a log file replayed, or the simulator.
 
 Every source has the same small interface (:class:`Source`): ``start()``, ``stop()``,
-``read(timeout)`` -> a list of :class:`~app.io.tcp_server.Chunk` (raw bytes of protocol lines)
-and :class:`~app.io.tcp_server.SourceEvent` items, ``control(ReplayControl)`` and ``info()``.
+``read(timeout)`` -> a list of :class:`~app.stream.events.Chunk` (raw bytes of protocol lines)
+and :class:`~app.stream.events.SourceEvent` items, ``control(ReplayControl)`` and ``info()``.
 Replays hand over the file's lines verbatim, so everything downstream (parser, time ordering,
 estimators, recorder) is identical whichever source feeds it.
 """
@@ -14,9 +14,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-from app.io.logfile import LogError
-from app.io.netinfo import lan_ipv4_addresses
-from app.io.tcp_server import DEFAULT_PORT, Chunk, SourceEvent, TcpServer
+from ekf.simulate import simulate
+
+from app.stream.events import Chunk, ReplayControl, SourceEvent
+from app.stream.lines import LogError, pacing_times, read_lines
+from app.stream.netinfo import lan_ipv4_addresses
+from app.stream.protocol import Sample, format_line
+from app.stream.tcp_server import DEFAULT_PORT, TcpServer
 
 _MAX_LINES_PER_CHUNK = 4096
 # Paced replay hands out what is due at most this often [s]: a 500 Hz log at 10x would otherwise
@@ -51,7 +55,7 @@ class Source:
 
 
 class TcpSource(Source):
-    """The phone over TCP (see :class:`~app.io.tcp_server.TcpServer`)."""
+    """The phone over TCP (see :class:`~app.stream.tcp_server.TcpServer`)."""
 
     kind = "tcp"
 
@@ -82,39 +86,6 @@ class TcpSource(Source):
         return {"connection_state": "waiting" if state == "stopped" else state,
                 "peer": self.server.peer, "port": self.server.port,
                 "listen_addresses": list(self._addresses), "replay": None}
-
-
-def pacing_times(lines: list[bytes]) -> list[float]:
-    """Seconds from the start at which each line is due, to replay with the original timing.
-
-    Each tag's clock is followed on its own (relative to its first sample: tags may sit on
-    other clocks, e.g. ACC +131,072,000 ms or RSSWIFI in epoch ms) and the running maximum
-    keeps the schedule monotonic while the lines keep their file order.
-    """
-    first: dict[bytes, int] = {}
-    out: list[float] = []
-    latest = 0
-    for line in lines:
-        fields = line.split(b"\t", 2)
-        if len(fields) >= 2 and fields[0].isdigit():
-            t = int(fields[0])
-            tag = fields[1]
-            start = first.setdefault(tag, t)
-            elapsed = t - start
-            if elapsed > latest:
-                latest = elapsed
-        out.append(latest / 1000.0)
-    return out
-
-
-def split_lines(data: bytes) -> list[bytes]:
-    """Bytes -> lines with their LF (added to a last line that has none)."""
-    lines = data.split(b"\n")
-    last = lines.pop()
-    out = [line + b"\n" for line in lines]
-    if last:
-        out.append(last + b"\n")
-    return out
 
 
 class LineReplaySource(Source):
@@ -260,7 +231,6 @@ class LogFileSource(LineReplaySource):
 
     def __init__(self, path: str | Path, speed: float = 1.0, loop: bool = False,
                  paused: bool = False) -> None:
-        from app.io.emulator import read_lines
         path = Path(path)
         super().__init__(read_lines(path), path.name, speed, loop, paused)
         self.path = path
@@ -273,9 +243,6 @@ class SimulatorSource(LineReplaySource):
 
     def __init__(self, duration_s: float = 120.0, rates_hz: dict[str, float] | None = None,
                  seed: int = 0, speed: float = 1.0, loop: bool = True, **simulate_options) -> None:
-        from ekf.simulate import simulate
-
-        from app.io.protocol import Sample, format_line
         session = simulate(duration_s=duration_s, rates_hz=rates_hz, seed=seed,
                            **simulate_options)
         lines = [(format_line(Sample(t, tag, values)) + "\n").encode("ascii")

@@ -1,6 +1,6 @@
 """A compiled line parser for the live path: bytes -> arrays, identical to :class:`LineParser`.
 
-:class:`FastLineParser` is a :class:`~app.io.protocol.LineParser` whose :meth:`feed_arrays`
+:class:`FastLineParser` is a :class:`~app.stream.protocol.LineParser` whose :meth:`feed_arrays`
 scans the received bytes in one nogil numba kernel. The kernel handles the lines that make up
 a live stream -- ``<time>\\tGYR|ACC|MAG\\t<3 numbers>`` and ``<time>\\tORI\\t<4 numbers>`` in
 plain Java float text -- and hands every other line (other tags, 3-value ORI, NaN/Infinity,
@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from app.io.protocol import FILTER_TAGS, MAX_LINE_BYTES, LineParser, Sample
+from app.stream.protocol import FILTER_TAGS, MAX_LINE_BYTES, LineParser, Sample
 
 #: Tag codes of the array form (equal to their priority at equal times: GYR < ACC < MAG < ORI).
 TAG_CODES: dict[str, int] = {tag: code for code, tag in enumerate(FILTER_TAGS)}

@@ -1,6 +1,6 @@
 """Read a whole log file (the phone's "log to file" output, or our ``raw.txt``) into ordered samples.
 
-The same :class:`~app.io.protocol.LineParser` and :class:`~app.io.ordering.TimeOrderer` the live
+The same :class:`~app.stream.protocol.LineParser` and :class:`~app.stream.ordering.TimeOrderer` the live
 stream uses, so a file and the stream it was recorded from give the same samples.
 """
 
@@ -12,14 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-from app.io.ordering import OrderStats, TimeOrderer
-from app.io.protocol import FILTER_TAGS, LineParser, ParseStats, Sample
+from app.stream.lines import LogError, open_log_bytes
+from app.stream.ordering import OrderStats, TimeOrderer
+from app.stream.protocol import FILTER_TAGS, LineParser, ParseStats, Sample
 
 _CHUNK_BYTES = 1 << 20
-
-
-class LogError(Exception):
-    """A file that cannot be used as a log: missing, unreadable, empty, binary, no samples."""
 
 
 @dataclass
@@ -143,23 +140,6 @@ def samples_to_arrays(samples: list[Sample]) -> LogArrays:
 
 
 _WIDTH = {"GYR": 3, "ACC": 3, "MAG": 3, "ORI": 4}
-
-
-def open_log_bytes(path: str | Path):
-    """Open a .txt or .txt.gz log for binary reading; LogError when it cannot be."""
-    path = Path(path)
-    if not path.exists():
-        raise LogError(f"{path}: no such file")
-    if path.is_dir():
-        raise LogError(f"{path}: is a directory, not a log file")
-    try:
-        with open(path, "rb") as probe:
-            magic = probe.read(2)
-        if magic == b"\x1f\x8b":
-            return gzip.open(path, "rb")
-        return open(path, "rb")
-    except OSError as error:
-        raise LogError(f"{path}: cannot read ({error.strerror or error})") from None
 
 
 def read_log(path: str | Path, orderer: TimeOrderer | None = None) -> LogData:

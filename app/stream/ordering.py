@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from app.io.protocol import FILTER_TAGS, TAG_PRIORITY, Sample
+from app.stream.protocol import FILTER_TAGS, TAG_PRIORITY, Sample
 
 _MAX_QUIRKS = 20
 

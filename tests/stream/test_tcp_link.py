@@ -8,10 +8,11 @@ import time
 
 import pytest
 
-from app.engine import Engine
-from app.io.emulator import PhoneEmulator, send_log
-from app.io.sources import TcpSource
-from app.io.tcp_server import Chunk, SourceEvent, TcpServer
+from app.engine.worker import Engine
+from app.stream.emulator import PhoneEmulator, send_log
+from app.stream.sources import TcpSource
+from app.stream.events import Chunk, SourceEvent
+from app.stream.tcp_server import TcpServer
 
 
 def _wait(predicate, timeout: float = 30.0):

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from app.cli_live import cmd_send
+from app.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -74,12 +74,7 @@ def test_bad_arguments_exit_2_with_one_line(argv, message):
 def test_send_to_nobody_is_a_clean_error(tmp_path, capsys):
     log = tmp_path / "log.txt"
     log.write_text("1\tACC\t0\t0\t9.8\n")
-
-    class Args:
-        pass
-
-    args = Args()
-    args.log, args.host, args.port, args.speed, args.loop = str(log), "127.0.0.1", \
-        _free_port(), 0.0, False
-    assert cmd_send(args) == 2
-    assert "cannot send to 127.0.0.1" in capsys.readouterr().err
+    assert main(["send", str(log), "--host", "127.0.0.1", "--port", str(_free_port()),
+                 "--speed", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot send to 127.0.0.1" in err and len(err.strip().splitlines()) == 1

@@ -5,11 +5,12 @@ from __future__ import annotations
 import json
 import time
 
-from app.io.netinfo import lan_ipv4_addresses, parse_ip_addr_output
-from app.io.recorder import Recorder
-from app.io.sources import LineReplaySource, LogFileSource, pacing_times
-from app.io.tcp_server import Chunk, SourceEvent
-from app.snapshot import ReplayControl
+from app.stream.netinfo import lan_ipv4_addresses, parse_ip_addr_output
+from app.stream.recorder import Recorder
+from app.stream.lines import pacing_times
+from app.stream.sources import LineReplaySource, LogFileSource
+from app.stream.events import Chunk, SourceEvent
+from app.stream.events import ReplayControl
 
 
 def _drain(source, seconds: float = 5.0):

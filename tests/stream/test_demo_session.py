@@ -7,8 +7,8 @@ import gzip
 
 import numpy as np
 
-from app.io.demo import DEMO_SESSION_PATH, demo_session_lines, write_demo_session, write_session
-from app.io.protocol import TAG_PRIORITY, parse_line
+from app.stream.demo import DEMO_SESSION_PATH, demo_session_lines, write_demo_session, write_session
+from app.stream.protocol import TAG_PRIORITY, parse_line
 from ekf.simulate import simulate
 
 
@@ -18,7 +18,7 @@ def _text(path) -> str:
 
 def test_committed_demo_equals_the_generator_output(tmp_path):
     assert DEMO_SESSION_PATH.is_file(), \
-        "resources/demo_session.txt.gz missing: run python -m app.io.demo"
+        "resources/demo_session.txt.gz missing: run python -m app.stream.demo"
     fresh = write_demo_session(tmp_path / "demo.txt.gz")
     committed, generated = _text(DEMO_SESSION_PATH), _text(fresh)
     if committed != generated:
@@ -26,7 +26,7 @@ def test_committed_demo_equals_the_generator_output(tmp_path):
         first = next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
         raise AssertionError(
             f"demo session drifted from write_demo_session at line {first + 1} "
-            f"({len(a)} vs {len(b)} lines): regenerate with `python -m app.io.demo`")
+            f"({len(a)} vs {len(b)} lines): regenerate with `python -m app.stream.demo`")
     # Reproducible bytes too (no time stamp in the gzip header), and small enough to ship.
     assert write_demo_session(tmp_path / "again.txt.gz").read_bytes() == fresh.read_bytes()
     assert DEMO_SESSION_PATH.stat().st_size < 1_500_000

@@ -7,8 +7,8 @@ import random
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.io.ordering import TimeOrderer
-from app.io.protocol import LineParser, Sample
+from app.stream.ordering import TimeOrderer
+from app.stream.protocol import LineParser, Sample
 
 
 def _s(t: int, tag: str) -> Sample:
@@ -163,7 +163,7 @@ def _phone_like_stream(rng: random.Random, n: int) -> list[Sample]:
 @given(seed=st.integers(0, 10**6), n=st.integers(1, 600), cut=st.integers(1, 200),
        max_pending=st.sampled_from([20_000, 7]), restart_at=st.integers(-1, 600))
 def test_compiled_orderer_equals_the_reference(seed, n, cut, max_pending, restart_at):
-    from app.io.ordering import ReferenceTimeOrderer
+    from app.stream.ordering import ReferenceTimeOrderer
     stream = _phone_like_stream(random.Random(seed), n)
     results = []
     for cls in (ReferenceTimeOrderer, TimeOrderer):
@@ -179,7 +179,7 @@ def test_compiled_orderer_equals_the_reference(seed, n, cut, max_pending, restar
 
 
 def test_array_face_equals_sample_face():
-    from app.io.fastparse import samples_to_arrays
+    from app.stream.fastparse import samples_to_arrays
     stream = _phone_like_stream(random.Random(5), 2000)
     samples = TimeOrderer().push_many(stream)
     arrays = samples_to_arrays(stream)

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.io.protocol import (LineParser, ParseError, Sample, format_line, java_float_text,
+from app.stream.protocol import (LineParser, ParseError, Sample, format_line, java_float_text,
                              parse_line)
 
 

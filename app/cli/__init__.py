@@ -1,0 +1,51 @@
+"""Command line: `orientation-lab` opens the window; subcommands run headless.
+
+Headless commands (filter, evaluate, calibrate, simulate, send, serve) never import Qt; the
+window's module is imported only when the window opens. Any bad argument or unusable file gives
+a one-line error on stderr and exit status 2, no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from app import __version__
+from app.cli import live, offline
+from app.cli.options import EXIT_USAGE, Parser, add_window, source_options
+from app.engine.config import ConfigError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = Parser(prog="orientation-lab",
+                    description="Orientation Lab: a quaternion EKF beside the phone's own "
+                                "estimate. Without a command, opens the window listening for "
+                                "the phone.")
+    parser.add_argument("--version", action="version", version=f"orientation-lab {__version__}")
+    add_window(parser)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
+    offline.add_commands(sub)
+    live.add_commands(sub)
+    return parser
+
+
+def open_window(args: argparse.Namespace) -> int:
+    from app.ui.main import WindowOptions, run_gui   # Qt only for the window
+    return run_gui(WindowOptions(source=source_options(args), settings=args.settings,
+                                 screenshot=args.screenshot, exit_after=args.exit_after))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        command = getattr(args, "func", None) or open_window
+        return int(command(args) or 0)
+    except ConfigError as error:
+        print(f"orientation-lab: error: {error}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:
+        return 0

@@ -1,0 +1,206 @@
+"""The live commands: `send` (a phone emulator) and `serve` (the engine without a window).
+
+Headless: they never import Qt. Bad arguments or unusable files give one line on stderr and
+exit status 2, without a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+import ekf
+from app.cli import options
+from app.engine import config
+from app.engine.estimates import EstimatesWriter
+from app.engine.snapshot import Snapshot
+from app.engine.worker import Engine
+from app.stream.emulator import PhoneEmulator
+from app.stream.lines import LogError, read_lines
+from app.stream.recorder import Recorder
+from app.stream.sources import TcpSource
+
+
+# ---- send ---------------------------------------------------------------------------------------
+
+def cmd_send(args: argparse.Namespace) -> int:
+    try:
+        lines = read_lines(config.resolve_log_path(args.log))
+    except LogError as error:
+        raise config.ConfigError(str(error)) from None
+    stop = threading.Event()
+    try:
+        with PhoneEmulator(args.host, args.port) as phone:
+            sent = phone.stream_lines(lines, args.speed, args.loop, stop)
+    except KeyboardInterrupt:
+        return 130
+    except OSError as error:
+        raise config.ConfigError(f"cannot send to {args.host}:{args.port}: "
+                                 f"{error.strerror or error}") from None
+    print(f"sent {sent} lines to {args.host}:{args.port}", file=sys.stderr)
+    return 0
+
+
+# ---- serve --------------------------------------------------------------------------------------
+
+def health_line(snapshot: Snapshot) -> str:
+    """One line of stream health (and the latest estimate) for the terminal."""
+    health = snapshot.health
+    rates = " ".join(f"{tag} {rate:.0f}Hz" for tag, rate in sorted(health.rates_hz.items()))
+    peer = f" {health.peer}" if health.peer else ""
+    parts = [f"{health.connection_state}{peer}", f"{health.lines_total} lines",
+             f"{health.lines_per_s:.0f} lines/s", rates or "no samples"]
+    counters = [(health.damaged, "damaged"), (health.unknown, "unknown"),
+                (health.too_long, "too long"), (health.out_of_order, "out of order")]
+    parts += [f"{count} {name}" for count, name in counters if count]
+    if health.clock_quirks:
+        parts.append("clock: " + "; ".join(health.clock_quirks))
+    if snapshot.own_quat is not None and snapshot.t_ms is not None:
+        q = snapshot.own_quat
+        parts.append(f"t={snapshot.t_ms} q=({q[0]:.3f} {q[1]:.3f} {q[2]:.3f} {q[3]:.3f})")
+    return " | ".join(parts)
+
+
+def _recording(directory: str | None, settings: ekf.EKFSettings | None,
+               estimator: str) -> tuple[Recorder | None, EstimatesWriter | None]:
+    """The recorder and estimates file of a session folder (None, None without --record)."""
+    if not directory:
+        return None, None
+    folder = Path(directory)
+    if (folder / "raw.txt").exists():
+        raise config.ConfigError(f"{folder} already holds a recorded session; record into a new "
+                                 "folder")
+    try:
+        recorder = Recorder(folder, settings or ekf.PRESETS["default"],
+                            info={"source": "tcp", "estimator": estimator})
+    except OSError as error:
+        raise config.ConfigError(str(error)) from None
+    try:
+        writer = EstimatesWriter(folder / "estimates.csv")
+    except OSError as error:
+        recorder.close()
+        raise config.ConfigError(f"cannot write {folder / 'estimates.csv'}: "
+                                 f"{error.strerror or error}") from None
+    return recorder, writer
+
+
+def _start_engine(args: argparse.Namespace) -> Engine:
+    names = config.estimator_names(args.estimator)
+    if len(names) != 1:
+        raise config.ConfigError("serve: give exactly one --estimator")
+    settings = config.load_settings(args.settings)
+    recorder, writer = _recording(args.record, settings, names[0])
+    engine = Engine(TcpSource(args.host, args.port), settings, names[0],
+                    comparisons=not args.no_comparisons, recorder=recorder, estimates=writer)
+    try:
+        engine.start()
+    except OSError as error:
+        engine.stop()
+        raise config.ConfigError(f"cannot listen on {args.host}:{args.port}: "
+                                 f"{error.strerror or error}") from None
+    return engine
+
+
+class _Watch:
+    """When serve should stop: --exit-after, --exit-when-idle, a fatal engine failure."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
+        self.started = self.last_activity = time.monotonic()
+        self.seen_lines = 0
+        self.connected_once = False
+        self.failures_shown = 0
+
+    def done(self, engine: Engine, snapshot: Snapshot) -> bool:
+        now = time.monotonic()
+        health = snapshot.health
+        if health.lines_total != self.seen_lines:
+            self.last_activity = now
+            self.seen_lines = health.lines_total
+        if health.connection_state in ("connected", "disconnected") or self.seen_lines:
+            self.connected_once = True
+        for failure in snapshot.failures:
+            if failure.number > self.failures_shown:
+                self.failures_shown = failure.number
+                then = "the engine stopped" if failure.fatal else "going on"
+                print(f"orientation-lab: engine error ({then}): {failure.message}",
+                      file=sys.stderr, flush=True)
+        if self.args.exit_after is not None and now - self.started >= self.args.exit_after:
+            return True
+        idle = self.args.exit_when_idle
+        waiting_since = engine.waiting_since
+        if (idle is not None and self.connected_once and waiting_since is not None
+                and now - max(self.last_activity, waiting_since) >= idle):
+            return True
+        return not engine.running
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
+    engine = _start_engine(args)
+    stop = threading.Event()
+    previous_handler = None
+    if threading.current_thread() is threading.main_thread():
+        previous_handler = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    source = engine.source
+    addresses = ", ".join(source.info()["listen_addresses"] or [args.host])
+    print(f"listening on port {source.port}; type one of these into the phone app: {addresses}",
+          flush=True)
+    snapshot = engine.snapshot_now()
+    watch = _Watch(args)
+    last_print = time.monotonic()
+    try:
+        while not stop.is_set():
+            stop.wait(0.1)
+            snapshot = engine.poll() or snapshot   # poll: drains the plot buffer
+            if not args.quiet and time.monotonic() - last_print >= 1.0:
+                print(health_line(snapshot), flush=True)
+                last_print = time.monotonic()
+            if watch.done(engine, snapshot):
+                break
+    except KeyboardInterrupt:
+        pass
+    finally:
+        engine.stop()
+        if previous_handler is not None:
+            signal.signal(signal.SIGTERM, previous_handler)
+    final = engine.snapshot_now()
+    watch.done(engine, final)
+    print("final: " + health_line(final), flush=True)
+    return 1 if engine.stopped_by_failure else 0
+
+
+# ---- registration -------------------------------------------------------------------------------
+
+def add_commands(sub) -> None:
+    send = sub.add_parser(
+        "send", help="phone emulator: stream a log to a server like the Sensor Fusion app",
+        description="Connect to HOST:PORT like the phone app and stream LOG with its original "
+                    "timing.")
+    send.add_argument("log", help="log file (.txt or .txt.gz) in the phone's format, or a "
+                                  "recorded session folder")
+    options.add_connect(send)
+    options.add_speed_loop(send)
+    send.set_defaults(func=cmd_send)
+
+    serve = sub.add_parser(
+        "serve", help="receive the phone's stream without a window; print stream health",
+        description="Listen for the phone, run the estimators and print stream health once a "
+                    "second. Ctrl-C stops.")
+    options.add_listen(serve)
+    options.add_record(serve)
+    options.add_estimator(serve)
+    options.add_settings(serve)
+    serve.add_argument("--no-comparisons", action="store_true",
+                       help="do not run the 7 sensor-combination comparison filters")
+    serve.add_argument("--exit-after", type=options.NON_NEGATIVE, metavar="S",
+                       help="stop after S seconds")
+    serve.add_argument("--exit-when-idle", type=options.NON_NEGATIVE, metavar="S",
+                       help="stop once a phone has connected and then nothing arrived for S s")
+    serve.add_argument("--quiet", action="store_true", help="print only the final summary")
+    serve.set_defaults(func=cmd_serve)

@@ -1,0 +1,33 @@
+"""Compile, or load from numba's on-disk cache, every kernel the engine uses."""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+from ekf import fast
+from ekf.simulate import simulate
+from app.engine.runner import EstimatorRunner
+from app.stream import fastparse, ordering
+from app.stream.demo import write_session
+from app.stream.logfile import read_log
+
+
+def warm_up() -> None:
+    """The EKF, the parser, the time orderer and the runner's own kernels, by running two seconds
+    of a simulated phone through them (the first time about half a minute). `make run` and
+    `make test` call it once after installing, so the first window does not wait for the
+    compiler."""
+    fast.warm_up()
+    fastparse.warm_up()
+    ordering.warm_up()
+    with tempfile.TemporaryDirectory() as directory:
+        log = read_log(write_session(simulate(duration_s=2.0, seed=0), Path(directory) / "w.txt"))
+    runner = EstimatorRunner(comparisons=True, collect_plot=True)
+    runner.feed_many(log.samples)
+    runner.finish()
+    runner.take_rows()
+
+
+if __name__ == "__main__":   # python -m app.engine.warmup (the Makefile's set-up step)
+    warm_up()
