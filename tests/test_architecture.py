@@ -1,14 +1,128 @@
-"""The rooms of the house: numerics never import Qt or sockets; I/O and headless commands never
-import Qt. Checked in a fresh interpreter where importing Qt fails loudly."""
+"""The rooms of the house and the arrows between them.
+
+* The import contracts in pyproject.toml (import-linter): layers cli > ui > engine > stream > ekf,
+  Qt only in the window, no sockets in the numerics.
+* No import cycle anywhere in app/ or ekf/, function-level imports included (an import hidden in
+  a function is still an arrow).
+* Headless modules and commands run with Qt made unimportable, in a fresh interpreter.
+* Sizes: no file in app/ or ekf/ of 900 lines or more, no function over 80 lines.
+"""
 
 from __future__ import annotations
 
+import ast
+import shutil
 import subprocess
 import sys
 import textwrap
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[1]
+PACKAGES = ("app", "ekf")
+QT = {"PySide6", "PyQt5", "PyQt6", "shiboken6", "pyqtgraph", "OpenGL"}
+
+
+# ---- import-linter ---------------------------------------------------------------------------
+
+def test_import_contracts_hold():
+    lint = Path(sys.executable).with_name("lint-imports")
+    command = [str(lint)] if lint.exists() else [shutil.which("lint-imports") or "lint-imports"]
+    result = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "0 broken" in result.stdout
+
+
+# ---- no cycles -------------------------------------------------------------------------------
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(REPO).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _modules() -> dict[str, Path]:
+    return {_module_name(path): path for package in PACKAGES
+            for path in (REPO / package).rglob("*.py")}
+
+
+def _imports(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
+    """Every project module `name` imports, at any depth of its code."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")
+                anchor = anchor[:len(anchor) - node.level + 1]
+                base = ".".join(anchor + ([base] if base else []))
+            # `from pkg import sub` imports the module pkg.sub when there is one
+            targets = [f"{base}.{alias.name}" if f"{base}.{alias.name}" in modules else base
+                       for alias in node.names]
+        else:
+            continue
+        for target in targets:
+            while target and target not in modules:
+                target = target.rpartition(".")[0]
+            if target and target != name:
+                found.add(target)
+    return found
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for nxt in sorted(graph[node]):
+            if nxt not in index:
+                visit(nxt)
+                low[node] = min(low[node], low[nxt])
+            elif nxt in on_stack:
+                low[node] = min(low[node], index[nxt])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                out.append(sorted(component))
+
+    sys.setrecursionlimit(max(sys.getrecursionlimit(), 10_000))
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return out
+
+
+def test_no_import_cycles_function_level_imports_included():
+    modules = _modules()
+    graph = {name: _imports(name, path, modules) for name, path in modules.items()}
+    assert graph["app.cli"] >= {"app.ui.main"}, "the walk must see function-level imports"
+    assert _cycles(graph) == []
+
+
+def test_the_cycle_finder_finds_a_hidden_cycle(tmp_path):
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
+    assert _cycles(graph) == [["a", "b", "c"]]
+
+
+# ---- headless with Qt blocked ------------------------------------------------------------------
 
 BLOCKER = textwrap.dedent("""
     import sys, importlib.abc
@@ -28,42 +142,13 @@ def run_blocked(blocked: set[str], body: str) -> subprocess.CompletedProcess:
                           timeout=120)
 
 
-QT = {"PySide6", "PyQt5", "PyQt6", "shiboken6", "pyqtgraph", "OpenGL"}
-
-
-def test_ekf_imports_no_qt_or_app():
-    r = run_blocked(QT | {"app"}, """
-        import pkgutil, importlib, ekf
-        for m in pkgutil.walk_packages(ekf.__path__, "ekf."):
-            importlib.import_module(m.name)
-        print("ok")
-    """)
-    assert r.returncode == 0, r.stderr
-    assert "ok" in r.stdout
-
-
-def test_ekf_source_never_imports_sockets_files_or_the_app():
-    # (numba itself pulls in socket through the standard library, so check ekf's own imports.)
-    import ast
-    for path in (REPO / "ekf").glob("*.py"):
-        tree = ast.parse(path.read_text())
-        for node in ast.walk(tree):
-            names = []
-            if isinstance(node, ast.Import):
-                names = [a.name for a in node.names]
-            elif isinstance(node, ast.ImportFrom) and node.module:
-                names = [node.module]
-            for name in names:
-                assert name.split(".")[0] not in {"socket", "selectors", "app", "PySide6", "pyqtgraph"}, \
-                    f"{path.name} imports {name}"
-
-
-def test_io_engine_and_headless_commands_import_no_qt():
+def test_numerics_stream_engine_and_commands_import_without_qt():
     r = run_blocked(QT, """
-        import pkgutil, importlib, app.stream
-        for m in pkgutil.walk_packages(app.stream.__path__, "app.stream."):
-            importlib.import_module(m.name)
-        import app.engine, app.engine.runner, app.engine.snapshot, app.cli
+        import pkgutil, importlib, ekf, app.stream, app.engine
+        for package in (ekf, app.stream, app.engine):
+            for m in pkgutil.walk_packages(package.__path__, package.__name__ + "."):
+                importlib.import_module(m.name)
+        import app.cli, app.paths
         parser = app.cli.build_parser()
         for cmd in ("filter", "evaluate", "calibrate", "simulate", "send", "serve"):
             parser.parse_args([cmd, "x"] if cmd not in ("simulate", "serve") else
@@ -72,6 +157,16 @@ def test_io_engine_and_headless_commands_import_no_qt():
     """)
     assert r.returncode == 0, r.stderr
     assert "ok" in r.stdout
+
+
+def test_ekf_imports_nothing_of_app():
+    r = run_blocked(QT | {"app"}, """
+        import pkgutil, importlib, ekf
+        for m in pkgutil.walk_packages(ekf.__path__, "ekf."):
+            importlib.import_module(m.name)
+        print("ok")
+    """)
+    assert r.returncode == 0, r.stderr
 
 
 def test_headless_command_runs_with_qt_blocked(tmp_path):
@@ -92,5 +187,32 @@ def test_widgets_do_not_reach_into_the_filter():
     # app/ui draws snapshots and sends commands: it must not construct or call estimators.
     for path in (REPO / "app" / "ui").glob("*.py"):
         text = path.read_text()
-        for forbidden in ("make_estimator", "OrientationEKF", "FastEKF", "filter_batch", "import socket"):
+        for forbidden in ("make_estimator", "OrientationEKF", "FastEKF", "filter_batch",
+                          "import socket", "app.cli"):
             assert forbidden not in text, f"{path.name} uses {forbidden}"
+
+
+# ---- sizes -------------------------------------------------------------------------------------
+
+def _source_files() -> list[Path]:
+    return sorted(path for package in PACKAGES for path in (REPO / package).rglob("*.py"))
+
+
+def test_no_file_of_900_lines_or_more():
+    sizes = {path.relative_to(REPO).as_posix(): len(path.read_text().splitlines())
+             for path in _source_files()}
+    too_long = {name: lines for name, lines in sizes.items() if lines >= 900}
+    assert not too_long
+
+
+@pytest.mark.parametrize("limit", [80])
+def test_no_function_over_80_lines(limit):
+    too_long = []
+    for path in _source_files():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                lines = node.end_lineno - node.lineno + 1
+                if lines > limit:
+                    too_long.append(f"{path.relative_to(REPO)}:{node.lineno} {node.name} "
+                                    f"({lines} lines)")
+    assert not too_long

@@ -234,6 +234,39 @@ def _run_rows(estimator, t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
     return _RowsResult(quat, flags, acc_rejected, mag_rejected)
 
 
+class _ChunkLayout:
+    """A chunk of ordered samples cut into estimator rows and distinct-time groups (_layout).
+
+    row_of (n,): the row of each sample (-1 for ORI); row_t (R,): each row's time; columns: the
+    (R, 3) gyr, acc, mag arrays of the rows (NaN: no such sample); group_last, group_row,
+    group_ori (G,): per distinct time its last sample, the latest row and the latest ORI sample
+    at or before it (-1: none in this chunk); own_sample (G,): a sensor sample has that time."""
+
+    def __init__(self, t_ms: np.ndarray, tag: np.ndarray, values: np.ndarray) -> None:
+        n = len(t_ms)
+        self.t_ms, self.tag, self.values = t_ms, tag, values
+        self.row_of = np.empty(n, np.int64)
+        row_t = np.empty(n, np.int64)
+        group_last = np.empty(n, np.int64)
+        group_row = np.empty(n, np.int64)
+        group_ori = np.empty(n, np.int64)
+        self.n_rows, groups = _layout(t_ms, tag, self.row_of, row_t, group_last, group_row,
+                                      group_ori)
+        self.row_t = row_t[:self.n_rows]
+        self.group_last = group_last[:groups]
+        self.group_row = group_row[:groups]
+        self.group_ori = group_ori[:groups]
+        group_first = np.concatenate(([0], self.group_last[:-1] + 1))
+        self.own_sample = np.maximum.reduceat((tag < 3).astype(np.int8), group_first) > 0
+        self.columns = []
+        for code in range(3):
+            column = np.full((self.n_rows, 3), np.nan)
+            chosen = tag == code
+            if chosen.any():
+                column[self.row_of[chosen]] = values[chosen, :3]
+            self.columns.append(column)
+
+
 class EstimatorRunner:
     """Feed ordered samples; read the latest estimates; take the rows produced so far.
 
@@ -330,98 +363,80 @@ class EstimatorRunner:
     def feed_arrays(self, t_ms: np.ndarray, tag: np.ndarray, values: np.ndarray) -> None:
         """Ordered filter-tag samples: t_ms (n,) int phone ms, tag (n,) codes GYR 0, ACC 1,
         MAG 2, ORI 3, values (n, 4) (rad/s, m/s^2, uT; ORI w x y z)."""
-        n = len(t_ms)
-        if n == 0:
+        if len(t_ms) == 0:
             return
         t_ms = np.ascontiguousarray(t_ms, dtype=np.int64)
         tag = np.ascontiguousarray(tag, dtype=np.int64)
-        first_t = int(t_ms[0])
-        continuing = self._row_t is not None and first_t == self._row_t
+        continuing = self._row_t is not None and int(t_ms[0]) == self._row_t
         if self._row_t is not None and not continuing:
             self._commit_row()
-        row_of = np.empty(n, np.int64)
-        row_t = np.empty(n, np.int64)
-        group_last = np.empty(n, np.int64)
-        group_row = np.empty(n, np.int64)
-        group_ori = np.empty(n, np.int64)
-        n_rows, n_groups = _layout(t_ms, tag, row_of, row_t, group_last, group_row, group_ori)
-        group_last = group_last[:n_groups]
-        group_row = group_row[:n_groups]
-        group_ori = group_ori[:n_groups]
-        # whether each distinct time has a sensor sample of its own (not only ORI)
-        group_first = np.concatenate(([0], group_last[:-1] + 1))
-        own_sample = np.maximum.reduceat((tag < 3).astype(np.int8), group_first) > 0
+        layout = _ChunkLayout(t_ms, tag, values)
         if continuing:
-            own_sample[0] |= self._row_has_sample
-
-        # State before this chunk: what groups without a row of their own show.
-        main = self.main
-        status = main.status
-        quat_before = main.quat
-        flags_before = (bool(status.acc_rejected), bool(status.mag_rejected),
-                        bool(status.at_rest))
-        compare_before = [c.estimator.quat for c in self.comparisons]
-        phone_before = self.phone_quat if self.phone_quat is not None else _NAN4
-
-        sensor = row_of >= 0
-        rows_sensor = {}
-        columns = []
-        for code in range(3):
-            column = np.full((n_rows, 3), np.nan)
-            chosen = tag == code
-            if chosen.any():
-                column[row_of[chosen]] = values[chosen, :3]
-            columns.append(column)
-            rows_sensor[code] = chosen
-        t_s = row_t[:n_rows].astype(np.float64) / 1000.0
-        if n_rows:
-            result = _run_rows(main, t_s, columns[0], columns[1], columns[2])
-            compared = [c.estimator.run_batch(t_s, columns[0], columns[1], columns[2]).quat
-                        for c in self.comparisons]   # comparisons are always compiled EKFs
-        else:
-            result = _RowsResult(np.empty((0, 4)), np.zeros((0, 3), bool), np.zeros(0, bool),
-                                 np.zeros(0, bool))
-            compared = [np.empty((0, 4)) for _ in self.comparisons]
-
-        # Rows of the distinct times completed here (the last one waits for a later time).
-        done = n_groups - 1
-        if done > 0:
-            has_row = group_row[:done] >= 0
-            index = np.where(has_row, group_row[:done], 0)
-            quat = np.where(has_row[:, None], result.quat[index] if n_rows else 0.0,
-                            quat_before)
-            flags = np.where(has_row[:, None], result.flags[index] if n_rows else False,
-                             np.array(flags_before))
-            has_ori = group_ori[:done] >= 0
-            phone = np.where(has_ori[:, None], values[np.where(has_ori, group_ori[:done], 0)],
-                             np.array(phone_before))
-            if self.comparisons and not np.isnan(phone[:, 0]).all():
-                for comparison, compared_quat, before in zip(self.comparisons, compared,
-                                                             compare_before):
-                    compared_rows = np.where(has_row[:, None],
-                                             compared_quat[index] if n_rows else 0.0, before)
-                    comparison.squared_sum, comparison.count, comparison.angle_to_phone_deg = \
-                        _accumulate_errors(compared_rows, phone, comparison.squared_sum,
-                                           comparison.count, comparison.angle_to_phone_deg)
-            self._add_rows(t_ms[group_last[:done]], quat, phone, flags, own_sample[:done])
+            layout.own_sample[0] |= self._row_has_sample
+        # the state before this chunk: what times without a row of their own show
+        before = self._state_before()
+        t_s = layout.row_t.astype(np.float64) / 1000.0
+        gyr, acc, mag = layout.columns
+        result = _run_rows(self.main, t_s, gyr, acc, mag)
+        # comparisons are always compiled EKFs
+        compared = [c.estimator.run_batch(t_s, gyr, acc, mag).quat if layout.n_rows
+                    else np.empty((0, 4)) for c in self.comparisons]
+        self._commit_groups(layout, result, compared, before)
         ori = np.flatnonzero(tag == 3)
         if len(ori):
             self.phone_quat = tuple(values[ori[-1]].tolist())
-        if self.collect_plot and sensor.any():
-            for code, name in ((0, "gyr"), (1, "acc"), (2, "mag")):
-                chosen = rows_sensor[code]
-                if not chosen.any():
-                    continue
-                pieces = self._plot[name]
-                pieces[0].append(t_ms[chosen])
-                pieces[1].append(values[chosen, :3])
-                if code == 1:
-                    pieces[2].append(result.acc_rejected[row_of[chosen]])
-                elif code == 2:
-                    pieces[2].append(result.mag_rejected[row_of[chosen]])
+        if self.collect_plot:
+            self._collect_plot(layout, result)
         self.latest_t_ms = int(t_ms[-1])
         self._row_t = self.latest_t_ms
-        self._row_has_sample = bool(own_sample[-1])
+        self._row_has_sample = bool(layout.own_sample[-1])
+
+    def _state_before(self) -> tuple:
+        status = self.main.status
+        flags = (bool(status.acc_rejected), bool(status.mag_rejected), bool(status.at_rest))
+        phone = self.phone_quat if self.phone_quat is not None else _NAN4
+        return self.main.quat, flags, [c.estimator.quat for c in self.comparisons], phone
+
+    def _commit_groups(self, layout: _ChunkLayout, result: _RowsResult,
+                       compared: list[np.ndarray], before: tuple) -> None:
+        """Rows of the distinct times completed in this chunk (the last one stays open until a
+        later time arrives)."""
+        done = len(layout.group_last) - 1
+        if done <= 0:
+            return
+        quat_before, flags_before, compare_before, phone_before = before
+        has_row = layout.group_row[:done] >= 0
+        index = np.where(has_row, layout.group_row[:done], 0)
+        empty = not layout.n_rows
+        quat = np.where(has_row[:, None], 0.0 if empty else result.quat[index], quat_before)
+        flags = np.where(has_row[:, None], False if empty else result.flags[index],
+                         np.array(flags_before))
+        group_ori = layout.group_ori[:done]
+        has_ori = group_ori >= 0
+        phone = np.where(has_ori[:, None], layout.values[np.where(has_ori, group_ori, 0)],
+                         np.array(phone_before))
+        if self.comparisons and not np.isnan(phone[:, 0]).all():
+            for comparison, compared_quat, previous in zip(self.comparisons, compared,
+                                                           compare_before):
+                rows = np.where(has_row[:, None], 0.0 if empty else compared_quat[index],
+                                previous)
+                comparison.squared_sum, comparison.count, comparison.angle_to_phone_deg = \
+                    _accumulate_errors(rows, phone, comparison.squared_sum, comparison.count,
+                                       comparison.angle_to_phone_deg)
+        self._add_rows(layout.t_ms[layout.group_last[:done]], quat, phone, flags,
+                       layout.own_sample[:done])
+
+    def _collect_plot(self, layout: _ChunkLayout, result: _RowsResult) -> None:
+        rejected = {1: result.acc_rejected, 2: result.mag_rejected}
+        for code, name in ((0, "gyr"), (1, "acc"), (2, "mag")):
+            chosen = layout.tag == code
+            if not chosen.any():
+                continue
+            times, values, flags = self._plot[name]
+            times.append(layout.t_ms[chosen])
+            values.append(layout.values[chosen, :3])
+            if code in rejected:
+                flags.append(rejected[code][layout.row_of[chosen]])
 
     def finish(self) -> None:
         """End of stream: commit the row of the last time."""

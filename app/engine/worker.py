@@ -527,9 +527,10 @@ class Engine:
                 "rates_hz": dict(health.rates_hz)}
 
     def _publish(self, now: float) -> None:
+        """Hand the rows and plot samples since the last publish to their consumers and make a
+        new snapshot the latest."""
         runner = self._runner
         rows = runner.take_rows()
-        plot = runner.take_plot_samples()
         if self.record_rows and len(rows):
             self.rows_log.append(rows)
         if self.estimates is not None:
@@ -538,61 +539,19 @@ class Engine:
                 self._warn("estimates", f"estimates.csv stopped: {self.estimates.error}",
                            force=True)
                 self.estimates = None
-        if len(rows):
-            # one call for both series (the per-call overhead dominates at live chunk sizes)
-            euler = np.degrees(ekf.quaternion.to_euler(np.concatenate([rows.quat,
-                                                                       rows.phone_quat])))
-            own_euler = _unwrap_continuing(euler[:len(rows)], self._previous_own_euler)
-            phone_euler = _unwrap_continuing(euler[len(rows):], self._previous_phone_euler)
-        else:
-            own_euler = phone_euler = np.empty((0, 3))
-        if len(rows):
-            self._previous_own_euler = own_euler[-1]
-            finite = np.isfinite(phone_euler).all(axis=1)
-            if finite.any():
-                self._previous_phone_euler = phone_euler[finite][-1]
-        piece = PlotChunk(
-            t_acc=plot["t_acc"] / 1000.0, acc=plot["acc"], acc_rejected=plot["acc_rejected"],
-            t_gyr=plot["t_gyr"] / 1000.0, gyr=plot["gyr"],
-            t_mag=plot["t_mag"] / 1000.0, mag=plot["mag"], mag_rejected=plot["mag_rejected"],
-            t_est=rows.t_s, own_euler_deg=own_euler, phone_euler_deg=phone_euler,
-            angle_deg=rows.angle_deg)
-
+        piece = self._plot_piece(rows, runner.take_plot_samples())
         main = runner.main
-        status = main.status
-        enabled = main.enabled
-        filter_status = FilterStatus(
-            sensors_enabled=enabled, acc_rejected=bool(status.acc_rejected),
-            mag_rejected=bool(status.mag_rejected), at_rest=bool(status.at_rest),
-            acc_norm=float(status.acc_norm), g=float(status.g), acc_gate=float(status.acc_gate),
-            mag_norm=float(status.mag_norm), mag_expected=float(status.mag_expected),
-            mag_gate=float(status.mag_gate), estimator=runner.estimator_name)
         cov = main.cov
-        own_cov = None if cov is None else np.array(cov)[:4, :4]
-        comparisons = [Comparison(c.name, c.estimator.quat, c.angle_to_phone_deg, c.rmse_deg)
-                       for c in runner.comparisons]
-
-        parse = self._parser.stats
-        retired = self._parser_retired
-        lines_total = parse.lines + retired[0]
         info = self.source.info()
-        state = info.get("connection_state", "waiting")
-        if self.source.kind == "tcp":
-            state = self._connection_state if state != "waiting" else "waiting"
-        warnings = list(self._warnings)
-        health = StreamHealth(
-            connection_state=state, peer=info.get("peer") or self._peer,
-            listen_addresses=list(info.get("listen_addresses") or []), port=info.get("port"),
-            rates_hz=self._rates(), lines_per_s=round(self._lines_per_s(now, lines_total), 1),
-            lines_total=lines_total, damaged=parse.damaged + retired[1],
-            unknown=parse.unknown + retired[2], too_long=parse.too_long + retired[3],
-            out_of_order=self._orderer.stats.out_of_order + self._order_retired,
-            clock_quirks=list(self._orderer.stats.clock_quirks), warnings=warnings)
         phone = runner.phone_quat
         snapshot = Snapshot(
-            t_ms=runner.latest_t_ms, own_quat=main.quat, own_cov=own_cov,
-            phone_quat=None if phone is None else np.array(phone), status=filter_status,
-            comparisons=comparisons, health=health, replay=info.get("replay"),
+            t_ms=runner.latest_t_ms, own_quat=main.quat,
+            own_cov=None if cov is None else np.array(cov)[:4, :4],
+            phone_quat=None if phone is None else np.array(phone),
+            status=self._filter_status(),
+            comparisons=[Comparison(c.name, c.estimator.quat, c.angle_to_phone_deg, c.rmse_deg)
+                         for c in runner.comparisons],
+            health=self._health(now, info), replay=info.get("replay"),
             failures=list(self.failures))
         published = time.perf_counter()
         with self._lock:
@@ -610,3 +569,49 @@ class Engine:
         self._last_publish = now
         if self.recorder is not None:
             self.recorder.set_stats(self._stats_dict())
+
+    def _plot_piece(self, rows: Rows, plot: dict[str, np.ndarray]) -> PlotChunk:
+        if len(rows):
+            # one call for both series (the per-call overhead dominates at live chunk sizes)
+            euler = np.degrees(ekf.quaternion.to_euler(np.concatenate([rows.quat,
+                                                                       rows.phone_quat])))
+            own_euler = _unwrap_continuing(euler[:len(rows)], self._previous_own_euler)
+            phone_euler = _unwrap_continuing(euler[len(rows):], self._previous_phone_euler)
+            self._previous_own_euler = own_euler[-1]
+            finite = np.isfinite(phone_euler).all(axis=1)
+            if finite.any():
+                self._previous_phone_euler = phone_euler[finite][-1]
+        else:
+            own_euler = phone_euler = np.empty((0, 3))
+        return PlotChunk(
+            t_acc=plot["t_acc"] / 1000.0, acc=plot["acc"], acc_rejected=plot["acc_rejected"],
+            t_gyr=plot["t_gyr"] / 1000.0, gyr=plot["gyr"],
+            t_mag=plot["t_mag"] / 1000.0, mag=plot["mag"], mag_rejected=plot["mag_rejected"],
+            t_est=rows.t_s, own_euler_deg=own_euler, phone_euler_deg=phone_euler,
+            angle_deg=rows.angle_deg)
+
+    def _filter_status(self) -> FilterStatus:
+        main = self._runner.main
+        status = main.status
+        return FilterStatus(
+            sensors_enabled=main.enabled, acc_rejected=bool(status.acc_rejected),
+            mag_rejected=bool(status.mag_rejected), at_rest=bool(status.at_rest),
+            acc_norm=float(status.acc_norm), g=float(status.g), acc_gate=float(status.acc_gate),
+            mag_norm=float(status.mag_norm), mag_expected=float(status.mag_expected),
+            mag_gate=float(status.mag_gate), estimator=self._runner.estimator_name)
+
+    def _health(self, now: float, info: dict[str, Any]) -> StreamHealth:
+        parse = self._parser.stats
+        retired = self._parser_retired
+        lines_total = parse.lines + retired[0]
+        state = info.get("connection_state", "waiting")
+        if self.source.kind == "tcp":
+            state = self._connection_state if state != "waiting" else "waiting"
+        return StreamHealth(
+            connection_state=state, peer=info.get("peer") or self._peer,
+            listen_addresses=list(info.get("listen_addresses") or []), port=info.get("port"),
+            rates_hz=self._rates(), lines_per_s=round(self._lines_per_s(now, lines_total), 1),
+            lines_total=lines_total, damaged=parse.damaged + retired[1],
+            unknown=parse.unknown + retired[2], too_long=parse.too_long + retired[3],
+            out_of_order=self._orderer.stats.out_of_order + self._order_retired,
+            clock_quirks=list(self._orderer.stats.clock_quirks), warnings=list(self._warnings))

@@ -16,7 +16,7 @@ from typing import Any
 
 from ekf.simulate import simulate
 
-from app.stream.events import Chunk, ReplayControl, SourceEvent
+from app.stream.events import Chunk, SourceEvent
 from app.stream.lines import LogError, pacing_times, read_lines
 from app.stream.netinfo import lan_ipv4_addresses
 from app.stream.protocol import Sample, format_line
