@@ -26,7 +26,7 @@ ESTIMATOR_CHOICES = (
 )
 SENSOR_LABELS = (("gyr", "Gyroscope"), ("acc", "Accelerometer"), ("mag", "Magnetometer"))
 # How long a click wins over the engine's echo of the old state (the command is applied
-# before the next sample, so a snapshot in flight may still show the old value).
+# between two batches of samples, so a snapshot in flight may still show the old value).
 USER_PRIORITY_S = 1.0
 
 
