@@ -106,10 +106,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--switch-interval", type=float, default=None, metavar="S",
                         help="override the GIL switch interval the application sets")
     parser.add_argument("--profile", metavar="FILE", help="cProfile the GUI thread at 1x")
+    parser.add_argument("--quick", action="store_true",
+                        help="a smoke run: 1 s per speed on a 20 s session")
     parser.add_argument("--render-every-frame", action="store_true",
                         help="render the 3D views for every snapshot, even when the pose did "
                              "not visibly change (the worst case: a phone that never rests)")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.seconds, args.warmup, args.duration = 1.0, 0.5, 20.0
 
     if not os.environ.get("DISPLAY"):
         xvfb = shutil.which("xvfb-run")

@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.engine.worker import Engine  # noqa: E402
-from app.stream.emulator import PhoneEmulator
+from app.stream.emulator import PhoneEmulator  # noqa: E402
 from app.stream.lines import read_lines  # noqa: E402
 from app.stream.logfile import read_log  # noqa: E402
 from app.stream.protocol import Sample, format_line  # noqa: E402
@@ -142,7 +142,11 @@ def main() -> int:
                         help="pace of the memory session, x real time (default 10; 1 = real time)")
     parser.add_argument("--skip-no-loss", action="store_true",
                         help="skip the no-loss checks (they take a few minutes for 20 minutes)")
+    parser.add_argument("--quick", action="store_true",
+                        help="a smoke run: 6-second sessions, one real log, 2.5 s of latency")
     args = parser.parse_args()
+    if args.quick:
+        args.minutes, args.latency_seconds, args.memory_speed = 0.1, 2.5, 20.0
     import ekf
     import ekf.fast
     print(f"estimator: {type(ekf.make_estimator()).__name__} (ekf.make_estimator default)")
@@ -153,6 +157,8 @@ def main() -> int:
     if not args.skip_no_loss:
         print("No loss (send --speed 0 -> serve --record):")
         logs = sorted(REALPHONE.glob("*.txt")) if REALPHONE.is_dir() else []
+        if args.quick:
+            logs = logs[:1]
         if not logs:
             print(f"  real logs not found at {REALPHONE}: skipped")
         for path in logs:
@@ -177,6 +183,9 @@ def main() -> int:
     for label, chosen in (("all chunks", np.ones(len(latency_ms), bool)),
                           ("after the first second (no start-of-stream hold)", steady)):
         values = latency_ms[chosen]
+        if not len(values):
+            print(f"  {label}: no chunks")
+            continue
         print(f"  {label}: {len(values)} chunks: p50 {np.percentile(values, 50):.2f} ms, "
               f"p99 {np.percentile(values, 99):.2f} ms, max {values.max():.2f} ms "
               f"(target p99 <= 5 ms)")

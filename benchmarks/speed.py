@@ -74,14 +74,28 @@ def main(argv: list[str] | None = None) -> int:
                         help="rows for the (slow) readable reference's streaming figure")
     parser.add_argument("--cpu-time", action="store_true",
                         help="time with process CPU time instead of wall time (shared machines)")
+    parser.add_argument("--quick", action="store_true",
+                        help="a smoke run: 20,000 rows (a simulated session when the trial is "
+                             "missing), one repeat; the figures are not the benchmark's")
     args = parser.parse_args(argv)
     global CLOCK
     if args.cpu_time:
         CLOCK = time.process_time
-    if not args.trial.exists():
+    if args.quick:
+        args.repeats, args.reference_rows = 1, 200
+    if args.trial.exists():
+        t, gyr, acc, mag = load_rows(args.trial)
+    elif args.quick:
+        from ekf.simulate import simulate
+        args.trial = Path("simulated session")
+        t, gyr, acc, mag = simulate(duration_s=200.0, rates_hz={"gyr": 100.0, "acc": 100.0,
+                                                                "mag": 100.0, "ori": 1.0},
+                                    seed=0).to_batch_arrays()
+    else:
         print(f"trial not found: {args.trial} (set ORIENTATION_LAB_SHARED)", file=sys.stderr)
         return 2
-    t, gyr, acc, mag = load_rows(args.trial)
+    if args.quick:
+        t, gyr, acc, mag = t[:20_000], gyr[:20_000], acc[:20_000], mag[:20_000]
     n = t.size
     every_row = not (np.isnan(gyr).any() or np.isnan(acc).any() or np.isnan(mag).any())
     print(f"trial {args.trial.name}: {n} rows, {(n - 1) / (t[-1] - t[0]):.1f} Hz, "
