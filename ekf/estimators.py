@@ -18,7 +18,7 @@ from typing import Mapping
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ekf import quaternion as quat
+import ekf.quaternion as quat
 from ekf.estimator import SENSORS, Estimator, EstimatorBase
 from ekf.outputs import ACC_NORM_GATE, NOT_REJECTED, Diagnostics, Flags
 from ekf.reference import OrientationEKF, acc_mag_quaternion, tilt_quaternion

@@ -36,7 +36,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ekf import quaternion as quat
+import ekf.quaternion as quat
 from ekf.estimator import SENSORS, EstimatorBase, ekf_name
 from ekf.outputs import (ACC_NIS_GATE, ACC_NORM_GATE, MAG_DIP_GATE, MAG_NIS_GATE, MAG_SETTLING,
                          MAG_STRENGTH_GATE, NOT_REJECTED)

@@ -180,11 +180,17 @@ def initial_state(cls: type, settings: EKFSettings, enabled: Mapping[str, bool])
 
 
 def state_dict(state: Any) -> dict[str, Any]:
-    """A copy of a declared state as {field name: value} (arrays copied, outputs copied)."""
+    """A copy of a declared state as {field name: value}: arrays copied, numbers as their
+    declared kind (float, bool, int), outputs copied."""
     out: dict[str, Any] = {}
     for f in fields(state):
-        value = getattr(state, f.name)
-        out[f.name] = value.copy() if isinstance(value, np.ndarray) else copy.copy(value)
+        kind, value = f.metadata["kind"], getattr(state, f.name)
+        if is_dataclass(kind):
+            out[f.name] = copy.copy(value)
+        elif f.metadata["shape"]:
+            out[f.name] = np.array(value, dtype=float)
+        else:
+            out[f.name] = kind(value)
     return out
 
 

@@ -30,16 +30,13 @@ Which compiled function mirrors which reference method (``OrientationEKF.<name>`
 ekf.fast                                    ekf.reference
 ==========================================  ===============================================
 ``time_update._advance``                    ``_advance``
-``time_update._time_update_gyro``           ``_time_update_gyro`` (eq. 6, Euler or exact F;
-(``_transition``, ``_ap_rows_n``)           F and the rows of A P)
-``time_update._carry``                      ``_carry``
+``time_update._time_update_gyro``           ``_time_update_gyro`` (eq. 6, Euler or exact F)
+``time_update._carry``, ``_carry_along``    ``_carry``
 ``time_update._time_update_random_walk``    ``_time_update_random_walk``
 ``measurements._acc_update``                ``_acc_update``
 ``measurements._acc_lowpass_update``        ``_acc_lowpass_update``
-``measurements._mag_update``                ``_mag_update``
-``measurements._mag_gates``                 ``_mag_gates``
+``measurements._mag_update``                ``_mag_update`` and ``_mag_gates``
 ``measurements._track_new_field``           ``_track_new_field``
-``measurements._mag_full_update``           ``_mag_update``'s full (not heading-only) update
 ``measurements._mag_heading_update``        ``_mag_heading_update``
 ``measurements._heading_error``             ``_heading_error``
 ``measurements._set_m0_from``               ``_set_m0_from``

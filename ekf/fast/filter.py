@@ -12,7 +12,7 @@ from typing import Any, Mapping
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ekf import quaternion as quat
+import ekf.quaternion as quat
 from ekf.estimator import SENSORS, BatchResult, EstimatorBase, batch_rows, ekf_name
 from ekf.fast.layout import S, pack_settings, pack_state, unpack_record, unpack_state
 from ekf.fast.measurements import _reference_dip_deg

@@ -239,30 +239,6 @@ def _dip_deg(s, c, y0, y1, y2):
 
 
 @jit_inline
-def _mag_gates(s, c, y0, y1, y2):
-    """reference ``_mag_gates``: the strength gate |‖y‖ - L_k| with the AR(1) estimate L_k
-    (task 11), then the dip gate. Returns ‖y‖, the dip [deg] and which gate fired."""
-    norm = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
-    s[S.mag_norm] = norm
-    s[S.mag_gate] = c[C.mag_gate]
-    if math.isnan(s[S.mag_strength]):
-        s[S.mag_strength] = norm
-    L_prev = s[S.mag_strength]
-    rejected_by = MAG_STRENGTH_GATE if abs(norm - L_prev) > c[C.mag_gate] else NOT_REJECTED
-    dip = _dip_deg(s, c, y0, y1, y2)
-    s[S.mag_dip_deg] = dip
-    dip_gate = c[C.mag_dip_gate_deg]
-    if (rejected_by == NOT_REJECTED and math.isfinite(dip_gate) and math.isfinite(dip)
-            and abs(dip - _reference_dip_deg(s)) > dip_gate):
-        rejected_by = MAG_DIP_GATE
-    if c[C.mag_strength_always] != 0.0 or rejected_by == NOT_REJECTED:
-        alpha = c[C.mag_alpha]
-        s[S.mag_strength] = (1 - alpha) * L_prev + alpha * norm
-    s[S.mag_expected] = s[S.mag_strength]
-    return norm, dip, rejected_by
-
-
-@jit_inline
 def _track_new_field(s, c, y0, y1, y2, t, norm, dip):
     """reference ``_track_new_field``: a new field is learned only when the rejected readings
     agree with each other (strength and dip within the gates of their running mean) for
@@ -282,42 +258,28 @@ def _track_new_field(s, c, y0, y1, y2, t, norm, dip):
             _relearn_field(s, y0, y1, y2)
 
 
-@jit_inline
-def _mag_full_update(s, c, y0, y1, y2):
-    """The course's magnetometer update y_m = Q(q)^T m0 (task 9); returns the NIS."""
-    q0 = s[S.x]
-    q1 = s[S.x + 1]
-    q2 = s[S.x + 2]
-    q3 = s[S.x + 3]
-    m0 = s[S.m0]
-    m1 = s[S.m0 + 1]
-    m2 = s[S.m0 + 2]
-    Q = _to_matrix(q0, q1, q2, q3)
-    yh0 = Q[0] * m0 + Q[3] * m1 + Q[6] * m2
-    yh1 = Q[1] * m0 + Q[4] * m1 + Q[7] * m2
-    yh2 = Q[2] * m0 + Q[5] * m1 + Q[8] * m2
-    # H[r, i] = (dQ_i^T m0)_r = sum_k dQ_i[k, r] m0_k
-    h = (4 * q0 * m0 + 2 * q3 * m1 - 2 * q2 * m2,
-         4 * q1 * m0 + 2 * q2 * m1 + 2 * q3 * m2,
-         2 * q1 * m1 - 2 * q0 * m2,
-         2 * q0 * m1 + 2 * q1 * m2,
-         -2 * q3 * m0 + 4 * q0 * m1 + 2 * q1 * m2,
-         2 * q2 * m0 + 2 * q0 * m2,
-         2 * q1 * m0 + 4 * q2 * m1 + 2 * q3 * m2,
-         -2 * q0 * m0 + 2 * q2 * m2,
-         2 * q2 * m0 - 2 * q1 * m1 + 4 * q0 * m2,
-         2 * q3 * m0 - 2 * q0 * m1,
-         2 * q0 * m0 + 2 * q3 * m1,
-         2 * q1 * m0 + 2 * q2 * m1 + 4 * q3 * m2)
-    return _measurement_update_q(s, c, h, y0 - yh0, y1 - yh1, y2 - yh2, C.mag_noise_cov,
-                                 c[C.mag_nis_gate])
-
-
 @jit
 def _mag_update(s, c, y0, y1, y2, t):
-    """reference ``_mag_update``: strength, dip and settling gates, then the update (heading
-    only, or the full one) behind the NIS gate."""
-    norm, dip, rejected_by = _mag_gates(s, c, y0, y1, y2)
+    """reference ``_mag_update`` and ``_mag_gates``: the strength gate |‖y‖ - L_k| with the
+    AR(1) estimate L_k (task 11), the dip and settling gates, then the update (heading only, or
+    the full one of task 9) behind the NIS gate."""
+    norm = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
+    s[S.mag_norm] = norm
+    s[S.mag_gate] = c[C.mag_gate]
+    if math.isnan(s[S.mag_strength]):
+        s[S.mag_strength] = norm
+    L_prev = s[S.mag_strength]
+    rejected_by = MAG_STRENGTH_GATE if abs(norm - L_prev) > c[C.mag_gate] else NOT_REJECTED
+    dip = _dip_deg(s, c, y0, y1, y2)
+    s[S.mag_dip_deg] = dip
+    dip_gate = c[C.mag_dip_gate_deg]
+    if (rejected_by == NOT_REJECTED and math.isfinite(dip_gate) and math.isfinite(dip)
+            and abs(dip - _reference_dip_deg(s)) > dip_gate):
+        rejected_by = MAG_DIP_GATE
+    if c[C.mag_strength_always] != 0.0 or rejected_by == NOT_REJECTED:
+        alpha = c[C.mag_alpha]
+        s[S.mag_strength] = (1 - alpha) * L_prev + alpha * norm
+    s[S.mag_expected] = s[S.mag_strength]
     # after a rejection, readings must pass for mag_settle_s before they are used again
     if rejected_by != NOT_REJECTED:
         s[S.mag_passing_since] = _NAN
@@ -341,7 +303,27 @@ def _mag_update(s, c, y0, y1, y2, t):
     if c[C.mag_heading_only] != 0.0:
         nis = _mag_heading_update(s, c, y0, y1, y2, c[C.mag_nis_gate])
     else:
-        nis = _mag_full_update(s, c, y0, y1, y2)
+        q0, q1, q2, q3 = s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3]
+        m0, m1, m2 = s[S.m0], s[S.m0 + 1], s[S.m0 + 2]
+        Q = _to_matrix(q0, q1, q2, q3)
+        yh0 = Q[0] * m0 + Q[3] * m1 + Q[6] * m2
+        yh1 = Q[1] * m0 + Q[4] * m1 + Q[7] * m2
+        yh2 = Q[2] * m0 + Q[5] * m1 + Q[8] * m2
+        # H[r, i] = (dQ_i^T m0)_r = sum_k dQ_i[k, r] m0_k
+        h = (4 * q0 * m0 + 2 * q3 * m1 - 2 * q2 * m2,
+             4 * q1 * m0 + 2 * q2 * m1 + 2 * q3 * m2,
+             2 * q1 * m1 - 2 * q0 * m2,
+             2 * q0 * m1 + 2 * q1 * m2,
+             -2 * q3 * m0 + 4 * q0 * m1 + 2 * q1 * m2,
+             2 * q2 * m0 + 2 * q0 * m2,
+             2 * q1 * m0 + 4 * q2 * m1 + 2 * q3 * m2,
+             -2 * q0 * m0 + 2 * q2 * m2,
+             2 * q2 * m0 - 2 * q1 * m1 + 4 * q0 * m2,
+             2 * q3 * m0 - 2 * q0 * m1,
+             2 * q0 * m0 + 2 * q3 * m1,
+             2 * q1 * m0 + 2 * q2 * m1 + 4 * q3 * m2)
+        nis = _measurement_update_q(s, c, h, y0 - yh0, y1 - yh1, y2 - yh2, C.mag_noise_cov,
+                                    c[C.mag_nis_gate])
     s[S.mag_nis] = nis
     if nis > c[C.mag_nis_gate]:
         # an innovation the filter cannot believe: rejected, and readings must settle again

@@ -35,45 +35,46 @@ def _carry(s, wx, wy, wz, rate, cs, sn):
 
 
 @jit_inline
-def _transition(s, c, T, n):
-    """omega = sample - bias and F of eq. (6): exp(T/2 S(w)) = cos(|w|T/2) I + sin(|w|T/2)/|w| S(w)
-    (exact) or I + T/2 S(w); turns the carried low-pass with the phone. Returns w and F."""
-    if n == 7:
-        wx = s[S.omega] - s[S.x + 4]
-        wy = s[S.omega + 1] - s[S.x + 5]
-        wz = s[S.omega + 2] - s[S.x + 6]
+def _carry_along(s, c, T, wx, wy, wz, rate, sinc, cs):
+    """Turn the carried low-pass by the rotation |w| T of this time update: with the exact F,
+    cos = 2 cos^2(half) - 1 and sin = 2 sin(half) cos(half) from F's entries; with the course's
+    F the same exact rotation from |w| T."""
+    if c[C.exact_discretisation] != 0.0:
+        _carry(s, wx, wy, wz, rate, 2.0 * cs * cs - 1.0, 2.0 * sinc * rate * cs)
     else:
-        wx = s[S.omega] - c[C.gyr_bias]
-        wy = s[S.omega + 1] - c[C.gyr_bias + 1]
-        wz = s[S.omega + 2] - c[C.gyr_bias + 2]
+        r = math.sqrt(wx * wx + wy * wy + wz * wz)
+        _carry(s, wx, wy, wz, r, math.cos(r * T), math.sin(r * T))
+
+
+@jit_inline
+def _time_update_gyro_n(s, c, T, n):
+    """reference ``_time_update_gyro``: q = F q, P = A P A^T + Q with A = [[F, -G], [0, I]]."""
+    q0, q1, q2, q3 = s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3]
+    if n == 7:   # w = sample - bias
+        wx, wy, wz = (s[S.omega] - s[S.x + 4], s[S.omega + 1] - s[S.x + 5],
+                      s[S.omega + 2] - s[S.x + 6])
+    else:
+        wx, wy, wz = (s[S.omega] - c[C.gyr_bias], s[S.omega + 1] - c[C.gyr_bias + 1],
+                      s[S.omega + 2] - c[C.gyr_bias + 2])
     if c[C.exact_discretisation] != 0.0:
         rate = math.sqrt(wx * wx + wy * wy + wz * wz)
         half = 0.5 * rate * T
         sinc = (math.sin(half) / rate) if rate > 1e-12 else 0.5 * T
         cs = math.cos(half)
     else:
+        rate = 0.0   # not used: the carried vector turns by the exact rotation below
         sinc = 0.5 * T
         cs = 1.0
-    ax = sinc * wx
-    ay = sinc * wy
-    az = sinc * wz
+    ax, ay, az = sinc * wx, sinc * wy, sinc * wz
     if s[S.acc_carried_valid] != 0.0 and sinc * cs != 0.0:
-        # rotation by |w| T: cos = 2 cos^2(half) - 1, sin = 2 sin(half) cos(half); with the
-        # course's F (not exact) the same exact rotation is used for the carried vector
-        if c[C.exact_discretisation] != 0.0:
-            _carry(s, wx, wy, wz, rate, 2.0 * cs * cs - 1.0, 2.0 * sinc * rate * cs)
-        else:
-            r = math.sqrt(wx * wx + wy * wy + wz * wz)
-            _carry(s, wx, wy, wz, r, math.cos(r * T), math.sin(r * T))
+        _carry_along(s, c, T, wx, wy, wz, rate, sinc, cs)
     F = ((cs, -ax, -ay, -az), (ax, cs, az, -ay), (ay, -az, cs, ax), (az, ay, -ax, cs))
-    return wx, wy, wz, F
-
-
-@jit_inline
-def _ap_rows_n(s, F, G, n):
-    """The q rows of A P with A = [[F, -G], [0, I]]: F P_q: - G P_b: (4 x n, at S.work_gain)."""
+    h = 0.5 * T
+    G = ((h * -q1, h * -q2, h * -q3), (h * q0, h * -q3, h * q2),
+         (h * q3, h * q0, h * -q1), (h * -q2, h * q1, h * q0))
     P = S.P
     AP = S.work_gain
+    # rows of A P for the q block: F P_q: - G P_b:
     for i in range(4):
         f0 = F[i][0]
         f1 = F[i][1]
@@ -85,22 +86,6 @@ def _ap_rows_n(s, F, G, n):
                 v -= (G[i][0] * s[P + 28 + j] + G[i][1] * s[P + 35 + j]
                       + G[i][2] * s[P + 42 + j])
             s[AP + 7 * i + j] = v
-
-
-@jit_inline
-def _time_update_gyro_n(s, c, T, n):
-    """reference ``_time_update_gyro``: q = F q, P = A P A^T + Q with A = [[F, -G], [0, I]]."""
-    q0 = s[S.x]
-    q1 = s[S.x + 1]
-    q2 = s[S.x + 2]
-    q3 = s[S.x + 3]
-    wx, wy, wz, F = _transition(s, c, T, n)
-    h = 0.5 * T
-    G = ((h * -q1, h * -q2, h * -q3), (h * q0, h * -q3, h * q2),
-         (h * q3, h * q0, h * -q1), (h * -q2, h * q1, h * q0))
-    _ap_rows_n(s, F, G, n)
-    P = S.P
-    AP = S.work_gain
     # G R_w G^T, R_w grown by the scale-factor noise (k |w|)^2 I. For R_w = r I it is
     # r (T/2)^2 S̄ S̄^T = r (T/2)^2 (|q|^2 I - q q^T), cheaper than the general product.
     R = C.gyr_noise_cov
@@ -137,10 +122,8 @@ def _time_update_gyro_n(s, c, T, n):
         qb = c[C.gyro_bias_random_walk] ** 2 * T
         for i in range(4, 7):
             s[P + 8 * i] += qb
-    s[S.x] = F[0][0] * q0 + F[0][1] * q1 + F[0][2] * q2 + F[0][3] * q3
-    s[S.x + 1] = F[1][0] * q0 + F[1][1] * q1 + F[1][2] * q2 + F[1][3] * q3
-    s[S.x + 2] = F[2][0] * q0 + F[2][1] * q1 + F[2][2] * q2 + F[2][3] * q3
-    s[S.x + 3] = F[3][0] * q0 + F[3][1] * q1 + F[3][2] * q2 + F[3][3] * q3
+    for i in range(4):
+        s[S.x + i] = F[i][0] * q0 + F[i][1] * q1 + F[i][2] * q2 + F[i][3] * q3
 
 
 @jit
