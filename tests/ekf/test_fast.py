@@ -356,3 +356,36 @@ def test_cache_guard_flushes_compilations_built_against_another_layout(monkeypat
     assert own.flushed == 0
     _jit.check_cache(stale_key, module)
     assert own.flushed == 1 and other.flushed == 0   # only the module's own functions
+
+
+def test_the_mapping_table_names_functions_that_exist():
+    """ekf.fast's docstring maps each compiled function to the reference method it mirrors."""
+    import importlib
+    import re
+
+    import ekf.fast
+    import ekf.estimator
+
+    doc = ekf.fast.__doc__
+    lines = doc.splitlines()
+    rules = [i for i, line in enumerate(lines) if line.startswith("=====")]
+    rows = [line for line in lines[rules[1] + 1:rules[2]] if line.strip()]
+    assert len(rows) > 20
+    module = None
+    for line in rows:
+        left, right = line[:44], line[44:]
+        for token in re.findall(r"``([^`]+)``", left):
+            if "." in token:
+                module, token = token.split(".", 1)
+            names = token.split("/")
+            names = [names[0]] + [names[0][:names[0].rindex("_")] + part for part in names[1:]]
+            for name in names:
+                assert hasattr(importlib.import_module(f"ekf.fast.{module}"), name), (module, name)
+        for token in re.findall(r"``([^`]+)``", right):
+            if token.startswith("ekf."):
+                mod, _, name = token.rpartition(".")
+                assert hasattr(importlib.import_module(mod), name), token
+            elif token.startswith("EstimatorBase."):
+                assert hasattr(ekf.estimator.EstimatorBase, token.split(".")[1]), token
+            else:
+                assert hasattr(OrientationEKF, token), token

@@ -278,3 +278,64 @@ def test_a_gate_code_goes_with_its_flag(rows):
         f, d = est.flags, est.diagnostics
         assert (d.acc_rejected_by != 0) == f.acc_rejected
         assert (d.mag_rejected_by != 0) == f.mag_rejected
+
+
+# ---- a filter written in Python -------------------------------------------------------------------
+def test_a_python_filter_gets_the_plumbing_from_the_base_class(rows):
+    """A user's estimator declares its state and writes step(); the base class gives it the
+    switches, flags, diagnostics, snapshots and run_batch."""
+    from dataclasses import dataclass
+
+    from ekf.estimator import EstimatorBase
+    from ekf.state import state_field
+
+    def value(v):
+        return lambda settings, enabled: v
+
+    def switch(sensor):
+        return lambda settings, enabled: enabled[sensor]
+
+    @dataclass
+    class TiltState:
+        t: float = state_field("time of the latest sample", value(math.nan), unit="s")
+        gyr_enabled: bool = state_field("gyroscope in", switch("gyr"), kind=bool)
+        acc_enabled: bool = state_field("accelerometer in", switch("acc"), kind=bool)
+        mag_enabled: bool = state_field("magnetometer in", switch("mag"), kind=bool)
+        initialised: bool = state_field("started", value(False), kind=bool)
+        q: np.ndarray = state_field("orientation", lambda s, e: np.array([1.0, 0, 0, 0]),
+                                    shape=(4,))
+        flags: Flags = state_field("lights", lambda s, e: Flags(), kind=Flags)
+        diagnostics: Diagnostics = state_field("numbers", lambda s, e: Diagnostics(),
+                                               kind=Diagnostics)
+
+    class TiltOnly(EstimatorBase):
+        name = "tilt"
+        state_class = TiltState
+
+        @property
+        def quat(self):
+            return self._state.q.copy()
+
+        @property
+        def gyro_bias(self):
+            return np.zeros(3)
+
+        def align_heading(self, q_ref):
+            pass
+
+        def step(self, t, gyr=None, acc=None, mag=None):
+            self._state.t = float(t)
+            if acc is not None and self._state.acc_enabled:
+                self._state.q[:] = ekf.reference.tilt_quaternion(acc)
+                self._state.initialised = True
+
+    est = TiltOnly()
+    assert isinstance(est, Estimator)
+    t, gyr, acc, mag = rows
+    result = est.run_batch(t[:200], gyr[:200], acc[:200], mag[:200])
+    np.testing.assert_array_equal(result.quat[-1], est.quat)
+    snap = est.snapshot()
+    est.run_batch(t[200:300], gyr[200:300], acc[200:300], mag[200:300])
+    est.restore(snap)
+    np.testing.assert_array_equal(est.quat, result.quat[-1])
+    assert est.time == t[199] and est.initialised
