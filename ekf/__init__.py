@@ -1,20 +1,25 @@
 """Orientation estimation numerics: quaternion algebra, the course's EKF and its comparison
-estimators, calibration statistics, the simulator and a batch runner.
+estimators behind one Estimator protocol, settings, state and outputs declared once,
+calibration statistics, the simulator and a batch runner.
 
 Numerics only: this package never imports Qt, sockets or the app, and reads no files beyond
 what a caller hands it.
 """
 
 from ekf import quaternion
-from ekf.batch import BatchResult, filter_batch
+from ekf.batch import filter_batch
+from ekf.estimator import SENSORS, BatchResult, Estimator, EstimatorBase
 from ekf.estimators import (ESTIMATORS, AccMagEstimator, ComplementaryFilter, GyroIntegrator,
                             make_estimator)
 from ekf.metrics import error_angles_deg, summarize
-from ekf.reference import SENSORS, OrientationEKF, Status
-from ekf.settings import PRESETS, EKFSettings
+from ekf.outputs import Diagnostics, Flags, output_rows
+from ekf.reference import OrientationEKF
+from ekf.settings import PRESETS, EKFSettings, settings_rows
+from ekf.state import EKFState
 
 __all__ = [
-    "quaternion", "BatchResult", "filter_batch", "ESTIMATORS", "AccMagEstimator",
-    "ComplementaryFilter", "GyroIntegrator", "make_estimator", "error_angles_deg", "summarize",
-    "SENSORS", "OrientationEKF", "Status", "PRESETS", "EKFSettings",
+    "quaternion", "BatchResult", "filter_batch", "SENSORS", "Estimator", "EstimatorBase",
+    "ESTIMATORS", "AccMagEstimator", "ComplementaryFilter", "GyroIntegrator", "make_estimator",
+    "error_angles_deg", "summarize", "Flags", "Diagnostics", "output_rows", "OrientationEKF",
+    "PRESETS", "EKFSettings", "settings_rows", "EKFState",
 ]

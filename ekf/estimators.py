@@ -1,23 +1,29 @@
-"""Comparison estimators with the EKF's interface, and the factory every caller uses.
+"""Comparison estimators behind the one Estimator protocol, and the factory every caller uses.
 
 * ``gyro``: plain gyroscope integration (exact for piecewise-constant rate) from an acc+mag start.
 * ``accmag``: accelerometer + magnetometer only, no dynamics: each reading gives the orientation.
 * ``complementary``: gyro integration pulled towards acc+mag with a time constant (seeds/004:
   fused = c * gyro + (1 - c) * accmag, c = tau / (tau + dt)), as a quaternion slerp.
+
+Their state is declared once, like the EKF's (:class:`SimpleState`), so snapshots, flags and
+diagnostics come from :class:`ekf.estimator.EstimatorBase`.
 """
 
 from __future__ import annotations
 
-import copy
 import math
+from dataclasses import dataclass
+from typing import Mapping
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ekf import quaternion as quat
-from ekf.reference import (SENSORS, OrientationEKF, Status, acc_mag_quaternion,
-                           tilt_quaternion)
-from ekf.settings import PRESETS, EKFSettings
+import ekf.quaternion as quat
+from ekf.estimator import SENSORS, Estimator, EstimatorBase
+from ekf.outputs import ACC_NORM_GATE, NOT_REJECTED, Diagnostics, Flags
+from ekf.reference import OrientationEKF, acc_mag_quaternion, tilt_quaternion
+from ekf.settings import PRESETS, EKFSettings, resolve_settings
+from ekf.state import state_field
 
 ESTIMATORS = ("ekf", "course", "complementary", "gyro", "accmag")
 
@@ -34,72 +40,80 @@ def slerp(p: np.ndarray, q: np.ndarray, fraction: float) -> np.ndarray:
     return quat.normalize((math.sin((1 - fraction) * theta) * p + math.sin(fraction * theta) * q) / s)
 
 
-class _SimpleEstimator:
-    """Shared plumbing: switches, time, acc/mag memory, gates for the lights, snapshots."""
+def _value(v: float | bool):
+    return lambda settings, enabled: v
+
+
+def _zeros3(settings: EKFSettings, enabled: Mapping[str, bool]) -> np.ndarray:
+    return np.zeros(3)
+
+
+def _diagnostics(settings: EKFSettings, enabled: Mapping[str, bool]) -> Diagnostics:
+    return Diagnostics(g=settings.g, acc_gate=settings.acc_gate, mag_gate=settings.mag_gate)
+
+
+@dataclass(eq=False)
+class SimpleState:
+    """The state of the comparison estimators."""
+
+    t: float = state_field("time of the latest sample; NaN: none yet", _value(math.nan), unit="s")
+    gyr_enabled: bool = state_field("the gyroscope is switched in",
+                                    lambda settings, enabled: bool(enabled["gyr"]), kind=bool)
+    acc_enabled: bool = state_field("the accelerometer is switched in",
+                                    lambda settings, enabled: bool(enabled["acc"]), kind=bool)
+    mag_enabled: bool = state_field("the magnetometer is switched in",
+                                    lambda settings, enabled: bool(enabled["mag"]), kind=bool)
+    initialised: bool = state_field("started from the first readings", _value(False), kind=bool)
+    q: np.ndarray = state_field("the orientation (w first, sensor -> ENU, w >= 0)",
+                                lambda settings, enabled: quat.IDENTITY.copy(), shape=(4,))
+    omega: np.ndarray = state_field("latest gyroscope sample", _zeros3, unit="rad/s", shape=(3,))
+    omega_valid: bool = state_field("omega holds a sample", _value(False), kind=bool)
+    omega_t: float = state_field("time of omega", _value(-math.inf), unit="s")
+    acc: np.ndarray = state_field("latest accepted accelerometer reading", _zeros3, unit="m/s²",
+                                  shape=(3,))
+    acc_valid: bool = state_field("acc holds a reading", _value(False), kind=bool)
+    acc_t: float = state_field("time of acc", _value(-math.inf), unit="s")
+    mag: np.ndarray = state_field("latest magnetometer reading", _zeros3, unit="µT", shape=(3,))
+    mag_valid: bool = state_field("mag holds a reading", _value(False), kind=bool)
+    mag_t: float = state_field("time of mag", _value(-math.inf), unit="s")
+    heading_offset: float = state_field("turn about up added by align_heading", _value(0.0),
+                                        unit="rad")
+    last_correction_t: float = state_field("time of the complementary filter's latest "
+                                           "correction; NaN: none yet", _value(math.nan), unit="s")
+    flags: Flags = state_field("the lights", lambda settings, enabled: Flags(), kind=Flags)
+    diagnostics: Diagnostics = state_field("the numbers behind them", _diagnostics,
+                                           kind=Diagnostics)
+
+
+class _SimpleEstimator(EstimatorBase):
+    """Shared plumbing: time, acc/mag memory, the accelerometer gate for the light."""
 
     name = "simple"
+    state_class = SimpleState
 
     def __init__(self, settings: EKFSettings | str | None = None,
                  sensors: tuple[str, ...] | list[str] = SENSORS) -> None:
-        if settings is None:
-            settings = PRESETS["default"]
-        elif isinstance(settings, str):
-            settings = PRESETS[settings]
-        self.settings = settings
-        self._enabled = {s: (s in sensors) for s in SENSORS}
-        self.reset()
-
-    def reset(self) -> None:
-        s = self.settings
-        self._q = quat.IDENTITY.copy()
-        self._t: float | None = None
-        self._initialised = False
-        self._omega: np.ndarray | None = None
-        self._omega_t = -math.inf
-        self._acc: np.ndarray | None = None
-        self._acc_t = -math.inf
-        self._mag: np.ndarray | None = None
-        self._mag_t = -math.inf
-        self._heading_offset = 0.0
-        self.status = Status(g=s.g, acc_gate=s.acc_gate, mag_gate=s.mag_gate)
+        super().__init__(settings, sensors)
+        self._state: SimpleState
 
     @property
     def quat(self) -> np.ndarray:
-        return self._q.copy()
+        return self._state.q.copy()
 
     @property
-    def cov(self) -> None:
-        return None
-
-    @property
-    def initialised(self) -> bool:
-        return self._initialised
-
-    @property
-    def enabled(self) -> dict[str, bool]:
-        return dict(self._enabled)
-
-    def set_enabled(self, gyr: bool | None = None, acc: bool | None = None,
-                    mag: bool | None = None) -> None:
-        for name, value in (("gyr", gyr), ("acc", acc), ("mag", mag)):
-            if value is not None:
-                self._enabled[name] = bool(value)
-
-    def set_settings(self, settings: EKFSettings) -> None:
-        self.settings = settings
-
-    def snapshot(self) -> dict:
-        return copy.deepcopy(self.__dict__)
-
-    def restore(self, state: dict) -> None:
-        self.__dict__.update(copy.deepcopy(state))
+    def gyro_bias(self) -> np.ndarray:
+        """(3,) [rad/s]: the fixed setting (subtracted before integrating)."""
+        return np.asarray(self.settings.gyr_bias, float)
 
     def align_heading(self, q_ref: ArrayLike) -> None:
-        delta = quat.heading_of(quat.multiply(np.asarray(q_ref, float), quat.conjugate(self._q)))
-        self._heading_offset += delta
-        self._q = quat.normalize(quat.multiply(quat.from_axis_angle([0, 0, 1], delta), self._q))
+        st = self._state
+        delta = quat.heading_of(quat.multiply(np.asarray(q_ref, float), quat.conjugate(st.q)))
+        st.heading_offset += delta
+        st.q[:] = quat.normalize(quat.multiply(quat.from_axis_angle([0, 0, 1], delta), st.q))
 
-    def step(self, t: float, gyr=None, acc=None, mag=None) -> Status:
+    def step(self, t: float, gyr: ArrayLike | None = None, acc: ArrayLike | None = None,
+             mag: ArrayLike | None = None) -> None:
+        """All samples that share time t, in the order gyroscope, accelerometer, magnetometer."""
         if gyr is not None:
             self.update_gyr(t, gyr)
         if acc is not None:
@@ -108,96 +122,102 @@ class _SimpleEstimator:
             self.update_mag(t, mag)
         if gyr is None and acc is None and mag is None:
             self._advance(t)
-        return self.status
 
     # -- helpers ------------------------------------------------------------------------------
     def _advance(self, t: float) -> None:
-        if self._t is None:
-            self._t = t
+        st = self._state
+        if math.isnan(st.t):
+            st.t = t
             return
-        dt = t - self._t
+        dt = t - st.t
         if dt <= 0:
             return
-        t_prev = self._t
-        self._t = t
-        if not self._initialised or dt > self.settings.max_dt:
-            self.status.used_gyr = False
+        t_prev = st.t
+        st.t = t
+        if not st.initialised or dt > self.settings.max_dt:
+            st.flags.used_gyr = False
             return
-        if (self._omega is not None and self._enabled["gyr"]
-                and t_prev - self._omega_t <= self.settings.gyr_hold_s):
-            omega = self._omega - np.asarray(self.settings.gyr_bias, float)
-            self._q = quat.normalize(quat.multiply(self._q, quat.from_rotation_vector(omega * dt)))
-            self.status.used_gyr = True
+        if st.omega_valid and st.gyr_enabled and t_prev - st.omega_t <= self.settings.gyr_hold_s:
+            omega = st.omega - np.asarray(self.settings.gyr_bias, float)
+            st.q[:] = quat.normalize(quat.multiply(st.q, quat.from_rotation_vector(omega * dt)))
+            st.flags.used_gyr = True
         else:
-            self.status.used_gyr = False
+            st.flags.used_gyr = False
 
     def _acc_ok(self, y: np.ndarray) -> bool:
-        s = self.settings
+        s, st = self.settings, self._state
         norm = float(np.linalg.norm(y))
-        self.status.acc_norm = norm
+        st.diagnostics.acc_norm = norm
         rejected = abs(norm - s.g) > s.acc_gate
-        self.status.acc_rejected = rejected
+        st.flags.acc_rejected = rejected
+        st.diagnostics.acc_rejected_by = ACC_NORM_GATE if rejected else NOT_REJECTED
         return not rejected
 
     def _absolute(self) -> np.ndarray | None:
         """Orientation from the latest accelerometer and magnetometer readings (enabled ones)."""
-        acc = self._acc if self._enabled["acc"] else None
-        mag = self._mag if self._enabled["mag"] else None
+        st = self._state
+        acc = st.acc if st.acc_enabled and st.acc_valid else None
+        mag = st.mag if st.mag_enabled and st.mag_valid else None
         if acc is not None and mag is not None:
             q = acc_mag_quaternion(acc, mag)
         elif acc is not None:
             # Tilt only: keep the current heading.
             q = tilt_quaternion(acc)
             q = quat.normalize(quat.multiply(
-                quat.from_axis_angle([0, 0, 1], quat.heading_of(self._q)), q))
+                quat.from_axis_angle([0, 0, 1], quat.heading_of(st.q)), q))
             return q
         elif mag is not None:
             q = quat.from_axis_angle([0, 0, 1], math.atan2(mag[0], mag[1]))
         else:
             return None
-        return quat.normalize(quat.multiply(quat.from_axis_angle([0, 0, 1], self._heading_offset), q))
+        return quat.normalize(quat.multiply(quat.from_axis_angle([0, 0, 1], st.heading_offset), q))
 
     def _initialise(self) -> None:
         q = self._absolute()
-        self._q = quat.IDENTITY.copy() if q is None else q
-        self._initialised = True
+        self._state.q[:] = quat.IDENTITY if q is None else q
+        self._state.initialised = True
 
-    def update_gyr(self, t: float, gyr: ArrayLike) -> Status:
+    def update_gyr(self, t: float, gyr: ArrayLike) -> None:
         self._advance(t)
-        if self._enabled["gyr"]:
-            self._omega = np.asarray(gyr, float).reshape(3)
-            self._omega_t = t
-            if not self._initialised and not (self._enabled["acc"] or self._enabled["mag"]):
+        st = self._state
+        if st.gyr_enabled:
+            st.omega[:] = np.asarray(gyr, float).reshape(3)
+            st.omega_valid = True
+            st.omega_t = t
+            if not st.initialised and not (st.acc_enabled or st.mag_enabled):
                 self._initialise()
-        return self.status
 
-    def update_acc(self, t: float, acc: ArrayLike) -> Status:
+    def update_acc(self, t: float, acc: ArrayLike) -> None:
         self._advance(t)
+        st = self._state
         y = np.asarray(acc, float).reshape(3)
-        if not self._enabled["acc"]:
-            return self.status
+        if not st.acc_enabled:
+            return
         ok = self._acc_ok(y)
-        if ok or self._acc is None:
-            self._acc, self._acc_t = y, t
-        if not self._initialised:
+        if ok or not st.acc_valid:
+            st.acc[:] = y
+            st.acc_valid = True
+            st.acc_t = t
+        if not st.initialised:
             self._initialise()
-            return self.status
+            return
         self._absolute_update(t, ok, "acc")
-        return self.status
 
-    def update_mag(self, t: float, mag: ArrayLike) -> Status:
+    def update_mag(self, t: float, mag: ArrayLike) -> None:
         self._advance(t)
+        st = self._state
         y = np.asarray(mag, float).reshape(3)
-        if not self._enabled["mag"]:
-            return self.status
-        self._mag, self._mag_t = y, t
-        self.status.mag_norm = float(np.linalg.norm(y))
-        if not self._initialised and not self._enabled["acc"]:
+        if not st.mag_enabled:
+            return
+        st.mag[:] = y
+        st.mag_valid = True
+        st.mag_t = t
+        st.diagnostics.mag_norm = float(np.linalg.norm(y))
+        if not st.initialised and not st.acc_enabled:
             self._initialise()
-            return self.status
-        if self._initialised:
+            return
+        if st.initialised:
             self._absolute_update(t, True, "mag")
-        return self.status
 
     def _absolute_update(self, t: float, ok: bool, sensor: str) -> None:
         raise NotImplementedError
@@ -220,7 +240,7 @@ class AccMagEstimator(_SimpleEstimator):
     def _absolute_update(self, t: float, ok: bool, sensor: str) -> None:
         q = self._absolute()
         if q is not None and ok:
-            self._q = q
+            self._state.q[:] = q
 
 
 class ComplementaryFilter(_SimpleEstimator):
@@ -229,46 +249,39 @@ class ComplementaryFilter(_SimpleEstimator):
     name = "complementary"
     time_constant_s = 1.0
 
-    def reset(self) -> None:
-        super().reset()
-        self._last_correction_t: float | None = None
-
     def _absolute_update(self, t: float, ok: bool, sensor: str) -> None:
         if not ok:
             return
         target = self._absolute()
         if target is None:
             return
-        dt = 0.01 if self._last_correction_t is None else max(t - self._last_correction_t, 0.0)
-        self._last_correction_t = t
+        st = self._state
+        last = st.last_correction_t
+        dt = 0.01 if math.isnan(last) else max(t - last, 0.0)
+        st.last_correction_t = t
         if dt == 0.0:
             return
-        if not self._enabled["gyr"]:
-            self._q = target
+        if not st.gyr_enabled:
+            st.q[:] = target
             return
         c = self.time_constant_s / (self.time_constant_s + dt)
-        self._q = slerp(self._q, target, 1.0 - c)
+        st.q[:] = slerp(st.q, target, 1.0 - c)
 
 
-def make_estimator(name: str = "ekf", settings: EKFSettings | None = None,
-                   sensors: tuple[str, ...] | list[str] = SENSORS, fast: bool = True):
+def make_estimator(name: str = "ekf", settings: EKFSettings | str | None = None,
+                   sensors: tuple[str, ...] | list[str] = SENSORS,
+                   fast: bool = True) -> Estimator:
     """An estimator by name (see ESTIMATORS). "ekf" uses `settings` (default: the default preset),
-    "course" the course preset. `fast` picks the compiled EKF when available (same estimates)."""
+    "course" the course preset. `fast` picks the compiled EKF (same estimates; numba is imported
+    only then), else the readable reference."""
     if name not in ESTIMATORS:
         raise ValueError(f"unknown estimator {name!r}; choose from {', '.join(ESTIMATORS)}")
     if name in ("ekf", "course"):
-        s = PRESETS["course"] if name == "course" else (settings or PRESETS["default"])
+        s = PRESETS["course"] if name == "course" else resolve_settings(settings)
         if fast:
-            try:
-                from ekf.fast import FastEKF
-            except ImportError:
-                FastEKF = None
-            if FastEKF is not None:
-                return FastEKF(s, sensors)
-        est = OrientationEKF(s, sensors)
-        if name == "course":
-            est.name = "course"
-        return est
+            from ekf.fast import FastEKF
+            return FastEKF(s, sensors)
+        return OrientationEKF(s, sensors)
     cls = {"gyro": GyroIntegrator, "accmag": AccMagEstimator,
            "complementary": ComplementaryFilter}[name]
     return cls(settings, sensors)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ekf import quaternion as quat
+import ekf.quaternion as quat
 
 
 def error_angles_deg(q_est: ArrayLike, q_ref: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

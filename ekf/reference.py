@@ -1,7 +1,9 @@
 """The readable reference EKF: the course's quaternion filter, line by line.
 
 State (model 4a): x = q, the orientation sensor -> ENU, with the gyroscope as input u = w.
-With ``settings.estimate_gyro_bias`` (model 4c): x = (q, b_w).
+With ``settings.estimate_gyro_bias`` (model 4c): x = (q, b_w). Everything the filter keeps is
+one :class:`ekf.state.EKFState` (declared once, in ``ekf/state.py``); ``self._x`` and
+``self._P`` are views of its x[:n] and P[:n, :n].
 
 Each sensor arrives at its own time and rate. Every ``update_*`` call first moves the state to
 the sample's time with the most recent gyroscope sample (eq. 6), then uses the sample:
@@ -29,43 +31,19 @@ against it.
 
 from __future__ import annotations
 
-import copy
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ekf import quaternion as quat
-from ekf.settings import EKFSettings, PRESETS
+import ekf.quaternion as quat
+from ekf.estimator import SENSORS, EstimatorBase, ekf_name
+from ekf.outputs import (ACC_NIS_GATE, ACC_NORM_GATE, MAG_DIP_GATE, MAG_NIS_GATE, MAG_SETTLING,
+                         MAG_STRENGTH_GATE, NOT_REJECTED)
+from ekf.settings import EKFSettings
+from ekf.state import EKFState, reference_dip_deg
 
-SENSORS = ("gyr", "acc", "mag")
-
-
-@dataclass
-class Status:
-    """What the filter did with its latest samples: the lights and their reasons.
-
-    Flags keep the decision of the latest sample of their sensor. With the accelerometer
-    low-pass (``acc_lowpass_s`` > 0) every reading is averaged, and ``acc_rejected`` only says
-    that the latest reading was outside the norm gate (disturbed).
-    """
-
-    acc_rejected: bool = False
-    mag_rejected: bool = False
-    at_rest: bool = False
-    used_gyr: bool = False     # the latest time update was driven by a gyroscope sample
-    used_acc: bool = False     # the latest accelerometer sample was used in an update
-    used_mag: bool = False     # the latest magnetometer sample was used in an update
-    acc_norm: float = math.nan   # ||y_a|| [m/s^2]
-    g: float = math.nan          # expected ||y_a|| [m/s^2]
-    acc_gate: float = math.nan   # [m/s^2]
-    acc_nis: float = math.nan    # normalised innovation squared of the latest acc update
-    mag_norm: float = math.nan   # ||y_m|| [uT]
-    mag_expected: float = math.nan  # L_k [uT]
-    mag_gate: float = math.nan   # [uT]
-    mag_nis: float = math.nan
-    mag_dip_deg: float = math.nan   # measured angle between field and up [deg]
+__all__ = ["SENSORS", "OrientationEKF", "acc_mag_quaternion", "tilt_quaternion"]
 
 
 def _as3(v: ArrayLike) -> np.ndarray:
@@ -103,50 +81,37 @@ def _rotate_world_about_up(q: np.ndarray, angle: float) -> np.ndarray:
     return quat.normalize(quat.multiply(quat.from_axis_angle([0, 0, 1], angle), q))
 
 
-def chi2_3dof_quantile(p: float) -> float:
-    """Wilson-Hilferty approximation of the chi-square quantile with 3 degrees of freedom."""
-    from statistics import NormalDist
-    z = NormalDist().inv_cdf(p)
-    k = 3.0
-    return k * (1 - 2 / (9 * k) + z * math.sqrt(2 / (9 * k))) ** 3
-
-
-class OrientationEKF:
+class OrientationEKF(EstimatorBase):
     """Quaternion EKF for asynchronous gyroscope, accelerometer and magnetometer samples.
 
     Parameters
     ----------
     settings:
         An :class:`EKFSettings`, or a preset name ("default", "course"). Default: "default".
+        With ``PRESETS["course"]`` the estimator's :attr:`name` is "course", else "ekf".
     sensors:
         Which sensors are enabled at the start (any non-empty subset of gyr, acc, mag).
 
     Feed samples in time order (at equal times: gyroscope, accelerometer, magnetometer) with
     times in seconds. Read :attr:`quat` (w-first, sensor -> ENU, w >= 0), :attr:`cov`,
-    :attr:`gyro_bias` and :attr:`status`.
+    :attr:`gyro_bias`, :attr:`flags` and :attr:`diagnostics`.
     """
 
     name = "ekf"
+    state_class = EKFState
+    compatible = ("ekf", "course")
 
     def __init__(self, settings: EKFSettings | str | None = None,
                  sensors: tuple[str, ...] | list[str] = SENSORS) -> None:
-        if settings is None:
-            settings = PRESETS["default"]
-        elif isinstance(settings, str):
-            settings = PRESETS[settings]
-        self.settings: EKFSettings = settings
-        self._enabled = {s: (s in sensors) for s in SENSORS}
-        self.reset()
+        super().__init__(settings, sensors)
+        self.name = ekf_name(self.settings)
+        self._state: EKFState
 
     # ---------------------------------------------------------------------------------------
     # public state
     @property
-    def enabled(self) -> dict[str, bool]:
-        return dict(self._enabled)
-
-    @property
     def quat(self) -> np.ndarray:
-        return self._x[:4].copy()
+        return self._state.x[:4].copy()
 
     @property
     def cov(self) -> np.ndarray:
@@ -155,158 +120,135 @@ class OrientationEKF:
 
     @property
     def gyro_bias(self) -> np.ndarray:
-        return self._x[4:7].copy() if self._n == 7 else np.asarray(self.settings.gyr_bias, float)
+        st = self._state
+        return st.x[4:7].copy() if st.n == 7 else np.asarray(self.settings.gyr_bias, float)
+
+    # views of the state's x[:n] and P[:n, :n]: the formulas below read and write through them
+    @property
+    def _x(self) -> np.ndarray:
+        return self._state.x[:self._state.n]
+
+    @_x.setter
+    def _x(self, value: np.ndarray) -> None:
+        self._state.x[:self._state.n] = value
 
     @property
-    def initialised(self) -> bool:
-        return self._initialised
+    def _P(self) -> np.ndarray:
+        n = self._state.n
+        return self._state.P[:n, :n]
 
-    @property
-    def time(self) -> float | None:
-        return self._t
+    @_P.setter
+    def _P(self, value: np.ndarray) -> None:
+        n = self._state.n
+        self._state.P[:n, :n] = value
 
     def set_enabled(self, gyr: bool | None = None, acc: bool | None = None,
                     mag: bool | None = None) -> None:
         """Switch sensors in or out of the filter; takes effect at the next sample."""
-        for name, value in (("gyr", gyr), ("acc", acc), ("mag", mag)):
-            if value is not None:
-                self._enabled[name] = bool(value)
-        if not self._enabled["gyr"]:
-            self._omega = None
-            self._acc_carried = None   # nothing carries the low-pass along without the gyro
-        self.status.at_rest = self.status.at_rest and (self._enabled["gyr"] or self._enabled["acc"])
+        super().set_enabled(gyr, acc, mag)
+        st = self._state
+        if not st.gyr_enabled:
+            st.omega_valid = False
+            st.acc_carried_valid = False   # nothing carries the low-pass along without the gyro
+        st.flags.at_rest = st.flags.at_rest and (st.gyr_enabled or st.acc_enabled)
 
     def set_settings(self, settings: EKFSettings) -> None:
         """Use new settings from the next sample on, keeping the orientation."""
-        old_n = self._n
+        st = self._state
         self.settings = settings
         n = 7 if settings.estimate_gyro_bias else 4
-        if n != old_n:
-            x = np.zeros(n)
-            P = np.zeros((n, n))
-            x[:4] = self._x[:4]
-            P[:4, :4] = self._P[:4, :4]
+        if n != st.n:
+            # q and its covariance stay; the bias starts afresh (or leaves the state)
+            st.x[4:] = 0.0
+            st.P[:, 4:] = 0.0
+            st.P[4:, :] = 0.0
             if n == 7:
-                x[4:] = settings.gyr_bias
-                P[4:, 4:] = np.eye(3) * settings.initial_gyro_bias_std ** 2
-            self._x, self._P, self._n = x, P, n
-
-    def reset(self) -> None:
-        """Forget everything but settings and switches; re-initialise from the next samples."""
-        s = self.settings
-        self._n = 7 if s.estimate_gyro_bias else 4
-        self._x = np.zeros(self._n)
-        self._x[0] = 1.0
-        if self._n == 7:
-            self._x[4:] = s.gyr_bias
-        self._P = np.eye(self._n) * 1.0
-        self._t: float | None = None
-        self._initialised = False
-        self._heading_from_mag = False
-        self._omega: np.ndarray | None = None     # latest gyro sample (bias not removed)
-        self._omega_t = -math.inf
-        self._last_acc: np.ndarray | None = None
-        self._last_acc_t = -math.inf
-        self._last_mag: np.ndarray | None = None
-        self._last_mag_t = -math.inf
-        self._m0 = None if s.m0 is None else np.asarray(s.m0, dtype=float)
-        self._mag_strength = math.nan if self._m0 is None else float(np.linalg.norm(self._m0))
-        self._mag_rejected_since = math.nan      # rejected readings agree since then
-        self._mag_candidate_norm = math.nan      # their running strength [uT] ...
-        self._mag_candidate_dip = math.nan       # ... and dip [deg]
-        self._mag_passing_since = -math.inf      # readings pass the gates since then
-        self._acc_carried: np.ndarray | None = None   # low-passed specific force [m/s^2]
-        self._acc_carried_t = math.nan
-        self._acc_updated_t = -math.inf          # latest update times (update_period_s)
-        self._mag_updated_t = -math.inf
-        self._rest_updated_t = -math.inf
-        self._acc_lowpass: np.ndarray | None = None
-        self._last_motion_t = -math.inf
-        self._still_since_t = math.inf
-        self.status = Status(g=s.g, acc_gate=s.acc_gate, mag_gate=s.mag_gate)
-
-    def snapshot(self) -> dict:
-        """Everything needed to continue later from exactly here (for replay seeking)."""
-        return copy.deepcopy({k: v for k, v in self.__dict__.items()})
-
-    def restore(self, state: dict) -> None:
-        self.__dict__.update(copy.deepcopy(state))
+                st.x[4:] = settings.gyr_bias
+                st.P[4:, 4:] = np.eye(3) * settings.initial_gyro_bias_std ** 2
+            st.n = n
 
     def align_heading(self, q_ref: ArrayLike) -> None:
         """Turn the estimate about world up so its heading matches `q_ref`'s (the phone's)."""
+        st = self._state
         q = self._x[:4]
         delta = quat.heading_of(quat.multiply(np.asarray(q_ref, float), quat.conjugate(q)))
         self._x[:4] = _rotate_world_about_up(q, delta)
-        if self._m0 is not None:
+        if st.m0_valid:
             # Turning our world turns the Earth field in it by the same angle.
-            self._m0 = quat.rotate(quat.from_axis_angle([0, 0, 1], delta), self._m0)
+            st.m0[:] = quat.rotate(quat.from_axis_angle([0, 0, 1], delta), st.m0.copy())
+            st.diagnostics.mag_reference_dip_deg = self._reference_dip_deg()
 
     # ---------------------------------------------------------------------------------------
     # sample entry points
-    def update_gyr(self, t: float, gyr: ArrayLike) -> Status:
+    def update_gyr(self, t: float, gyr: ArrayLike) -> None:
         """A gyroscope sample [rad/s, sensor frame] at time t [s]: it drives the time update
         from t until the next sample (eq. 5: w piecewise constant), or, with
         ``gyr_rate_before_sample``, from the previous sample up to t."""
         omega = _as3(gyr)
-        s = self.settings
-        if s.gyr_rate_before_sample and self._enabled["gyr"]:
+        s, st = self.settings, self._state
+        if s.gyr_rate_before_sample and st.gyr_enabled:
             # The sample is the rate over the interval that ends now: it drives the state to t.
-            if self._omega is None or t - self._omega_t <= s.gyr_hold_s:
-                self._omega = omega
+            if not st.omega_valid or t - st.omega_t <= s.gyr_hold_s:
+                st.omega[:] = omega
+                st.omega_valid = True
         self._advance(t)
-        if not self._enabled["gyr"]:
-            return self.status
-        self._omega = omega
-        self._omega_t = t
-        if not self._initialised and not (self._enabled["acc"] or self._enabled["mag"]):
+        if not st.gyr_enabled:
+            return
+        st.omega[:] = omega
+        st.omega_valid = True
+        st.omega_t = t
+        if not st.initialised and not (st.acc_enabled or st.mag_enabled):
             self._initialise(t)   # gyroscope alone: nothing absolute, start at identity (flat)
         self._detect_rest_gyr(t, omega)
-        if (self._n == 7 and self._initialised and self.status.at_rest
-                and t - self._rest_updated_t >= s.update_period_s):
-            self._rest_updated_t = t
+        if (st.n == 7 and st.initialised and st.flags.at_rest
+                and t - st.rest_updated_t >= s.update_period_s):
+            st.rest_updated_t = t
             self._zero_rate_update(omega)
-        return self.status
 
-    def update_acc(self, t: float, acc: ArrayLike) -> Status:
+    def update_acc(self, t: float, acc: ArrayLike) -> None:
         """An accelerometer sample [m/s^2, sensor frame] at time t [s]."""
         self._advance(t)
         y = _as3(acc)
-        self._last_acc, self._last_acc_t = y, t
-        if not self._enabled["acc"]:
-            self.status.used_acc = False
-            return self.status
+        st = self._state
+        st.last_acc[:] = y
+        st.last_acc_valid = True
+        st.last_acc_t = t
+        if not st.acc_enabled:
+            st.flags.used_acc = False
+            return
         self._detect_rest_acc(t, y)
-        if not self._initialised:
+        if not st.initialised:
             self._initialise(t)
-            return self.status
-        if self.settings.acc_lowpass_s > 0.0 and self._enabled["gyr"]:
+            return
+        if self.settings.acc_lowpass_s > 0.0 and st.gyr_enabled:
             # Only the gyroscope can carry the average along; without it, the reading itself.
             self._acc_lowpass_update(t, y)
         else:
             self._acc_update(y, self.settings.acc_gate)
-        return self.status
 
-    def update_mag(self, t: float, mag: ArrayLike) -> Status:
+    def update_mag(self, t: float, mag: ArrayLike) -> None:
         """A magnetometer sample [uT, sensor frame] at time t [s]."""
         self._advance(t)
         y = _as3(mag)
-        self._last_mag, self._last_mag_t = y, t
-        if not self._enabled["mag"]:
-            self.status.used_mag = False
-            return self.status
-        if not self._initialised:
+        st = self._state
+        st.last_mag[:] = y
+        st.last_mag_valid = True
+        st.last_mag_t = t
+        if not st.mag_enabled:
+            st.flags.used_mag = False
+            return
+        if not st.initialised:
             # Wait for the accelerometer to give tilt (when it is on); else start from mag alone.
-            if not self._enabled["acc"]:
+            if not st.acc_enabled:
                 self._initialise(t)
-            return self.status
-        if not self._heading_from_mag:
+            return
+        if not st.heading_from_mag:
             self._take_heading_from_mag(y)
-            return self.status
+            return
         self._mag_update(y, t)
-        return self.status
 
     def step(self, t: float, gyr: ArrayLike | None = None, acc: ArrayLike | None = None,
-             mag: ArrayLike | None = None) -> Status:
+             mag: ArrayLike | None = None) -> None:
         """All samples that share time t, in the fixed order gyroscope, accelerometer, magnetometer."""
         if gyr is not None:
             self.update_gyr(t, gyr)
@@ -316,43 +258,42 @@ class OrientationEKF:
             self.update_mag(t, mag)
         if gyr is None and acc is None and mag is None:
             self._advance(t)
-        return self.status
 
     # ---------------------------------------------------------------------------------------
     # time update
     def _advance(self, t: float) -> None:
-        if self._t is None:
-            self._t = t
+        st = self._state
+        if math.isnan(st.t):
+            st.t = t
             return
-        dt = t - self._t
+        dt = t - st.t
         if dt <= 0.0:
             return   # same time (or a late sample): nothing to integrate
-        t_prev = self._t
-        self._t = t
-        if not self._initialised:
+        t_prev = st.t
+        st.t = t
+        if not st.initialised:
             return
         if dt > self.settings.max_dt:
             # A pause or a new connection: keep the orientation, do not integrate the gap.
-            self.status.used_gyr = False
-            self._acc_carried = None
+            st.flags.used_gyr = False
+            st.acc_carried_valid = False
             return
-        omega = self._omega
-        if omega is not None and self._enabled["gyr"] and t_prev - self._omega_t <= self.settings.gyr_hold_s:
-            self._time_update_gyro(omega, dt)
-            self.status.used_gyr = True
+        if st.omega_valid and st.gyr_enabled and t_prev - st.omega_t <= self.settings.gyr_hold_s:
+            self._time_update_gyro(st.omega, dt)
+            st.flags.used_gyr = True
             if not self.settings.exact_discretisation:
                 self._normalise()
             elif self._x[0] < 0:
                 self._flip_sign()
         else:
             self._time_update_random_walk(dt)
-            self.status.used_gyr = False
+            st.flags.used_gyr = False
             self._normalise()
 
     def _time_update_gyro(self, omega_measured: np.ndarray, T: float) -> None:
         """Eq. (6): q_k = F(w) q_{k-1} + G(q) v with F = I + T/2 S(w), G = T/2 S̄(q)."""
         s = self.settings
-        n = self._n
+        n = self._state.n
         q = self._x[:4]
         bias = self._x[4:7] if n == 7 else np.asarray(s.gyr_bias, float)
         omega = omega_measured - bias
@@ -364,7 +305,7 @@ class OrientationEKF:
             F = math.cos(half) * np.eye(4) + sinc * quat.S_omega(omega)
         else:
             F = np.eye(4) + 0.5 * T * quat.S_omega(omega)
-        if self._acc_carried is not None:
+        if self._state.acc_carried_valid:
             self._carry(omega, T)
         G = 0.5 * T * quat.S_bar(q)
         # R_w, grown in fast turns by the scale-factor uncertainty: + (k |w|)^2 I
@@ -387,10 +328,10 @@ class OrientationEKF:
         if rate < 1e-12:
             return
         k = omega / rate
-        v = self._acc_carried
+        v = self._state.acc_carried
         angle = rate * T
         cs, sn = math.cos(angle), math.sin(angle)
-        self._acc_carried = v * cs - np.cross(k, v) * sn + k * float(k @ v) * (1 - cs)
+        self._state.acc_carried[:] = v * cs - np.cross(k, v) * sn + k * float(k @ v) * (1 - cs)
 
     def _time_update_random_walk(self, T: float) -> None:
         """No gyroscope: q stays; P grows as if w were white noise with the given intensity."""
@@ -398,7 +339,7 @@ class OrientationEKF:
         q = self._x[:4]
         Sq = quat.S_bar(q)
         self._P[:4, :4] += 0.25 * T * s.no_gyro_random_walk ** 2 * (Sq @ Sq.T)
-        if self._n == 7:
+        if self._state.n == 7:
             self._P[4:, 4:] += np.eye(3) * (s.gyro_bias_random_walk ** 2 * T)
 
     # ---------------------------------------------------------------------------------------
@@ -407,28 +348,31 @@ class OrientationEKF:
         """Task 6 with the task-8 gate: y_a = Q(q)^T g0 + e_a, skipped when |‖y‖ - g| > gate
         or (optionally) when the NIS exceeds acc_nis_gate."""
         s = self.settings
+        flags, diag = self._state.flags, self._state.diagnostics
         norm = float(np.linalg.norm(y))
-        self.status.acc_norm = norm
-        self.status.g = s.g
-        self.status.acc_gate = s.acc_gate
+        diag.acc_norm = norm
+        diag.g = s.g
+        diag.acc_gate = s.acc_gate
         if abs(norm - s.g) > norm_gate:
             # Task 8: a specific force is present; the model y_a = Q^T g0 does not hold.
-            self.status.acc_rejected = True
-            self.status.used_acc = False
+            flags.acc_rejected = True
+            flags.used_acc = False
+            diag.acc_rejected_by = ACC_NORM_GATE
             return
         q = self._x[:4]
         g0 = np.array([0.0, 0.0, s.g])
         Qm = quat.to_matrix(q)
         y_hat = Qm.T @ g0
-        H = np.zeros((3, self._n))
+        H = np.zeros((3, self._state.n))
         for i, dQi in enumerate(quat.dQ_dq(q)):
             H[:, i] = dQi.T @ g0
         R = np.asarray(s.acc_noise_cov, float)
         nis = self._update(y - y_hat, H, R, gate=s.acc_nis_gate)
-        self.status.acc_nis = nis
+        diag.acc_nis = nis
         accepted = nis <= s.acc_nis_gate
-        self.status.acc_rejected = not accepted
-        self.status.used_acc = accepted
+        flags.acc_rejected = not accepted
+        flags.used_acc = accepted
+        diag.acc_rejected_by = NOT_REJECTED if accepted else ACC_NIS_GATE
 
     def _acc_lowpass_update(self, t: float, y: np.ndarray) -> None:
         """The accelerometer through a first-order low-pass (time constant acc_lowpass_s) that
@@ -436,92 +380,113 @@ class OrientationEKF:
         accelerations cancel. Every reading is averaged; at most every update_period_s the
         average is the measurement (without the norm gate). The norm gate only flags a
         disturbed reading for the user."""
-        s = self.settings
+        s, st = self.settings, self._state
         norm = float(np.linalg.norm(y))
-        if self._acc_carried is None:
-            self._acc_carried = y.copy()
+        if not st.acc_carried_valid:
+            st.acc_carried[:] = y
+            st.acc_carried_valid = True
         else:
-            dt = t - self._acc_carried_t
+            dt = t - st.acc_carried_t
             alpha = dt / (s.acc_lowpass_s + dt)
-            self._acc_carried = self._acc_carried + alpha * (y - self._acc_carried)
-        self._acc_carried_t = t
+            st.acc_carried[:] = st.acc_carried + alpha * (y - st.acc_carried)
+        st.acc_carried_t = t
         used = True
-        if t - self._acc_updated_t >= s.update_period_s:
-            self._acc_updated_t = t
-            self._acc_update(self._acc_carried, math.inf)
-            used = self.status.used_acc   # the NIS gate may still refuse the average
-        self.status.acc_norm = norm
-        self.status.acc_gate = s.acc_gate
-        self.status.acc_rejected = abs(norm - s.g) > s.acc_gate
-        self.status.used_acc = used
+        if t - st.acc_updated_t >= s.update_period_s:
+            st.acc_updated_t = t
+            self._acc_update(st.acc_carried, math.inf)
+            used = st.flags.used_acc   # the NIS gate may still refuse the average
+        st.diagnostics.acc_norm = norm
+        st.diagnostics.acc_gate = s.acc_gate
+        st.flags.acc_rejected = abs(norm - s.g) > s.acc_gate
+        st.diagnostics.acc_rejected_by = ACC_NORM_GATE if st.flags.acc_rejected else NOT_REJECTED
+        st.flags.used_acc = used
 
     def _mag_update(self, y: np.ndarray, t: float) -> None:
-        s = self.settings
-        norm = float(np.linalg.norm(y))
-        self.status.mag_norm = norm
-        self.status.mag_gate = s.mag_gate
-        if math.isnan(self._mag_strength):
-            self._mag_strength = norm
-        L_prev = self._mag_strength
-        rejected = abs(norm - L_prev) > s.mag_gate
-        dip = self._dip_deg(y)
-        self.status.mag_dip_deg = dip
-        if not rejected and math.isfinite(s.mag_dip_gate_deg) and math.isfinite(dip):
-            rejected = abs(dip - self._reference_dip_deg()) > s.mag_dip_gate_deg
-        # Task 11: AR(1) estimate of the field strength.
-        if s.mag_strength_update == "always" or not rejected:
-            self._mag_strength = (1 - s.mag_alpha) * L_prev + s.mag_alpha * norm
-        self.status.mag_expected = self._mag_strength
+        """Task 9 behind the gates of task 11 (and the dip, settling and NIS gates)."""
+        s, st = self.settings, self._state
+        flags, diag = st.flags, st.diagnostics
+        norm, dip, rejected_by = self._mag_gates(y)
         # After a rejection, readings must pass for mag_settle_s before they are used again.
-        if rejected:
-            self._mag_passing_since = math.nan
-        elif math.isnan(self._mag_passing_since):
-            self._mag_passing_since = t
-        settling = t - self._mag_passing_since < s.mag_settle_s
-        if rejected or settling:
+        if rejected_by != NOT_REJECTED:
+            st.mag_passing_since = math.nan
+        elif math.isnan(st.mag_passing_since):
+            st.mag_passing_since = t
+        if rejected_by == NOT_REJECTED and t - st.mag_passing_since < s.mag_settle_s:
+            rejected_by = MAG_SETTLING
+        diag.mag_rejected_by = rejected_by
+        if rejected_by != NOT_REJECTED:
             if s.mag_strength_update == "accepted":
-                # A new field is learned only when the rejected readings agree with each
-                # other (strength and dip within the gates of their running mean) for
-                # mag_relearn_s: a changed field, not a magnet that moves with the phone.
-                cn, cd = self._mag_candidate_norm, self._mag_candidate_dip
-                if (math.isnan(self._mag_rejected_since) or abs(norm - cn) > s.mag_gate
-                        or abs(dip - cd) > s.mag_dip_gate_deg):
-                    self._mag_rejected_since = t
-                    self._mag_candidate_norm, self._mag_candidate_dip = norm, dip
-                else:
-                    self._mag_candidate_norm = cn + s.mag_alpha * (norm - cn)
-                    self._mag_candidate_dip = cd + s.mag_alpha * (dip - cd)
-                    if t - self._mag_rejected_since >= s.mag_relearn_s:
-                        self._relearn_field(y)
-            self.status.mag_rejected = True
-            self.status.used_mag = False
+                self._track_new_field(y, t, norm, dip)
+            flags.mag_rejected = True
+            flags.used_mag = False
             return
-        self._mag_rejected_since = math.nan
-        self.status.mag_rejected = False
-        if t - self._mag_updated_t < s.update_period_s:
-            self.status.used_mag = False
+        st.mag_rejected_since = math.nan
+        flags.mag_rejected = False
+        if t - st.mag_updated_t < s.update_period_s:
+            flags.used_mag = False
             return
-        self._mag_updated_t = t
+        st.mag_updated_t = t
         q = self._x[:4]
         R = np.asarray(s.mag_noise_cov, float)
         if s.mag_heading_only:
             nis = self._mag_heading_update(y, R, s.mag_nis_gate)
         else:
-            m0 = self._m0
+            m0 = st.m0
             y_hat = quat.to_matrix(q).T @ m0
-            H = np.zeros((3, self._n))
+            H = np.zeros((3, st.n))
             for i, dQi in enumerate(quat.dQ_dq(q)):
                 H[:, i] = dQi.T @ m0
             nis = self._update(y - y_hat, H, R, gate=s.mag_nis_gate)
-        self.status.mag_nis = nis
+        diag.mag_nis = nis
         if nis > s.mag_nis_gate:
             # An innovation the filter cannot believe: rejected, and readings must settle again.
-            self._mag_passing_since = math.nan
-            self.status.mag_rejected = True
-            self.status.used_mag = False
+            st.mag_passing_since = math.nan
+            diag.mag_rejected_by = MAG_NIS_GATE
+            flags.mag_rejected = True
+            flags.used_mag = False
             return
-        self.status.mag_rejected = False
-        self.status.used_mag = True
+        flags.mag_rejected = False
+        flags.used_mag = True
+
+    def _mag_gates(self, y: np.ndarray) -> tuple[float, float, int]:
+        """Task 11's strength gate |‖y‖ - L_k| with the AR(1) estimate L_k, then the dip gate.
+        Returns ‖y‖, the dip [deg] and which gate rejected the reading (NOT_REJECTED: none)."""
+        s, st = self.settings, self._state
+        diag = st.diagnostics
+        norm = float(np.linalg.norm(y))
+        diag.mag_norm = norm
+        diag.mag_gate = s.mag_gate
+        if math.isnan(st.mag_strength):
+            st.mag_strength = norm
+        L_prev = st.mag_strength
+        rejected_by = MAG_STRENGTH_GATE if abs(norm - L_prev) > s.mag_gate else NOT_REJECTED
+        dip = self._dip_deg(y)
+        diag.mag_dip_deg = dip
+        if (rejected_by == NOT_REJECTED and math.isfinite(s.mag_dip_gate_deg)
+                and math.isfinite(dip)
+                and abs(dip - self._reference_dip_deg()) > s.mag_dip_gate_deg):
+            rejected_by = MAG_DIP_GATE
+        # Task 11: AR(1) estimate of the field strength.
+        if s.mag_strength_update == "always" or rejected_by == NOT_REJECTED:
+            st.mag_strength = (1 - s.mag_alpha) * L_prev + s.mag_alpha * norm
+        diag.mag_expected = st.mag_strength
+        return norm, dip, rejected_by
+
+    def _track_new_field(self, y: np.ndarray, t: float, norm: float, dip: float) -> None:
+        """A new field is learned only when the rejected readings agree with each other
+        (strength and dip within the gates of their running mean) for mag_relearn_s: a changed
+        field, not a magnet that moves with the phone."""
+        s, st = self.settings, self._state
+        cn, cd = st.mag_candidate_norm, st.mag_candidate_dip
+        if (math.isnan(st.mag_rejected_since) or abs(norm - cn) > s.mag_gate
+                or abs(dip - cd) > s.mag_dip_gate_deg):
+            st.mag_rejected_since = t
+            st.mag_candidate_norm, st.mag_candidate_dip = norm, dip
+        else:
+            st.mag_candidate_norm = cn + s.mag_alpha * (norm - cn)
+            st.mag_candidate_dip = cd + s.mag_alpha * (dip - cd)
+            if t - st.mag_rejected_since >= s.mag_relearn_s:
+                self._relearn_field(y)
 
     def _mag_heading_update(self, y: np.ndarray, R: np.ndarray,
                             gate: float = math.inf) -> float:
@@ -531,13 +496,14 @@ class OrientationEKF:
         the world frame (0 when it points north). The gain is projected onto the direction in
         q-space of a rotation about world up, so tilt is never changed by the magnetometer.
         """
+        n = self._state.n
         q = self._x[:4]
         m_w = quat.to_matrix(q) @ y
         horizontal_sq = m_w[0] ** 2 + m_w[1] ** 2
         if horizontal_sq < 1e-6:
             return math.nan
         psi, d_psi_d_mw = self._heading_error(m_w)
-        H = np.zeros((1, self._n))
+        H = np.zeros((1, n))
         for i, dQi in enumerate(quat.dQ_dq(q)):
             dm = dQi @ y
             H[0, i] = d_psi_d_mw @ dm[:2]
@@ -555,7 +521,7 @@ class OrientationEKF:
         K[:4, :] = np.outer(u, u) @ K[:4, :]
         innovation = -psi
         self._x = self._x + (K * innovation).ravel()
-        I_KH = np.eye(self._n) - K @ H
+        I_KH = np.eye(n) - K @ H
         self._P = I_KH @ P @ I_KH.T + r * (K @ K.T)
         self._normalise()
         return innovation * innovation / S
@@ -572,14 +538,14 @@ class OrientationEKF:
             return nis
         K = P @ H.T @ S_inv
         self._x = self._x + K @ innovation
-        I_KH = np.eye(self._n) - K @ H
+        I_KH = np.eye(self._state.n) - K @ H
         self._P = I_KH @ P @ I_KH.T + K @ R @ K.T
         self._normalise()
         return nis
 
     def _zero_rate_update(self, omega: np.ndarray) -> None:
         """Model 4c at rest: the true rate is zero, so the gyro sample measures the bias."""
-        H = np.zeros((3, self._n))
+        H = np.zeros((3, self._state.n))
         H[:, 4:7] = np.eye(3)
         R = np.eye(3) * self.settings.rest_rate_noise_std ** 2
         self._update(omega - self._x[4:7], H, R)
@@ -594,7 +560,7 @@ class OrientationEKF:
         """q <- q/|q| with w >= 0, and P <- J P J^T with J = d(q/|q|)/dq = (I - q q^T/|q|^2)/|q|."""
         q = self._x[:4]
         norm = float(np.linalg.norm(q))
-        J = np.eye(self._n)
+        J = np.eye(self._state.n)
         J[:4, :4] = (np.eye(4) - np.outer(q, q) / norm ** 2) / norm
         q = q / norm
         if q[0] < 0:
@@ -607,42 +573,43 @@ class OrientationEKF:
     # ---------------------------------------------------------------------------------------
     # initialisation and the magnetic field reference
     def _initialise(self, t: float) -> None:
-        s = self.settings
-        acc_ok = self._enabled["acc"] and self._last_acc is not None
-        mag_ok = (self._enabled["mag"] and self._last_mag is not None
-                  and t - self._last_mag_t <= 0.1)
-        if acc_ok and mag_ok and (np.linalg.norm(np.cross(self._last_mag, self._last_acc))
-                                  <= 1e-6 * np.linalg.norm(self._last_mag)
-                                  * np.linalg.norm(self._last_acc)):
+        s, st = self.settings, self._state
+        acc_ok = st.acc_enabled and st.last_acc_valid
+        mag_ok = st.mag_enabled and st.last_mag_valid and t - st.last_mag_t <= 0.1
+        if acc_ok and mag_ok and (np.linalg.norm(np.cross(st.last_mag, st.last_acc))
+                                  <= 1e-6 * np.linalg.norm(st.last_mag)
+                                  * np.linalg.norm(st.last_acc)):
             mag_ok = False   # a field along gravity has no heading: tilt now, heading later
         if acc_ok and mag_ok:
-            q = acc_mag_quaternion(self._last_acc, self._last_mag)
-            self._heading_from_mag = True
+            q = acc_mag_quaternion(st.last_acc, st.last_mag)
+            st.heading_from_mag = True
         elif acc_ok:
-            q = tilt_quaternion(self._last_acc)
+            q = tilt_quaternion(st.last_acc)
         elif mag_ok:
             # Magnetometer alone: assume level, heading from the horizontal field.
-            m = self._last_mag
+            m = st.last_mag
             q = quat.from_axis_angle([0, 0, 1], math.atan2(m[0], m[1]))
-            self._heading_from_mag = True
+            st.heading_from_mag = True
         else:
             q = quat.IDENTITY.copy()
         self._x[:4] = quat.normalize(q)
-        P = np.zeros((self._n, self._n))
+        n = st.n
+        P = np.zeros((n, n))
         Sq = quat.S_bar(self._x[:4])
         P[:4, :4] = 0.25 * s.initial_attitude_std ** 2 * (Sq @ Sq.T)
         if not (acc_ok and mag_ok):
             # Heading (or everything) unknown until a magnetometer reading arrives.
             P[:4, :4] += 0.25 * (Sq @ Sq.T)
-        if self._n == 7:
+        if n == 7:
             P[4:, 4:] = np.eye(3) * s.initial_gyro_bias_std ** 2
         self._P = P
-        self._initialised = True
-        if self._heading_from_mag and self._m0 is None and self._last_mag is not None:
-            self._set_m0_from(self._last_mag)
+        st.initialised = True
+        if st.heading_from_mag and not st.m0_valid and st.last_mag_valid:
+            self._set_m0_from(st.last_mag)
 
     def _take_heading_from_mag(self, y: np.ndarray) -> None:
         """The first magnetometer reading after a tilt-only start sets the heading."""
+        st = self._state
         q = self._x[:4]
         m_w = quat.to_matrix(q) @ y
         if m_w[0] ** 2 + m_w[1] ** 2 < 1e-6:
@@ -653,15 +620,16 @@ class OrientationEKF:
         self._P[:4, :4] = 0.25 * self.settings.initial_attitude_std ** 2 * (Sq @ Sq.T)
         self._P[:4, 4:] = 0.0   # a fresh attitude is uncorrelated with the bias estimate
         self._P[4:, :4] = 0.0
-        self._heading_from_mag = True
-        if self._m0 is None:
+        st.heading_from_mag = True
+        if not st.m0_valid:
             self._set_m0_from(y)
 
     def _heading_error(self, m_w: np.ndarray) -> tuple[float, np.ndarray]:
         """Angle psi [rad] from the reference field's horizontal direction (north unless the
         world was turned by align_heading) to the reading's, counter-clockwise seen from above,
         and d psi / d (m_E, m_N)."""
-        ref = self._m0 if self._m0 is not None else np.array([0.0, 1.0, 0.0])
+        st = self._state
+        ref = st.m0 if st.m0_valid else np.array([0.0, 1.0, 0.0])
         rx, ry = float(ref[0]), float(ref[1])
         cross = rx * m_w[1] - ry * m_w[0]
         dot = rx * m_w[0] + ry * m_w[1]
@@ -673,57 +641,64 @@ class OrientationEKF:
 
     def _set_m0_from(self, y: np.ndarray) -> None:
         """m0 = (0, sqrt(mx^2 + my^2), mz) of the reading expressed in the (level) world frame."""
+        st = self._state
         m_w = quat.to_matrix(self._x[:4]) @ y
-        self._m0 = np.array([0.0, math.hypot(m_w[0], m_w[1]), m_w[2]])
-        self._mag_strength = float(np.linalg.norm(self._m0))
-        self.status.mag_expected = self._mag_strength
+        st.m0[:] = [0.0, math.hypot(m_w[0], m_w[1]), m_w[2]]
+        st.m0_valid = True
+        st.mag_strength = float(np.linalg.norm(st.m0))
+        st.diagnostics.mag_expected = st.mag_strength
+        st.diagnostics.mag_reference_dip_deg = self._reference_dip_deg()
 
     def _relearn_field(self, y: np.ndarray) -> None:
-        self._mag_strength = float(np.linalg.norm(y))
-        if self._m0 is not None:
+        st = self._state
+        st.mag_strength = float(np.linalg.norm(y))
+        if st.m0_valid:
             m_w = quat.to_matrix(self._x[:4]) @ y
-            self._m0 = np.array([0.0, math.hypot(m_w[0], m_w[1]), m_w[2]])
-        self._mag_rejected_since = math.nan
+            st.m0[:] = [0.0, math.hypot(m_w[0], m_w[1]), m_w[2]]
+            st.diagnostics.mag_reference_dip_deg = self._reference_dip_deg()
+        st.mag_rejected_since = math.nan
 
     def _dip_deg(self, y: np.ndarray) -> float:
         """Angle between up and the field [deg]: up from the estimate, or from the latest
         accelerometer reading (NaN when there is none or it was disturbed)."""
+        st = self._state
         if self.settings.mag_dip_from_estimate:
             up = float(quat.to_matrix(self._x[:4])[2] @ y)
             c = up / (np.linalg.norm(y) + 1e-300)
             return math.degrees(math.acos(max(-1.0, min(1.0, c))))
-        a = self._last_acc
-        if a is None or self.status.acc_rejected:
+        a = st.last_acc
+        if not st.last_acc_valid or st.flags.acc_rejected:
             return math.nan
         c = float(a @ y) / (np.linalg.norm(a) * np.linalg.norm(y) + 1e-300)
         return math.degrees(math.acos(max(-1.0, min(1.0, c))))
 
     def _reference_dip_deg(self) -> float:
-        m0 = self._m0
-        if m0 is None:
-            return math.nan
-        return math.degrees(math.acos(m0[2] / (np.linalg.norm(m0) + 1e-300)))
+        return reference_dip_deg(self._state.m0) if self._state.m0_valid else math.nan
 
     # ---------------------------------------------------------------------------------------
     # rest detection
     def _detect_rest_gyr(self, t: float, omega: np.ndarray) -> None:
-        bias = self._x[4:7] if self._n == 7 else np.asarray(self.settings.gyr_bias, float)
+        st = self._state
+        bias = self._x[4:7] if st.n == 7 else np.asarray(self.settings.gyr_bias, float)
         if float(np.linalg.norm(omega - bias)) > self.settings.rest_gyr_threshold:
-            self._last_motion_t = t
+            st.last_motion_t = t
         self._update_rest(t)
 
     def _detect_rest_acc(self, t: float, y: np.ndarray) -> None:
-        if self._acc_lowpass is None:
-            self._acc_lowpass = y.copy()
-        self._acc_lowpass = 0.9 * self._acc_lowpass + 0.1 * y
-        if float(np.linalg.norm(y - self._acc_lowpass)) > self.settings.rest_acc_threshold:
-            self._last_motion_t = t
+        st = self._state
+        if not st.acc_lowpass_valid:
+            st.acc_lowpass[:] = y
+            st.acc_lowpass_valid = True
+        st.acc_lowpass[:] = 0.9 * st.acc_lowpass + 0.1 * y
+        if float(np.linalg.norm(y - st.acc_lowpass)) > self.settings.rest_acc_threshold:
+            st.last_motion_t = t
         self._update_rest(t)
 
     def _update_rest(self, t: float) -> None:
-        if not (self._enabled["gyr"] or self._enabled["acc"]):
-            self.status.at_rest = False
+        st = self._state
+        if not (st.gyr_enabled or st.acc_enabled):
+            st.flags.at_rest = False
             return
-        if self._last_motion_t == -math.inf:
-            self._last_motion_t = t   # the first sample starts the clock
-        self.status.at_rest = t - self._last_motion_t >= self.settings.rest_min_duration
+        if st.last_motion_t == -math.inf:
+            st.last_motion_t = t   # the first sample starts the clock
+        st.flags.at_rest = t - st.last_motion_t >= self.settings.rest_min_duration

@@ -1,130 +1,170 @@
-"""Filter settings: one dataclass, documented defaults and units, and named presets.
+"""Filter settings: one dataclass whose fields carry their unit and explanation, and named presets.
 
 Every number a user may want to tune lives here, so a settings file (JSON) describes a run
 completely. ``PRESETS["course"]`` is the plain course filter (model 4a, tasks 1-11);
 ``PRESETS["default"]`` adds the extensions that pay on real data (see README, "Settings").
+
+Each field's unit and one-line explanation are in its ``dataclasses.field`` metadata ("unit",
+"doc"; "shape" for vectors and matrices, "choices" for a word), readable at run time:
+:func:`settings_rows` lists every setting with its default, course value, unit and explanation
+(the README table and a settings panel are made from it), and the compiled filter's packed
+settings layout is generated from the same fields (``ekf.fast.layout``).
 """
 
 from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import MISSING, asdict, dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, NamedTuple
 
 
 def _diag(value: float) -> list[list[float]]:
     return [[value, 0.0, 0.0], [0.0, value, 0.0], [0.0, 0.0, value]]
 
 
+def _setting(default: Any = MISSING, *, unit: str, doc: str, shape: tuple[int, ...] = (),
+             choices: tuple[str, ...] | None = None,
+             factory: Callable[[], Any] | None = None) -> Any:
+    """A settings field with its unit ("-" when it has none) and one-line explanation."""
+    metadata = {"unit": unit, "doc": doc, "shape": shape, "choices": choices}
+    if factory is not None:
+        return field(default_factory=factory, metadata=metadata)
+    return field(default=default, metadata=metadata)
+
+
 @dataclass(frozen=True)
 class EKFSettings:
-    """Settings of the quaternion EKF. Units in brackets; covariances are 3x3 nested lists.
+    """Settings of the quaternion EKF; see each field's metadata (or :func:`settings_rows`) for
+    its unit and meaning. Covariances are 3x3 nested lists.
 
     Measurement models (course eqs. 7-8): y_a = Q(q)^T g0 + e_a with g0 = (0, 0, g);
     y_m = Q(q)^T m0 + e_m with m0 in ENU.
     """
 
     # --- sensor models --------------------------------------------------------------------
-    g: float = 9.81
-    """Expected specific-force magnitude at rest [m/s^2]; g0 = (0, 0, g)."""
-    m0: tuple[float, float, float] | None = None
-    """Earth field in ENU [uT], (0, horizontal, vertical). None: taken from the first magnetometer
-    reading, tilt-compensated with the first accelerometer reading (the course's 'flat reading')."""
-    gyr_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    """Gyroscope bias subtracted from every sample [rad/s] (from `calibrate`); with
-    `estimate_gyro_bias` this is the initial bias estimate."""
+    g: float = _setting(9.81, unit="m/s²", doc="expected ‖a‖ at rest; g⁰ = (0, 0, g)")
+    m0: tuple[float, float, float] | None = _setting(
+        None, unit="µT (ENU)", shape=(3,),
+        doc="Earth field (0, horizontal, vertical); none: from the first magnetometer reading, "
+            "tilt-compensated with the first accelerometer reading (the course's flat reading)")
+    gyr_bias: tuple[float, float, float] = _setting(
+        (0.0, 0.0, 0.0), unit="rad/s", shape=(3,),
+        doc="subtracted from every gyroscope sample (from `calibrate`); with "
+            "`estimate_gyro_bias` the initial bias estimate")
 
     # --- noise ----------------------------------------------------------------------------
-    gyr_noise_cov: list[list[float]] = field(default_factory=lambda: _diag(1e-4))
-    """R_w: covariance of the angular-rate noise v_k [(rad/s)^2] (eq. 5)."""
-    acc_noise_cov: list[list[float]] = field(default_factory=lambda: _diag(0.1))
-    """R_a: accelerometer measurement noise [(m/s^2)^2]. Larger than the sensor's own noise to
-    absorb small specific forces."""
-    mag_noise_cov: list[list[float]] = field(default_factory=lambda: _diag(2.0))
-    """R_m: magnetometer measurement noise [uT^2]."""
-    gyr_scale_noise: float = 0.0
-    """Relative uncertainty of the gyroscope's scale [-]: R_w grows by (k ||w||)^2 I, so the
-    filter trusts the integration less in fast turns (0: the course's constant R_w)."""
-    gyr_rate_before_sample: bool = False
-    """False (course, eq. 5): a gyroscope sample drives the state from its time to the next
-    sample. True: it is the rate over the interval that ends at its time stamp (IMUs average
-    internally), so it drives the state up to its own time; the estimate does not lag by one
-    sample period in fast turns."""
-    no_gyro_random_walk: float = 1.0
-    """Orientation random walk used when no gyroscope sample drives the time update
-    [rad/sqrt(s)]: the state stays and P grows (task 12, acc+mag only)."""
-    initial_attitude_std: float = 0.05
-    """Standard deviation of the initial attitude from acc+mag [rad]."""
+    gyr_noise_cov: list[list[float]] = _setting(
+        unit="(rad/s)²", shape=(3, 3), factory=lambda: _diag(1e-4),
+        doc="R_w: covariance of the angular-rate noise v_k (eq. 5)")
+    acc_noise_cov: list[list[float]] = _setting(
+        unit="(m/s²)²", shape=(3, 3), factory=lambda: _diag(0.1),
+        doc="R_a: accelerometer noise, larger than the sensor's own to absorb small specific "
+            "forces")
+    mag_noise_cov: list[list[float]] = _setting(
+        unit="µT²", shape=(3, 3), factory=lambda: _diag(2.0),
+        doc="R_m: magnetometer noise (heading-only: σ_ψ² = tr(R_m)/3 / ‖m_horizontal‖²)")
+    gyr_scale_noise: float = _setting(
+        0.0, unit="-",
+        doc="relative uncertainty k of the gyroscope's scale: R_w grows by (k‖ω‖)² I, so fast "
+            "turns are trusted less (0: the course's constant R_w)")
+    gyr_rate_before_sample: bool = _setting(
+        False, unit="-",
+        doc="true: a gyroscope sample is the rate over the interval that ends at its time stamp "
+            "and drives the state up to it (no lag of one sample period); false (eq. 5): it "
+            "drives the state from its time to the next sample")
+    no_gyro_random_walk: float = _setting(
+        1.0, unit="rad/√s",
+        doc="orientation random walk when no gyroscope sample drives the time update: q stays, "
+            "P grows (task 12, acc+mag only)")
+    initial_attitude_std: float = _setting(
+        0.05, unit="rad", doc="standard deviation of the initial attitude from acc+mag")
 
     # --- outlier gates (tasks 8 and 11) -----------------------------------------------------
-    acc_gate: float = 1.0
-    """Skip the accelerometer update when | ||y_a|| - g | > acc_gate [m/s^2] (task 8). inf: off."""
-    mag_gate: float = 5.0
-    """Skip the magnetometer update when | ||y_m|| - L_k | > mag_gate [uT] (task 11). inf: off."""
-    mag_alpha: float = 0.01
-    """AR(1) coefficient of the field-strength estimate L_k = (1 - a) L_{k-1} + a ||y_m|| [-]."""
-    mag_strength_update: str = "always"
-    """'always': L_k follows every reading (the course's filter). 'accepted': only readings that
-    pass the gates move L_k, and L_k is re-learned after `mag_relearn_s` of continuous rejection
-    (recovers from a changed field instead of trusting a drifted estimate)."""
-    mag_relearn_s: float = 10.0
-    """With mag_strength_update='accepted': after this long [s] of continuous rejection the field
-    is taken as the new normal (L_k and m0's dip re-learned from the current readings)."""
-    mag_dip_gate_deg: float = math.inf
-    """Also reject a magnetometer reading whose angle to the measured gravity differs from the
-    reference dip by more than this [deg] (inf: off). Needs an accepted accelerometer reading."""
-    acc_lowpass_s: float = 0.0
-    """Time constant [s] of a low-pass of the accelerometer that the gyroscope carries along with
-    the phone (0: off, the raw reading is used). The update then sees the average specific force
-    of the last seconds, in which accelerations cancel and gravity stays."""
-    mag_dip_from_estimate: bool = False
-    """False: the dip gate measures the field's angle to the accelerometer reading (disturbed by
-    accelerations). True: to the estimated up direction, which stays good while moving."""
-    mag_settle_s: float = 0.0
-    """After a rejected reading, readings must pass the gates for this long [s] before the
-    magnetometer is used again: a field that only now and then looks right (a magnet on the
-    phone) stays out."""
-    update_period_s: float = 0.0
-    """Run the low-passed accelerometer, magnetometer and zero-rate updates at most this often
-    [s]. They change slowly, so fewer updates cost little accuracy and save time. 0: every
-    sample (the course's filter)."""
-    mag_nis_gate: float = math.inf
-    """Also reject a magnetometer reading whose normalised innovation squared exceeds this
-    (chi-square, 1 dof heading-only, 3 dof full) [-] (inf: off)."""
-    acc_nis_gate: float = math.inf
-    """Also reject an accelerometer reading whose normalised innovation squared exceeds this
-    (chi-square, 3 dof) [-] (inf: off). Scales with the innovation rather than only ||a||."""
+    acc_gate: float = _setting(
+        1.0, unit="m/s²",
+        doc="reject an accelerometer reading when |‖y_a‖ − g| > gate (task 8); with the low-pass "
+            "the reading is only flagged; inf: off")
+    mag_gate: float = _setting(
+        5.0, unit="µT",
+        doc="reject a magnetometer reading when |‖y_m‖ − L_k| > gate (task 11); inf: off")
+    mag_alpha: float = _setting(
+        0.01, unit="-",
+        doc="AR(1) coefficient of the field strength L_k = (1 − α) L_{k−1} + α ‖y_m‖")
+    mag_strength_update: str = _setting(
+        "always", unit="-", choices=("always", "accepted"),
+        doc="'always': every reading moves L_k (the course); 'accepted': only readings that pass "
+            "the gates, and a changed field is re-learned (`mag_relearn_s`)")
+    mag_relearn_s: float = _setting(
+        10.0, unit="s",
+        doc="with 'accepted': rejected (or still settling) readings that agree with each other "
+            "this long (strength and dip within the gates of their running mean) are the new "
+            "normal: L_k and m0 are re-learned from the current reading; a magnet that moves "
+            "with the phone never agrees for long")
+    mag_dip_gate_deg: float = _setting(
+        math.inf, unit="deg",
+        doc="also reject a magnetometer reading whose angle to up differs from the reference "
+            "dip by more than this; inf: off")
+    acc_lowpass_s: float = _setting(
+        0.0, unit="s",
+        doc="time constant of a low-pass of the accelerometer that the gyroscope carries along "
+            "with the phone; the update sees the average specific force, in which accelerations "
+            "cancel (0: off, the raw reading is used)")
+    mag_dip_from_estimate: bool = _setting(
+        False, unit="-",
+        doc="true: the dip gate measures the field's angle to the estimated up (good while "
+            "moving); false: to the accelerometer reading")
+    mag_settle_s: float = _setting(
+        0.0, unit="s",
+        doc="after a rejection, readings must pass the gates this long before the magnetometer "
+            "is used again (a magnet on the phone stays out)")
+    update_period_s: float = _setting(
+        0.0, unit="s",
+        doc="run the low-passed accelerometer, magnetometer and zero-rate updates at most this "
+            "often (they change slowly; 0: every sample, the course's filter)")
+    mag_nis_gate: float = _setting(
+        math.inf, unit="-",
+        doc="also reject a magnetometer reading whose normalised innovation squared exceeds "
+            "this (χ², 1 dof heading-only, 3 dof full); inf: off")
+    acc_nis_gate: float = _setting(
+        math.inf, unit="-",
+        doc="also reject an accelerometer reading whose normalised innovation squared exceeds "
+            "this (χ², 3 dof); inf: off")
 
     # --- model extensions -----------------------------------------------------------------
-    exact_discretisation: bool = False
-    """False: F = I + T/2 S(w) (course, task 3). True: F = exp(T/2 S(w)) (exact for constant w)."""
-    mag_heading_only: bool = False
-    """True: the magnetometer update may only turn the estimate about world up (footnote 2),
-    so a disturbed field cannot tilt it."""
-    estimate_gyro_bias: bool = False
-    """True: model 4c, x = (q, b_w), gyro bias as a random walk, plus a zero-rate update at rest."""
-    gyro_bias_random_walk: float = 1e-4
-    """Bias random walk [rad/s/sqrt(s)] (model 4c)."""
-    initial_gyro_bias_std: float = 0.01
-    """Initial bias standard deviation [rad/s] (model 4c)."""
-    rest_rate_noise_std: float = 0.01
-    """Standard deviation of the zero-rate pseudo-measurement at rest [rad/s] (model 4c)."""
+    exact_discretisation: bool = _setting(
+        False, unit="-",
+        doc="true: F = exp(T/2 S(ω)) (exact for constant ω); false: F = I + T/2 S(ω) (task 3)")
+    mag_heading_only: bool = _setting(
+        False, unit="-",
+        doc="true: the magnetometer may only turn the estimate about world up (footnote 2), so "
+            "a disturbed field cannot tilt it")
+    estimate_gyro_bias: bool = _setting(
+        False, unit="-",
+        doc="true: model 4c, x = (q, b_ω) with the bias a random walk, plus a zero-rate update "
+            "at rest")
+    gyro_bias_random_walk: float = _setting(
+        1e-4, unit="rad/s/√s", doc="bias random walk (model 4c)")
+    initial_gyro_bias_std: float = _setting(
+        0.01, unit="rad/s", doc="initial bias standard deviation (model 4c)")
+    rest_rate_noise_std: float = _setting(
+        0.01, unit="rad/s",
+        doc="standard deviation of the zero-rate pseudo-measurement at rest (model 4c)")
 
     # --- timing -----------------------------------------------------------------------------
-    max_dt: float = 0.5
-    """A time step longer than this [s] is a pause or a restart: it is not integrated."""
-    gyr_hold_s: float = 0.1
-    """A gyroscope sample keeps driving the time update for at most this long [s]."""
+    max_dt: float = _setting(
+        0.5, unit="s", doc="a longer time step is a pause or a reconnect: it is not integrated")
+    gyr_hold_s: float = _setting(
+        0.1, unit="s", doc="a gyroscope sample keeps driving the time update at most this long")
 
     # --- rest detection -------------------------------------------------------------------
-    rest_gyr_threshold: float = 0.05
-    """||w - b|| below this [rad/s] counts as still."""
-    rest_acc_threshold: float = 0.3
-    """||a - lowpass(a)|| below this [m/s^2] counts as still."""
-    rest_min_duration: float = 0.5
-    """Still for this long [s] -> at_rest."""
+    rest_gyr_threshold: float = _setting(
+        0.05, unit="rad/s", doc="‖ω − b‖ below this counts as still")
+    rest_acc_threshold: float = _setting(
+        0.3, unit="m/s²", doc="‖a − lowpass(a)‖ below this counts as still")
+    rest_min_duration: float = _setting(
+        0.5, unit="s", doc="still this long: at rest (standstill)")
 
     # ---------------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
@@ -136,27 +176,31 @@ class EKFSettings:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "EKFSettings":
-        """Build settings from a dict (e.g. JSON). Unknown keys raise ValueError naming them."""
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - names)
+        """Build settings from a dict (e.g. JSON). Unknown keys raise ValueError naming them;
+        vectors, matrices and words are checked against their field's metadata."""
+        by_name = {f.name: f for f in fields(cls)}
+        unknown = sorted(set(d) - set(by_name))
         if unknown:
             raise ValueError(f"unknown setting(s): {', '.join(unknown)}")
         clean: dict[str, Any] = {}
         for k, v in d.items():
+            shape = by_name[k].metadata["shape"]
             if v == "inf":
                 v = math.inf
-            if k in ("m0", "gyr_bias") and v is not None:
+            if shape == (3,) and v is not None:
                 v = tuple(float(x) for x in v)
                 if len(v) != 3:
                     raise ValueError(f"setting {k} needs 3 values")
-            if k.endswith("_cov"):
+            elif shape == (3, 3):
                 v = [[float(x) for x in row] for row in v]
                 if len(v) != 3 or any(len(row) != 3 for row in v):
                     raise ValueError(f"setting {k} must be a 3x3 matrix")
             clean[k] = v
         s = cls(**clean)
-        if s.mag_strength_update not in ("always", "accepted"):
-            raise ValueError("mag_strength_update must be 'always' or 'accepted'")
+        for f in fields(cls):
+            choices = f.metadata["choices"]
+            if choices and getattr(s, f.name) not in choices:
+                raise ValueError(f"{f.name} must be " + " or ".join(repr(c) for c in choices))
         return s
 
     def with_changes(self, **changes: Any) -> "EKFSettings":
@@ -213,3 +257,51 @@ DEFAULT = EKFSettings(
 )
 
 PRESETS: dict[str, EKFSettings] = {"default": DEFAULT, "course": COURSE}
+
+
+def resolve_settings(settings: EKFSettings | str | None) -> EKFSettings:
+    """An :class:`EKFSettings` as given, a preset by name, or the default preset for None."""
+    if settings is None:
+        return PRESETS["default"]
+    if isinstance(settings, str):
+        if settings not in PRESETS:
+            raise ValueError(f"unknown preset {settings!r}; choose from {', '.join(PRESETS)}")
+        return PRESETS[settings]
+    return settings
+
+
+# ---- the settings as rows (README table, settings panel) ------------------------------------
+class SettingRow(NamedTuple):
+    """One setting: its name, the default and course presets' values, unit and explanation."""
+
+    name: str
+    default: Any
+    course: Any
+    unit: str
+    doc: str
+
+
+def settings_rows() -> list[SettingRow]:
+    """Every field of :class:`EKFSettings` in declaration order (values as stored)."""
+    return [SettingRow(f.name, getattr(PRESETS["default"], f.name),
+                       getattr(PRESETS["course"], f.name), f.metadata["unit"], f.metadata["doc"])
+            for f in fields(EKFSettings)]
+
+
+def format_value(value: Any) -> str:
+    """A short text for a setting's value: ``inf``, ``true``, ``none``, ``3e-04·I`` for an
+    isotropic matrix, ``(0, 0, 0)`` for a vector, ``%g`` for a number."""
+    if value is None:
+        return "none"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return value
+    if isinstance(value, (int, float)):
+        return "inf" if math.isinf(value) else f"{value:g}"
+    if isinstance(value, (list, tuple)) and value and isinstance(value[0], (list, tuple)):
+        diag = value[0][0]
+        if all(value[i][j] == (diag if i == j else 0.0) for i in range(3) for j in range(3)):
+            return f"{diag:g}·I"
+        return "[" + "; ".join(" ".join(f"{x:g}" for x in row) for row in value) + "]"
+    return "(" + ", ".join(f"{x:g}" for x in value) + ")"

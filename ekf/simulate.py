@@ -372,6 +372,47 @@ def _sample_times(rate_hz: float, phase_ms: float, duration_ms: float) -> np.nda
     return t[keep]
 
 
+def _with_defaults(defaults: Mapping[str, Any], given: Mapping[str, Any] | None,
+                   what: str) -> dict[str, Any]:
+    """`defaults` updated by `given`; ValueError naming keys that are not sensors."""
+    out = dict(defaults)
+    if given:
+        unknown = set(given) - set(out)
+        if unknown:
+            raise ValueError(f"unknown sensor(s) in {what}: {', '.join(sorted(unknown))}")
+        out.update(given)
+    return out
+
+
+def _intervals_ms(intervals: list[tuple[float, float]], duration_s: float,
+                  t0_ms: int) -> np.ndarray:
+    """Script intervals [s] as phone-time rows (start_ms, end_ms), cut at the session's end."""
+    rows = []
+    for start, end in intervals:
+        start_ms, end_ms = round(start * 1000.0), round(min(end, duration_s) * 1000.0)
+        if start_ms < end_ms:
+            rows.append((t0_ms + start_ms, t0_ms + end_ms))
+    return np.array(rows, dtype=np.int64).reshape(-1, 2)
+
+
+def _readings(trajectory: "_Trajectory", t_s: dict[str, np.ndarray], rng: np.random.Generator,
+              chol: dict[str, np.ndarray], bias: np.ndarray, g0: np.ndarray,
+              m0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """GYR, ACC, MAG (with noise, drawn in that order) and ORI at their sample times [s]."""
+
+    def noise_for(sensor: str, n: int) -> np.ndarray:
+        return rng.standard_normal((n, 3)) @ chol[sensor].T
+
+    gyr = trajectory.angular_velocity(t_s["gyr"]) + bias + noise_for("gyr", len(t_s["gyr"]))
+    rot_acc = to_matrix(trajectory.quat(t_s["acc"]))
+    acc_world = g0 + trajectory.specific_force(t_s["acc"])
+    acc = np.einsum("nji,nj->ni", rot_acc, acc_world) + noise_for("acc", len(t_s["acc"]))
+    rot_mag = to_matrix(trajectory.quat(t_s["mag"]))
+    mag_world = m0 + trajectory.mag_disturbance(t_s["mag"])
+    mag = np.einsum("nji,nj->ni", rot_mag, mag_world) + noise_for("mag", len(t_s["mag"]))
+    return gyr, acc, mag, trajectory.quat(t_s["ori"])
+
+
 def simulate(
     duration_s: float = 120.0,
     rates_hz: Mapping[str, float] | None = None,
@@ -403,18 +444,9 @@ def simulate(
         raise ValueError("duration_s must be positive")
     if script not in SCRIPTS:
         raise ValueError(f"unknown script {script!r}; choose one of {', '.join(SCRIPTS)}")
-    rates = dict(DEFAULT_RATES_HZ)
-    if rates_hz:
-        unknown = set(rates_hz) - set(rates)
-        if unknown:
-            raise ValueError(f"unknown sensor(s) in rates_hz: {', '.join(sorted(unknown))}")
-        rates.update({k: float(v) for k, v in rates_hz.items()})
-    noise_spec: dict[str, Any] = dict(DEFAULT_NOISE_STD)
-    if noise:
-        unknown = set(noise) - set(noise_spec)
-        if unknown:
-            raise ValueError(f"unknown sensor(s) in noise: {', '.join(sorted(unknown))}")
-        noise_spec.update(noise)
+    rates = _with_defaults(DEFAULT_RATES_HZ, {k: float(v) for k, v in (rates_hz or {}).items()},
+                           "rates_hz")
+    noise_spec = _with_defaults(DEFAULT_NOISE_STD, noise, "noise")
     chol = {k: _noise_cholesky(v) for k, v in noise_spec.items()}
     bias = np.asarray(gyro_bias, dtype=float).reshape(3)
     m0 = np.asarray(m0, dtype=float).reshape(3)
@@ -425,48 +457,28 @@ def simulate(
     base = _standard_script() if script == "standard" else [_rest(duration_s)]
     segments = _fit_script(base, duration_s) if script == "standard" else base
     trajectory = _Trajectory(segments, q_initial)
-    duration_ms = duration_s * 1000.0
-
     rng = np.random.default_rng(seed)
     # Asynchronous sensors: each starts at its own phase within its first period.
     phases = {k: (rng.uniform(0.0, 1000.0 / r) if r > 0 else 0.0) for k, r in rates.items()}
-    times = {k: _sample_times(rates[k], phases[k], duration_ms)
+    times = {k: _sample_times(rates[k], phases[k], duration_s * 1000.0)
              for k in ("gyr", "acc", "mag", "ori")}
 
-    def noise_for(sensor: str, n: int) -> np.ndarray:
-        return rng.standard_normal((n, 3)) @ chol[sensor].T
-
-    t_s = {k: v / 1000.0 for k, v in times.items()}
-    gyr = trajectory.angular_velocity(t_s["gyr"]) + bias + noise_for("gyr", len(t_s["gyr"]))
-    rot_acc = to_matrix(trajectory.quat(t_s["acc"]))
-    acc_world = g0 + trajectory.specific_force(t_s["acc"])
-    acc = np.einsum("nji,nj->ni", rot_acc, acc_world) + noise_for("acc", len(t_s["acc"]))
-    rot_mag = to_matrix(trajectory.quat(t_s["mag"]))
-    mag_world = m0 + trajectory.mag_disturbance(t_s["mag"])
-    mag = np.einsum("nji,nj->ni", rot_mag, mag_world) + noise_for("mag", len(t_s["mag"]))
-    ori = trajectory.quat(t_s["ori"])
+    gyr, acc, mag, ori = _readings(trajectory, {k: v / 1000.0 for k, v in times.items()}, rng,
+                                   chol, bias, g0, m0)
 
     kinds = np.array([s.kind for s in segments])
     still = (trajectory.angles == 0.0) & (trajectory.force_amps == 0.0)
-
-    def to_ms(intervals: list[tuple[float, float]]) -> np.ndarray:
-        rows = []
-        for start, end in intervals:
-            start_ms, end_ms = round(start * 1000.0), round(min(end, duration_s) * 1000.0)
-            if start_ms < end_ms:
-                rows.append((t0_ms + start_ms, t0_ms + end_ms))
-        return np.array(rows, dtype=np.int64).reshape(-1, 2)
-
+    rest, acc_disturbed, mag_disturbed = (
+        _intervals_ms(_intervals(trajectory.starts, trajectory.ends, mask), duration_s, t0_ms)
+        for mask in (still, trajectory.force_amps > 0, kinds == "mag_disturbance"))
     return SimulatedSession(
         gyr=SensorSeries(times["gyr"] + t0_ms, gyr),
         acc=SensorSeries(times["acc"] + t0_ms, acc),
         mag=SensorSeries(times["mag"] + t0_ms, mag),
         ori=SensorSeries(times["ori"] + t0_ms, ori),
-        rest_intervals_ms=to_ms(_intervals(trajectory.starts, trajectory.ends, still)),
-        acc_disturbance_intervals_ms=to_ms(
-            _intervals(trajectory.starts, trajectory.ends, trajectory.force_amps > 0)),
-        mag_disturbance_intervals_ms=to_ms(
-            _intervals(trajectory.starts, trajectory.ends, kinds == "mag_disturbance")),
+        rest_intervals_ms=rest,
+        acc_disturbance_intervals_ms=acc_disturbed,
+        mag_disturbance_intervals_ms=mag_disturbed,
         t0_ms=int(t0_ms),
         duration_s=float(duration_s),
         metadata={

@@ -13,6 +13,7 @@ import pytest
 
 import ekf
 from ekf import quaternion as Q
+from ekf.outputs import ACC_NORM_GATE
 from ekf.reference import OrientationEKF
 from ekf.settings import PRESETS
 
@@ -44,7 +45,7 @@ def test_carried_lowpass_follows_a_turning_phone_without_lag():
         acc = R.T @ G0
         f.step(t[k], gyr=rate, acc=acc, mag=R.T @ M0)
         plain = acc.copy() if plain is None else plain + (acc - plain) * (0.005 / (0.5 + 0.005))
-    carried = f._acc_carried
+    carried = f.snapshot()["state"]["acc_carried"]
     truth = Q.to_matrix(q[-1]).T @ G0
     assert np.linalg.norm(carried - truth) < 1e-6 * 9.81
     assert np.linalg.norm(plain - truth) > 1.0        # a plain low-pass lags far behind
@@ -80,9 +81,10 @@ def test_norm_gate_only_flags_when_lowpass_is_on():
     for k in range(100):
         f.step(k * 0.01, gyr=[0, 0, 0], acc=G0, mag=M0)
     f.step(1.0, gyr=[0, 0, 0], acc=G0 + [8.0, 0, 0], mag=M0)
-    assert f.status.acc_rejected                        # the light: disturbed
-    assert f.status.used_acc                            # and still averaged
-    assert f.status.acc_norm == pytest.approx(np.linalg.norm(G0 + [8.0, 0, 0]))
+    assert f.flags.acc_rejected                         # the light: disturbed
+    assert f.diagnostics.acc_rejected_by == ACC_NORM_GATE
+    assert f.flags.used_acc                             # and still averaged
+    assert f.diagnostics.acc_norm == pytest.approx(np.linalg.norm(G0 + [8.0, 0, 0]))
 
 
 def test_gyro_sample_convention():
@@ -127,8 +129,8 @@ def _magnet_on_phone(settings, seconds=30.0, hz=100.0):
         mag = R.T @ M0 + (np.array([30.0, -10.0, 5.0]) if t[k] > 5 else 0.0)
         f.step(t[k], gyr=rate, acc=R.T @ G0, mag=mag)
         if t[k] > 5:
-            used.append(f.status.used_mag)
-    return np.array(used), f._m0
+            used.append(f.flags.used_mag)
+    return np.array(used), f.snapshot()["state"]["m0"]
 
 
 def test_settling_keeps_a_magnet_on_the_phone_out_and_is_never_learned():
@@ -150,9 +152,10 @@ def test_a_changed_field_is_relearned_after_consistent_readings():
         t = k * 0.01
         f.step(t, gyr=[0, 0, 0], acc=G0, mag=M0 if t < 2 else new_field)
         if 2.5 < t < 4.9:
-            assert f.status.mag_rejected
-    assert not f.status.mag_rejected and f.status.used_mag
-    assert f._mag_strength == pytest.approx(np.linalg.norm(new_field), rel=1e-6)
+            assert f.flags.mag_rejected
+    assert not f.flags.mag_rejected and f.flags.used_mag
+    assert f.snapshot()["state"]["mag_strength"] == pytest.approx(np.linalg.norm(new_field),
+                                                                  rel=1e-6)
 
 
 def test_dip_from_the_estimate_ignores_accelerations():
@@ -164,8 +167,9 @@ def test_dip_from_the_estimate_ignores_accelerations():
         for k in range(100):
             filt.step(k * 0.01, gyr=[0, 0, 0], acc=G0, mag=M0)
         filt.step(1.0, gyr=[0, 0, 0], acc=G0 + [6.0, 0, 0], mag=M0)
-    assert f.status.mag_dip_deg == pytest.approx(ref, abs=0.05)
-    assert abs(acc_based.status.mag_dip_deg - ref) > 10
+    assert f.diagnostics.mag_dip_deg == pytest.approx(ref, abs=0.05)
+    assert f.diagnostics.mag_reference_dip_deg == pytest.approx(ref, abs=1e-9)
+    assert abs(acc_based.diagnostics.mag_dip_deg - ref) > 10
 
 
 def test_update_period_caps_the_slow_updates():
@@ -174,7 +178,7 @@ def test_update_period_caps_the_slow_updates():
     mag_updates = 0
     for k in range(200):                        # 2 s at 100 Hz
         f.step(k * 0.01, gyr=[0, 0, 0], acc=G0, mag=M0)
-        mag_updates += f.status.used_mag
+        mag_updates += f.flags.used_mag
     assert 35 <= mag_updates <= 41
 
 

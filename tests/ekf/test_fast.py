@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from dataclasses import fields
 
 import numpy as np
 import pytest
@@ -18,13 +19,14 @@ from ekf import quaternion as quat
 from ekf.batch import BatchResult, filter_batch
 from ekf.estimators import make_estimator
 from ekf.fast import FastEKF, warm_up
-from ekf.reference import OrientationEKF, Status
+from ekf.outputs import Diagnostics, Flags
+from ekf.reference import OrientationEKF
 from ekf.settings import PRESETS
 
 TOL = 1e-9
-FLAGS = ("acc_rejected", "mag_rejected", "at_rest", "used_gyr", "used_acc", "used_mag")
-NUMBERS = ("acc_norm", "g", "acc_gate", "acc_nis", "mag_norm", "mag_expected", "mag_gate",
-           "mag_nis", "mag_dip_deg")
+FLAGS = tuple(f.name for f in fields(Flags))
+CODES = ("acc_rejected_by", "mag_rejected_by")
+NUMBERS = tuple(f.name for f in fields(Diagnostics) if f.name not in CODES)
 
 # The presets may be retuned; the variants below pin the branches each test needs (model 4a/4c,
 # full or heading-only magnetometer update, gates on or off). mag_relearn_s is shortened so a
@@ -113,10 +115,17 @@ def _compare(ref, fast, where: str) -> None:
     np.testing.assert_allclose(fast.quat, ref.quat, rtol=0, atol=TOL, err_msg=where)
     np.testing.assert_allclose(fast.gyro_bias, ref.gyro_bias, rtol=0, atol=TOL, err_msg=where)
     assert fast.initialised == ref.initialised, where
+    fast_flags, ref_flags = fast.flags, ref.flags
     for name in FLAGS:
-        assert getattr(fast.status, name) == getattr(ref.status, name), f"{where}: {name}"
+        assert getattr(fast_flags, name) == getattr(ref_flags, name), f"{where}: {name}"
+    fast_diag, ref_diag = fast.diagnostics, ref.diagnostics
+    for name in CODES:
+        assert getattr(fast_diag, name) == getattr(ref_diag, name), f"{where}: {name}"
+    # which gate fired goes with the flag it explains
+    assert (fast_diag.acc_rejected_by != 0) == fast_flags.acc_rejected, where
+    assert (fast_diag.mag_rejected_by != 0) == fast_flags.mag_rejected, where
     for name in NUMBERS:
-        a, b = getattr(fast.status, name), getattr(ref.status, name)
+        a, b = getattr(fast_diag, name), getattr(ref_diag, name)
         assert (math.isnan(a) and math.isnan(b)) or abs(a - b) <= 1e-6 * max(1.0, abs(b)), \
             f"{where}: {name} {a} != {b}"
 
@@ -133,9 +142,8 @@ def _run_both(settings, t, gyr, acc, mag, switches=None):
             fast.set_enabled(**switches[k])
             assert fast.enabled == ref.enabled
         args = (_sample(gyr[k]), _sample(acc[k]), _sample(mag[k]))
-        st = fast.step(t[k], *args)
+        assert fast.step(t[k], *args) is None
         ref.step(t[k], *args)
-        assert st is fast.status
         _compare(ref, fast, f"row {k} t={t[k]:.3f}")
         out[k] = fast.quat
     np.testing.assert_allclose(fast.cov, ref.cov, rtol=0, atol=1e-12)
@@ -156,7 +164,7 @@ def test_synthetic_matches_reference(variant):
         during = FastEKF(SETTINGS[variant])
         inside = t < 5.4
         during.run_batch(t[inside], gyr[inside], acc[inside], mag[inside])
-        assert during.status.mag_expected > 60.0
+        assert during.diagnostics.mag_expected > 60.0
     # run_batch is the same filter as the step loop
     np.testing.assert_array_equal(batch.quat, out)
     np.testing.assert_array_equal(batch.quat[-1], fast.quat)
@@ -232,24 +240,30 @@ def test_snapshot_restore_continues_exactly():
     assert fast.time == t[half - 1]
 
 
-def test_interface_names_status_and_factory():
+def test_interface_names_flags_and_factory():
     assert FastEKF(PRESETS["course"]).name == "course"
     assert FastEKF(PRESETS["default"]).name == "ekf"
     assert FastEKF("course").name == "course"
+    assert OrientationEKF("course").name == "course"
     est = make_estimator("course")
     assert isinstance(est, FastEKF) and est.name == "course"
     assert isinstance(make_estimator("ekf"), FastEKF)
+    assert type(make_estimator("course", fast=False)) is OrientationEKF
     fast = FastEKF()
     assert fast.time is None and not fast.initialised
     np.testing.assert_array_equal(fast.quat, [1.0, 0.0, 0.0, 0.0])
     assert fast.cov.shape == OrientationEKF().cov.shape
-    st = fast.step(0.0, acc=[0.0, 0.0, 9.81], mag=[0.0, 20.0, -40.0])
-    assert isinstance(st, Status) and fast.initialised
-    frozen = st.frozen()
-    expected = OrientationEKF().step(0.0, acc=[0.0, 0.0, 9.81], mag=[0.0, 20.0, -40.0])
-    assert type(frozen) is Status and repr(frozen) == repr(expected)   # repr: NaN fields
+    assert fast.step(0.0, acc=[0.0, 0.0, 9.81], mag=[0.0, 20.0, -40.0]) is None
+    assert fast.initialised
+    ref = OrientationEKF()
+    ref.step(0.0, acc=[0.0, 0.0, 9.81], mag=[0.0, 20.0, -40.0])
+    flags, diag = fast.flags, fast.diagnostics
+    assert type(flags) is Flags and type(diag) is Diagnostics
+    assert flags == ref.flags and repr(diag) == repr(ref.diagnostics)   # repr: NaN fields
     fast.update_acc(0.01, [0.0, 0.0, 30.0])   # far beyond any acc gate
-    assert st.acc_rejected and not frozen.acc_rejected   # the live view follows the filter
+    assert fast.flags.acc_rejected and not flags.acc_rejected   # copies: safe to keep
+    flags.at_rest = True                                        # and to change
+    assert not fast.flags.at_rest
 
 
 def test_filter_batch_uses_compiled_loop():
@@ -303,3 +317,75 @@ def test_a_field_along_gravity_at_the_start_gives_no_nan(preset):
         f.update_acc(0.01, [0.0, 0.0, 9.81])
         assert np.all(np.isfinite(f.quat)) and np.all(np.isfinite(f.cov))
     np.testing.assert_allclose(fast.quat, ref.quat, atol=TOL)
+
+
+def test_cache_guard_flushes_compilations_built_against_another_layout(monkeypatch):
+    """numba keys its disk cache on each function's own file; ekf.fast.check_cache flushes a
+    kernel module's cached compilations when they were built against other layouts or kernel
+    sources (ekf.fast._jit)."""
+    from numba import njit
+
+    from ekf.fast import _jit, algebra
+
+    key = _jit.CACHE_KEY
+
+    @njit
+    def current_key():
+        return key
+
+    @njit
+    def stale_key():
+        return key + 1
+
+    @njit
+    def kernel():
+        return 1.0
+
+    class Recorder:
+        def __init__(self):
+            self.flushed = 0
+
+        def flush(self):
+            self.flushed += 1
+
+    own, other = Recorder(), Recorder()
+    monkeypatch.setattr(kernel, "_cache", own)
+    monkeypatch.setattr(algebra._normalise, "_cache", other)
+    module = {"__name__": __name__, "kernel": kernel, "imported": algebra._normalise}
+    _jit.check_cache(current_key, module)
+    assert own.flushed == 0
+    _jit.check_cache(stale_key, module)
+    assert own.flushed == 1 and other.flushed == 0   # only the module's own functions
+
+
+def test_the_mapping_table_names_functions_that_exist():
+    """ekf.fast's docstring maps each compiled function to the reference method it mirrors."""
+    import importlib
+    import re
+
+    import ekf.fast
+    import ekf.estimator
+
+    doc = ekf.fast.__doc__
+    lines = doc.splitlines()
+    rules = [i for i, line in enumerate(lines) if line.startswith("=====")]
+    rows = [line for line in lines[rules[1] + 1:rules[2]] if line.strip()]
+    assert len(rows) > 20
+    module = None
+    for line in rows:
+        left, right = line[:44], line[44:]
+        for token in re.findall(r"``([^`]+)``", left):
+            if "." in token:
+                module, token = token.split(".", 1)
+            names = token.split("/")
+            names = [names[0]] + [names[0][:names[0].rindex("_")] + part for part in names[1:]]
+            for name in names:
+                assert hasattr(importlib.import_module(f"ekf.fast.{module}"), name), (module, name)
+        for token in re.findall(r"``([^`]+)``", right):
+            if token.startswith("ekf."):
+                mod, _, name = token.rpartition(".")
+                assert hasattr(importlib.import_module(mod), name), token
+            elif token.startswith("EstimatorBase."):
+                assert hasattr(ekf.estimator.EstimatorBase, token.split(".")[1]), token
+            else:
+                assert hasattr(OrientationEKF, token), token

@@ -82,7 +82,8 @@ def test_time_update_integrates_a_constant_rate():
 
 def test_heading_error_gradient_matches_finite_differences():
     f = OrientationEKF("default")
-    f._m0 = np.array([0.3, 15.0, -40.0])
+    f._state.m0[:] = [0.3, 15.0, -40.0]
+    f._state.m0_valid = True
     m_w = np.array([2.0, 14.0, -41.0])
     psi, grad = f._heading_error(m_w)
     h = 1e-7
@@ -165,11 +166,14 @@ def test_converges_from_a_wrong_start(arrays):
         f.step(t[k], *(None if np.isnan(x[k]).any() else x[k] for x in (g, a, m)))
     # Restart from a wrong orientation (100+ degrees off in tilt and heading) with an honest,
     # large uncertainty, as a filter started "flat" would: it must find its way back.
-    f._x[:4] = Q.multiply(Q.from_euler(2.0, 0.6, -0.8), f.quat)
-    Sq = Q.S_bar(f.quat)
-    f._P[:4, :4] = 0.25 * (Sq @ Sq.T)
-    f._P[:4, 4:] = 0.0
-    f._P[4:, :4] = 0.0
+    snap = f.snapshot()
+    state = snap["state"]
+    state["x"][:4] = Q.multiply(Q.from_euler(2.0, 0.6, -0.8), f.quat)
+    Sq = Q.S_bar(state["x"][:4])
+    state["P"][:4, :4] = 0.25 * (Sq @ Sq.T)
+    state["P"][:4, 4:] = 0.0
+    state["P"][4:, :4] = 0.0
+    f.restore(snap)
     errors = []
     # The default corrects heading with a time constant of about 10 s (as VQF does): give it 15 s.
     for k in range(100, 4000):
@@ -262,12 +266,12 @@ def test_sensor_switches_take_effect_at_the_next_sample(arrays):
         f.step(t[k], *(None if np.isnan(x[k]).any() else x[k] for x in (g, a, m)))
     f.set_enabled(acc=False)
     f.step(t[200] + 1e-4, acc=np.array([0, 0, 30.0]))
-    assert not f.status.used_acc
+    assert not f.flags.used_acc
     f.set_enabled(acc=True, gyr=False)
     k = 201
     f.step(t[k], gyr=g[k] if not np.isnan(g[k]).any() else [0.1, 0, 0])
     f.step(t[k] + 0.005)
-    assert not f.status.used_gyr
+    assert not f.flags.used_gyr
     assert f.enabled == {"gyr": False, "acc": True, "mag": True}
 
 

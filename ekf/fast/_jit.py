@@ -1,0 +1,63 @@
+"""The compiled filter's decorators, and the guard that keeps numba's on-disk cache honest.
+
+numba caches each compiled function keyed on its own source file only, and freezes module
+globals (the layouts ``S`` and ``C``, the gate codes) as constants. A kernel that calls or
+inlines a function of another kernel module, or reads a layout generated from the
+declarations in ``ekf/state.py``, ``ekf/settings.py`` and ``ekf/outputs.py``, would keep stale
+code from the cache after those change (numba issue #1833). So every kernel module compiles a
+tiny function returning :data:`CACHE_KEY` (a hash of the layouts, the gate codes, the compile
+options and the source of every kernel module) and calls :func:`check_cache` when imported:
+when the cached key differs, the module's cache entries are flushed and it recompiles once.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from typing import Any
+
+from numba import njit
+from numba.core.dispatcher import Dispatcher
+
+import ekf.outputs as outputs
+from ekf.fast.layout import describe
+
+# The kernels allocate nothing and only index the arrays they are handed, so numba's reference
+# counting of those arrays is switched off (`_nrt=False`, an option of numba's own, see
+# numba#2350): it cost an atomic increment and decrement per array at every call level that
+# the refcount pruning pass cannot remove in branching code, more than half the time per
+# sample (BROAD trial 01, default preset: 408 -> 174 ns per row, the same estimates bit for bit).
+_OPTIONS = dict(cache=True, fastmath=False, nogil=True, _nrt=False)
+jit = njit(**_OPTIONS)
+# Inlined at numba level: small helpers (no call overhead) and the n-specialised bodies, which
+# their dispatchers call with n = 4 or 7 as a constant so that LLVM unrolls the fixed loops.
+jit_inline = njit(inline="always", **_OPTIONS)
+
+KERNEL_MODULES = ("algebra", "time_update", "measurements", "steps")
+"""The modules of ekf.fast that hold compiled functions (file stems)."""
+
+
+def _cache_key() -> int:
+    h = hashlib.sha256(describe().encode())
+    codes = sorted((k, v) for k, v in vars(outputs).items() if k.isupper() and isinstance(v, int))
+    h.update(repr(codes).encode())
+    here = Path(__file__).resolve().parent
+    for stem in KERNEL_MODULES + ("_jit",):   # _jit: the compile options
+        h.update((here / f"{stem}.py").read_bytes())
+    return int.from_bytes(h.digest()[:7], "little")   # < 2**56: an int64 constant
+
+
+CACHE_KEY = _cache_key()
+
+
+def check_cache(compiled_key: Dispatcher, module_globals: dict[str, Any]) -> None:
+    """Flush the cached compilations of the module whose globals are given when they were built
+    against another layout or other kernel sources (`compiled_key` returns the key frozen at
+    its compilation)."""
+    if compiled_key() == CACHE_KEY:
+        return
+    module = module_globals["__name__"]
+    for value in module_globals.values():
+        if isinstance(value, Dispatcher) and value.py_func.__module__ == module:
+            value._cache.flush()
+    compiled_key.recompile()
