@@ -84,7 +84,8 @@ def test_run_offline_matches_filter_batch_on_sensor_rows():
 
 def _per_sample_reference(samples, name="ekf", comparisons=False):
     """The runner's contract, sample by sample: update_gyr/acc/mag in order, one row per
-    distinct time from the state when a later time arrives; plot flags right after ACC/MAG."""
+    distinct time from the state when a later time arrives; plot flags right after ACC/MAG.
+    One sample per step() call is update_gyr/acc/mag."""
     main = ekf.make_estimator(name)
     compared = [ekf.make_estimator("ekf", None, combo) for combo in COMBINATIONS] \
         if comparisons else []
@@ -93,7 +94,7 @@ def _per_sample_reference(samples, name="ekf", comparisons=False):
     row_t, phone = None, None
 
     def commit():
-        status = main.status
+        status = main.flags
         rows.append((row_t, main.quat.tolist(), status.acc_rejected, status.mag_rejected,
                      status.at_rest))
         if phone is not None:
@@ -109,10 +110,10 @@ def _per_sample_reference(samples, name="ekf", comparisons=False):
         if sample.tag == "ORI":
             phone = sample.values
         else:
-            method = {"GYR": "update_gyr", "ACC": "update_acc", "MAG": "update_mag"}[sample.tag]
-            status = getattr(main, method)(sample.t_ms / 1000.0, sample.values)
-            for estimator in compared:
-                getattr(estimator, method)(sample.t_ms / 1000.0, sample.values)
+            keyword = {"GYR": "gyr", "ACC": "acc", "MAG": "mag"}[sample.tag]
+            for estimator in [main] + compared:
+                estimator.step(sample.t_ms / 1000.0, **{keyword: np.array(sample.values)})
+            status = main.flags
             if sample.tag == "ACC":
                 acc_flags.append(bool(status.acc_rejected))
             elif sample.tag == "MAG":

@@ -203,35 +203,14 @@ class _RowsResult:
         self.mag_rejected = mag_rejected
 
 
-def _run_rows(estimator, t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
+def _run_rows(estimator: ekf.Estimator, t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
               mag: np.ndarray) -> _RowsResult:
-    """Feed rows (NaN rows: no such sample) gyr, acc, mag, exactly as the per-sample calls
-    update_gyr/acc/mag would. A compiled EKF does it in one nogil call (run_batch); its
-    ACC_REJECTED/MAG_REJECTED are only written by the ACC/MAG update, so the flags after the
-    row are those right after the row's sample. Other estimators are stepped in Python."""
-    if hasattr(estimator, "run_batch"):
-        result = estimator.run_batch(t_s, gyr, acc, mag)
-        flags = np.stack([result.acc_rejected, result.mag_rejected, result.at_rest], axis=1)
-        return _RowsResult(result.quat, flags, result.acc_rejected, result.mag_rejected)
-    n = len(t_s)
-    quat = np.empty((n, 4))
-    flags = np.zeros((n, 3), bool)
-    acc_rejected = np.zeros(n, bool)
-    mag_rejected = np.zeros(n, bool)
-    has_gyr = ~np.isnan(gyr[:, 0])
-    has_acc = ~np.isnan(acc[:, 0])
-    has_mag = ~np.isnan(mag[:, 0])
-    for k, t in enumerate(t_s.tolist()):
-        if has_gyr[k]:
-            estimator.update_gyr(t, gyr[k])
-        if has_acc[k]:
-            acc_rejected[k] = bool(estimator.update_acc(t, acc[k]).acc_rejected)
-        if has_mag[k]:
-            mag_rejected[k] = bool(estimator.update_mag(t, mag[k]).mag_rejected)
-        quat[k] = estimator.quat
-        status = estimator.status
-        flags[k] = (status.acc_rejected, status.mag_rejected, status.at_rest)
-    return _RowsResult(quat, flags, acc_rejected, mag_rejected)
+    """Feed rows (NaN rows: no such sample) gyr, acc, mag through the estimator's run_batch
+    (one compiled nogil call for the EKFs). A flag is only written by its sensor's update, so
+    the flags after a row are those right after the row's sample."""
+    result = estimator.run_batch(t_s, gyr, acc, mag)
+    flags = np.stack([result.acc_rejected, result.mag_rejected, result.at_rest], axis=1)
+    return _RowsResult(result.quat, flags, result.acc_rejected, result.mag_rejected)
 
 
 class _ChunkLayout:
@@ -289,7 +268,7 @@ class EstimatorRunner:
         self.estimator_name = estimator
         self.settings = settings if settings is not None else ekf.PRESETS["default"]
         self._sensors = tuple(s for s in SENSORS if s in tuple(sensors))
-        self.main = ekf.make_estimator(estimator, self.settings, self._sensors)
+        self.main: ekf.Estimator = ekf.make_estimator(estimator, self.settings, self._sensors)
         self.collect_plot = collect_plot
         self.comparisons: list[ComparisonState] = []
         if comparisons:
@@ -324,10 +303,7 @@ class EstimatorRunner:
         """New settings from the next sample on, for the main and comparison estimators."""
         self.settings = settings
         for estimator in [self.main] + [c.estimator for c in self.comparisons]:
-            if hasattr(estimator, "set_settings"):
-                estimator.set_settings(settings)
-            else:
-                estimator.settings = settings
+            estimator.set_settings(settings)
 
     def reset(self) -> None:
         """Forget the orientation of every estimator; they re-initialise from the next samples."""
@@ -392,8 +368,8 @@ class EstimatorRunner:
         self._row_has_sample = bool(layout.own_sample[-1])
 
     def _state_before(self) -> tuple:
-        status = self.main.status
-        flags = (bool(status.acc_rejected), bool(status.mag_rejected), bool(status.at_rest))
+        status = self.main.flags
+        flags = (status.acc_rejected, status.mag_rejected, status.at_rest)
         phone = self.phone_quat if self.phone_quat is not None else _NAN4
         return self.main.quat, flags, [c.estimator.quat for c in self.comparisons], phone
 
@@ -445,9 +421,9 @@ class EstimatorRunner:
             self._row_t = None
 
     @property
-    def status(self):
-        """The main estimator's ekf.Status (live object; copy what you keep)."""
-        return self.main.status
+    def flags(self) -> ekf.Flags:
+        """The main estimator's flags (a copy)."""
+        return self.main.flags
 
     @property
     def own_quat(self) -> np.ndarray:
@@ -475,7 +451,7 @@ class EstimatorRunner:
         """The row of the pending time, from the estimators' state now."""
         q = self.main.quat
         phone = self.phone_quat
-        status = self.main.status
+        status = self.main.flags
         if phone is not None:
             for comparison in self.comparisons:
                 error = angle_deg(comparison.estimator.quat, phone)

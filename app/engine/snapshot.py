@@ -14,23 +14,20 @@ from typing import Any
 
 import numpy as np
 
+import ekf
+
 
 
 @dataclass
 class FilterStatus:
-    """The status lights and their reasons, for the main estimator."""
+    """The main estimator's lights and their reasons: its flags and diagnostics as the estimator
+    declares them (ekf.Flags, ekf.Diagnostics; units in their README tables), which sensors are
+    switched in, and the estimator's name."""
 
     sensors_enabled: dict[str, bool] = field(
         default_factory=lambda: {"gyr": True, "acc": True, "mag": True})
-    acc_rejected: bool = False
-    mag_rejected: bool = False
-    at_rest: bool = False
-    acc_norm: float = float("nan")      # ||a|| of the latest accelerometer sample, m/s^2
-    g: float = 9.81                     # expected ||a||, m/s^2
-    acc_gate: float = float("nan")      # the gate that was applied, m/s^2 (|‖a‖ - g| > gate -> rejected)
-    mag_norm: float = float("nan")      # ||m|| of the latest magnetometer sample, uT
-    mag_expected: float = float("nan")  # AR(1) field-strength estimate L_k, uT
-    mag_gate: float = float("nan")      # the gate applied, uT (|‖m‖ - L| > gate -> rejected)
+    flags: ekf.Flags = field(default_factory=ekf.Flags)
+    diagnostics: ekf.Diagnostics = field(default_factory=ekf.Diagnostics)
     estimator: str = "ekf"
 
 

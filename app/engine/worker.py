@@ -592,13 +592,8 @@ class Engine:
 
     def _filter_status(self) -> FilterStatus:
         main = self._runner.main
-        status = main.status
-        return FilterStatus(
-            sensors_enabled=main.enabled, acc_rejected=bool(status.acc_rejected),
-            mag_rejected=bool(status.mag_rejected), at_rest=bool(status.at_rest),
-            acc_norm=float(status.acc_norm), g=float(status.g), acc_gate=float(status.acc_gate),
-            mag_norm=float(status.mag_norm), mag_expected=float(status.mag_expected),
-            mag_gate=float(status.mag_gate), estimator=self._runner.estimator_name)
+        return FilterStatus(sensors_enabled=main.enabled, flags=main.flags,
+                            diagnostics=main.diagnostics, estimator=self._runner.estimator_name)
 
     def _health(self, now: float, info: dict[str, Any]) -> StreamHealth:
         parse = self._parser.stats

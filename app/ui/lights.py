@@ -68,21 +68,21 @@ def _fmt(value: float, digits: int = 2) -> str:
 def light_states(status: FilterStatus) -> dict[str, tuple[str, str]]:
     """(state, reason) for the lights "acc", "mag" and "standstill" from one FilterStatus."""
     enabled = status.sensors_enabled
-    acc_reason = (f"‖a‖ = {_fmt(status.acc_norm)} m/s², g = {_fmt(status.g)}, "
-                  f"gate {_fmt(status.acc_gate)}")
+    acc_reason = (f"‖a‖ = {_fmt(status.diagnostics.acc_norm)} m/s², g = {_fmt(status.diagnostics.g)}, "
+                  f"gate {_fmt(status.diagnostics.acc_gate)}")
     if not enabled.get("acc", True):
         acc = ("off", "accelerometer switched off")
     else:
-        acc = ("disturbed" if status.acc_rejected else "ok", acc_reason)
-    mag_reason = (f"‖m‖ = {_fmt(status.mag_norm, 1)} µT, expected {_fmt(status.mag_expected, 1)}, "
-                  f"gate {_fmt(status.mag_gate, 1)}")
+        acc = ("disturbed" if status.flags.acc_rejected else "ok", acc_reason)
+    mag_reason = (f"‖m‖ = {_fmt(status.diagnostics.mag_norm, 1)} µT, expected {_fmt(status.diagnostics.mag_expected, 1)}, "
+                  f"gate {_fmt(status.diagnostics.mag_gate, 1)}")
     if not enabled.get("mag", True):
         mag = ("off", "magnetometer switched off")
     else:
-        mag = ("disturbed" if status.mag_rejected else "ok", mag_reason)
+        mag = ("disturbed" if status.flags.mag_rejected else "ok", mag_reason)
     if not enabled.get("gyr", True) and not enabled.get("acc", True):
         standstill = ("off", "rest detection needs the gyroscope or the accelerometer")
-    elif status.at_rest:
+    elif status.flags.at_rest:
         standstill = ("still", "the phone is at rest (gyro bias is being learned)")
     else:
         standstill = ("moving", "the phone is moving")

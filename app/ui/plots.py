@@ -420,8 +420,8 @@ class PlotPanel(QtWidgets.QWidget):
 
     def set_status(self, status: FilterStatus) -> None:
         """Draw the gate limits on the norms: g ± acc_gate and L ± mag_gate."""
-        for key, center, gate in (("acc", status.g, status.acc_gate),
-                                  ("mag", status.mag_expected, status.mag_gate)):
+        for key, center, gate in (("acc", status.diagnostics.g, status.diagnostics.acc_gate),
+                                  ("mag", status.diagnostics.mag_expected, status.diagnostics.mag_gate)):
             lines = self.gate_lines[key]
             valid = math.isfinite(center) and math.isfinite(gate)
             for line, sign in zip(lines, (1.0, -1.0)):

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pytest
+
+from ui_helpers import status_of
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.engine.commands import (AlignHeading, ReplayControl, ResetFilter, SetComparisonsEnabled,
@@ -22,7 +24,7 @@ def _click_checkbox(qtbot, checkbox: QtWidgets.QCheckBox) -> None:
 # ---- lights ------------------------------------------------------------------------------------
 
 def test_lights_three_states_with_reasons():
-    status = FilterStatus(acc_rejected=True, acc_norm=12.3, g=9.81, acc_gate=0.5,
+    status = status_of(acc_rejected=True, acc_norm=12.3, g=9.81, acc_gate=0.5,
                           mag_norm=50.0, mag_expected=49.0, mag_gate=5.0, at_rest=False)
     states = light_states(status)
     assert states["acc"][0] == "disturbed"
@@ -30,7 +32,7 @@ def test_lights_three_states_with_reasons():
     assert states["mag"] == ("ok", "‖m‖ = 50.0 µT, expected 49.0, gate 5.0")
     assert states["standstill"][0] == "moving"
 
-    status.at_rest = True
+    status.flags.at_rest = True
     status.sensors_enabled = {"gyr": True, "acc": False, "mag": False}
     states = light_states(status)
     assert states["acc"][0] == "off" and states["mag"][0] == "off"
@@ -43,7 +45,7 @@ def test_lights_three_states_with_reasons():
 def test_lights_panel_shows_state_and_tooltip(qtbot):
     panel = LightsPanel()
     qtbot.addWidget(panel)
-    panel.update_status(FilterStatus(mag_rejected=True, mag_norm=80.0, mag_expected=50.0,
+    panel.update_status(status_of(mag_rejected=True, mag_norm=80.0, mag_expected=50.0,
                                      mag_gate=5.0, at_rest=True))
     assert panel.states() == {"acc": "ok", "mag": "disturbed", "standstill": "still"}
     assert "‖m‖ = 80.0 µT" in panel.lights["mag"].toolTip()

@@ -9,7 +9,7 @@ from PySide6 import QtCore
 from app.engine.snapshot import FilterStatus
 from app.ui.plots import PlotPanel, SampleBuffer, peak_downsample, same_turn
 
-from ui_helpers import make_chunk
+from ui_helpers import status_of, make_chunk
 
 
 def test_sample_buffer_is_bounded_and_keeps_the_newest_rows_in_order():
@@ -87,7 +87,7 @@ def test_zooming_a_plot_by_hand_pauses(panel):
 
 def test_rejected_samples_and_gate_lines_on_the_acc_norm(panel):
     panel.append(make_chunk(0.0, count=100, acc_rejected_every=10))
-    panel.set_status(FilterStatus(g=9.81, acc_gate=0.5, mag_expected=50.0, mag_gate=float("nan")))
+    panel.set_status(status_of(g=9.81, acc_gate=0.5, mag_expected=50.0, mag_gate=float("nan")))
     panel.refresh()
     x, y = panel.streams["acc"].rejected_scatter.getData()
     np.testing.assert_allclose(x, np.arange(0, 100, 10) / 100.0)

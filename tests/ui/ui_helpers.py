@@ -11,7 +11,21 @@ from collections import deque
 
 import numpy as np
 
+import ekf
 from app.engine.snapshot import FilterStatus, PlotChunk, Snapshot, StreamHealth
+
+_FLAGS = set(ekf.Flags.__dataclass_fields__)
+_DIAGNOSTICS = set(ekf.Diagnostics.__dataclass_fields__)
+
+
+def status_of(**fields) -> FilterStatus:
+    """A FilterStatus from flat names: flags (acc_rejected, ...) and diagnostics (acc_norm, g,
+    ...) go where they are declared; sensors_enabled and estimator as they are."""
+    flags = {k: v for k, v in fields.items() if k in _FLAGS}
+    diagnostics = {k: v for k, v in fields.items() if k in _DIAGNOSTICS}
+    rest = {k: v for k, v in fields.items() if k not in _FLAGS | _DIAGNOSTICS}
+    return FilterStatus(flags=ekf.Flags(**flags), diagnostics=ekf.Diagnostics(**diagnostics),
+                        **rest)
 
 
 class FakeEngine:
@@ -61,11 +75,14 @@ def make_chunk(t0_s: float, count: int = 50, rate_hz: float = 100.0,
                      angle_deg=np.full(count, np.sqrt(3.0)))
 
 
-def make_snapshot(seq: int, t_s: float, count: int = 50, **status_fields) -> Snapshot:
-    status = FilterStatus(acc_norm=9.83, g=9.81, acc_gate=0.5, mag_norm=50.4,
-                          mag_expected=50.5, mag_gate=5.0)
-    for key, value in status_fields.items():
-        setattr(status, key, value)
+_NO_VALUE = object()
+
+
+def make_snapshot(seq: int, t_s: float, count: int = 50, phone_quat=_NO_VALUE,
+                  **status_fields) -> Snapshot:
+    """A snapshot at t_s with `count` plot samples; flat status fields (see status_of)."""
+    status = status_of(**{**dict(acc_norm=9.83, g=9.81, acc_gate=0.5, mag_norm=50.4,
+                                 mag_expected=50.5, mag_gate=5.0), **status_fields})
     health = StreamHealth(connection_state="connected", peer="192.168.1.23:51234",
                           listen_addresses=["192.168.1.10"], port=3400,
                           rates_hz={"ACC": 100.0, "GYR": 100.0, "MAG": 50.0, "ORI": 100.0},
@@ -73,5 +90,6 @@ def make_snapshot(seq: int, t_s: float, count: int = 50, **status_fields) -> Sna
                           out_of_order=3)
     return Snapshot(seq=seq, t_ms=int(round((t_s + count / 100.0) * 1000)),
                     own_quat=quat_about_z(10.0 * seq), own_cov=np.eye(4) * 1e-4,
-                    phone_quat=quat_about_z(10.0 * seq + 1.0), status=status,
+                    phone_quat=(quat_about_z(10.0 * seq + 1.0) if phone_quat is _NO_VALUE
+                                else phone_quat), status=status,
                     plot=make_chunk(t_s, count), health=health)
