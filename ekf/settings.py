@@ -53,6 +53,13 @@ class EKFSettings:
         (0.0, 0.0, 0.0), unit="rad/s", shape=(3,),
         doc="subtracted from every gyroscope sample (from `calibrate`); with "
             "`estimate_gyro_bias` the initial bias estimate")
+    mag_hard_iron: tuple[float, float, float] = _setting(
+        (0.0, 0.0, 0.0), unit="µT", shape=(3,),
+        doc="hard-iron offset b: every magnetometer reading becomes S (y_m − b) before any "
+            "estimator sees it (from `calibrate-mag`; applied by the app's runner)")
+    mag_soft_iron: list[list[float]] = _setting(
+        unit="-", shape=(3, 3), factory=lambda: _diag(1.0),
+        doc="soft-iron matrix S of that correction (identity: none)")
 
     # --- noise ----------------------------------------------------------------------------
     gyr_noise_cov: list[list[float]] = _setting(

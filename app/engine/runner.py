@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 
 import ekf
-from ekf import SENSORS
+from ekf import SENSORS, magcal
 from app.stream.fastparse import samples_to_arrays
 from app.stream.protocol import Sample
 
@@ -267,6 +267,7 @@ class EstimatorRunner:
                  collect_plot: bool = False) -> None:
         self.estimator_name = estimator
         self.settings = settings if settings is not None else ekf.PRESETS["default"]
+        self._mag_correction = magcal.settings_correction(self.settings)
         self._sensors = tuple(s for s in SENSORS if s in tuple(sensors))
         self.main: ekf.Estimator = ekf.make_estimator(estimator, self.settings, self._sensors)
         self.collect_plot = collect_plot
@@ -302,6 +303,7 @@ class EstimatorRunner:
     def set_settings(self, settings: ekf.EKFSettings) -> None:
         """New settings from the next sample on, for the main and comparison estimators."""
         self.settings = settings
+        self._mag_correction = magcal.settings_correction(settings)
         for estimator in [self.main] + [c.estimator for c in self.comparisons]:
             estimator.set_settings(settings)
 
@@ -353,6 +355,10 @@ class EstimatorRunner:
         before = self._state_before()
         t_s = layout.row_t.astype(np.float64) / 1000.0
         gyr, acc, mag = layout.columns
+        if self._mag_correction is not None:
+            # The magnetometer correction (settings mag_hard_iron, mag_soft_iron) is applied
+            # here, once, for every estimator; the plot samples stay as the phone sent them.
+            mag = magcal.correct(mag, *self._mag_correction)
         result = _run_rows(self.main, t_s, gyr, acc, mag)
         # comparisons are always compiled EKFs
         compared = [c.estimator.run_batch(t_s, gyr, acc, mag).quat if layout.n_rows
