@@ -99,8 +99,11 @@ class RestAnalysis:
                 lag1 = r.acf[1] if len(r.acf) > 1 else np.nan
                 verdict = ("Gaussian" if r.gaussian else "not Gaussian") + \
                     (", correlated in time" if r.correlated else "")
+                longest = (len(r.acf) - 1) * r.lag_s
+                time_text = (f"{r.correlation_time_s:>10.3f} s" if np.isfinite(
+                    r.correlation_time_s) else f"{'> ' + format(longest, '.2f'):>10} s")
                 lines.append(f"{name:<7}{r.axis:<5}{r.normality_p:>12.3g}{r.anderson:>8.2f}"
-                             f"{lag1:>8.2f}{r.correlation_time_s:>10.3f} s  {verdict}")
+                             f"{lag1:>8.2f}{time_text}  {verdict}")
         for w in self.warnings:
             lines.append(f"warning: {w.message}")
         return "\n".join(lines)

@@ -1,7 +1,8 @@
 """Command line: `orientation-lab` opens the window; subcommands run headless.
 
-Headless commands (filter, evaluate, calibrate, simulate, send, serve) never import Qt; the
-window's module is imported only when the window opens. Any bad argument or unusable file gives
+Headless commands (filter, evaluate, calibrate, calibrate-mag, tune, simulate, send, serve)
+never import Qt; the window's module is imported only when the window opens (and app.ui.figures
+only for --plots). Any bad argument or unusable file gives
 a one-line error on stderr and exit status 2, no traceback.
 """
 
@@ -12,7 +13,7 @@ import sys
 from collections.abc import Sequence
 
 from app import __version__
-from app.cli import live, offline
+from app.cli import calibration, live, offline
 from app.cli.options import EXIT_USAGE, Parser, add_window, source_options
 from app.engine.config import ConfigError
 
@@ -26,6 +27,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_window(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     offline.add_commands(sub)
+    calibration.add_commands(sub)
     live.add_commands(sub)
     return parser
 

@@ -1,4 +1,5 @@
-"""The offline commands: filter, evaluate, calibrate, simulate. Headless: they never import Qt.
+"""The offline commands: filter, evaluate, simulate (calibrate, calibrate-mag and tune are in
+app.cli.calibration). Headless: they never import Qt.
 
 filter and evaluate run the engine's runner (app.engine.offline), the same path as the live
 engine, so a file gives the estimates its live replay gives.
@@ -7,14 +8,9 @@ engine, so a file gives the estimates its live replay gives.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
-import ekf
-from ekf import calibration
 from ekf.simulate import simulate
 from app.cli import options
 from app.engine import config, estimates
@@ -56,7 +52,7 @@ def cmd_filter(args: argparse.Namespace) -> int:
 
 # ---- evaluate -----------------------------------------------------------------------------------
 
-def _intervals(args: argparse.Namespace) -> tuple[list | None, str]:
+def intervals_of(args: argparse.Namespace) -> tuple[list | None, str]:
     path = args.intervals
     if path is None:
         sibling = Path(args.log).with_suffix(".json")
@@ -71,7 +67,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     sensors = config.sensor_list(args.sensors)
     names = config.estimator_names(args.estimator)
     settings = config.load_settings(args.settings)
-    intervals, where = _intervals(args)
+    intervals, where = intervals_of(args)
     log = read_log(args.log)
     skip = f", after the first {args.skip:g} s" if args.skip else ""
     print(f"{args.log}: error against ORI, {where}{skip}")
@@ -83,39 +79,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             raise config.ConfigError(f"evaluate: {error}") from None
         print(f"{name:<16}{s.samples:>9}{s.total_rmse_deg:>10.2f}{s.heading_rmse_deg:>11.2f}"
               f"{s.inclination_rmse_deg:>11.2f}")
-    return 0
-
-
-# ---- calibrate ----------------------------------------------------------------------------------
-
-def cmd_calibrate(args: argparse.Namespace) -> int:
-    arrays = read_log(args.log).to_arrays()
-    t_s = arrays.t_ms / 1000.0
-    if np.isnan(arrays.acc).all():
-        raise config.ConfigError("calibrate: the log has no ACC lines")
-    if args.whole:
-        chosen = np.ones(len(t_s), bool)
-    else:
-        segment = calibration.find_rest_segment(t_s, arrays.gyr, arrays.acc)
-        if segment is None:
-            raise config.ConfigError("calibrate: found no still interval of at least 1 s "
-                                     "(use --whole to take all)")
-        start, end = segment
-        chosen = (t_s >= start) & (t_s <= end)
-        print(f"still interval: {start - t_s[0]:.2f} s to {end - t_s[0]:.2f} s from the start "
-              "of the log")
-    result = calibration.calibrate(arrays.acc[chosen], arrays.gyr[chosen], arrays.mag[chosen])
-    print(result.format_table())
-    if args.output:
-        base = config.load_settings(args.settings) or ekf.PRESETS["default"]
-        payload = {"settings": result.to_settings(base).to_dict(),
-                   "calibration": result.to_dict(), "source": str(args.log)}
-        try:
-            Path(args.output).write_text(json.dumps(payload, indent=2) + "\n")
-        except OSError as error:
-            raise config.ConfigError(f"cannot write {args.output}: {error.strerror or error}") \
-                from None
-        print(f"settings written to {args.output}")
     return 0
 
 
@@ -153,20 +116,9 @@ def add_commands(sub) -> None:
 
     e = sub.add_parser("evaluate", help="RMSE of the estimate against the log's ORI")
     _log_filter_options(e, several=True)
-    e.add_argument("--intervals", metavar="FILE.json",
-                   help="JSON with score_intervals_ms (default: LOG's sibling .json if present)")
-    e.add_argument("--skip", type=options.NON_NEGATIVE, default=0.0, metavar="S",
-                   help="ignore the first S seconds (convergence), default 0")
+    options.add_intervals(e)
+    options.add_skip(e)
     e.set_defaults(func=cmd_evaluate)
-
-    c = sub.add_parser("calibrate", help="noise statistics from rest data (task 2) and settings")
-    c.add_argument("log")
-    c.add_argument("-o", "--output", metavar="SETTINGS.json",
-                   help="write settings for the other commands")
-    options.add_settings(c, "base settings to complete (default preset otherwise)")
-    c.add_argument("--whole", action="store_true",
-                   help="use the whole log instead of the longest still interval")
-    c.set_defaults(func=cmd_calibrate)
 
     s = sub.add_parser("simulate", help="write a simulated phone log with ORI = the true "
                                         "orientation")

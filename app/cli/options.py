@@ -130,3 +130,54 @@ def source_options(args: argparse.Namespace) -> config.SourceOptions:
                                 replay=getattr(args, "replay", None),
                                 speed=getattr(args, "speed", 1.0),
                                 loop=bool(getattr(args, "loop", False)))
+
+
+def add_intervals(parser: argparse.ArgumentParser, flag: str = "--intervals",
+                  help_text: str | None = None) -> None:
+    parser.add_argument(flag, metavar="FILE.json",
+                        help=help_text or "JSON with score_intervals_ms (default: LOG's sibling "
+                                          ".json if present)")
+
+
+def add_skip(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--skip", type=NON_NEGATIVE, default=0.0, metavar="S",
+                        help="ignore the first S seconds (convergence), default 0")
+
+
+def add_output(parser: argparse.ArgumentParser, what: str = "settings for the other commands",
+               required: bool = False) -> None:
+    parser.add_argument("-o", "--output", metavar="SETTINGS.json", required=required,
+                        help=f"write {what} (JSON; --settings accepts it)")
+
+
+def add_plots(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--plots", metavar="DIR",
+                        help="also write the figures as PNG files into DIR (needs Qt: "
+                             "PySide6 and pyqtgraph, drawn offscreen)")
+
+
+def add_profile(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--profile", metavar="NAME",
+                        help="also keep the result in the named per-phone profile (the user's "
+                             "data folder's profiles/; an existing profile is updated)")
+
+
+def time_range(text: str) -> tuple[float, float]:
+    """"A:B" seconds from the log's start -> (A, B), A < B; either may be empty (start, end)."""
+    start, sep, end = str(text).partition(":")
+    try:
+        lo = float(start) if start.strip() else 0.0
+        hi = float(end) if end.strip() else float("inf")
+    except ValueError:
+        raise config.ConfigError(f"not a time range START:END in seconds: {text!r}") from None
+    if not sep or not 0 <= lo < hi:
+        raise config.ConfigError(f"not a time range START:END in seconds: {text!r}")
+    return lo, hi
+
+
+TIME_RANGE = _checked(time_range)
+
+
+def add_range(parser: argparse.ArgumentParser, flag: str, what: str) -> None:
+    parser.add_argument(flag, type=TIME_RANGE, metavar="START:END",
+                        help=f"{what}: seconds from the log's start (either end may be empty)")

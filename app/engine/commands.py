@@ -29,7 +29,14 @@ class SetEstimator:
 
 @dataclass(frozen=True)
 class SetSettings:
+    """New filter settings from the next sample on, recorded in the session (settings and a
+    "settings" timeline entry). calibration: the profile they came from (Profile.to_dict()),
+    kept in session.json's "calibration"; source: a word for the timeline ("panel", "reset to
+    default", "profile", "tuned", ...)."""
+
     settings: Any      # ekf.EKFSettings
+    calibration: Any = None
+    source: str | None = None
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import ekf
 from ekf import SENSORS
+from app.engine import profiles
+from app.engine.errors import ConfigError   # defined apart (profiles raise it too)
 from app.stream.lines import LogError
 from app.stream.logfile import LogData, read_log
 from app.stream.sources import DemoOrPhoneSource, LogFileSource, Source, TcpSource, demo_source
@@ -27,15 +29,12 @@ __all__ = ["ConfigError", "DEFAULT_HOST", "DEFAULT_PORT", "SENSORS", "SourceOpti
            "make_source", "open_log", "resolve_log_path", "read_intervals"]
 
 
-class ConfigError(Exception):
-    """Something the user asked for cannot be done: a one-line message, no traceback."""
-
-
 # ---- filter settings, estimators, sensors ------------------------------------------------------
 
 def load_settings(spec: str | Path | None) -> ekf.EKFSettings | None:
-    """Settings from a preset name ("default", "course") or a JSON file: plain settings, a
-    `calibrate` output or a recorded session.json (both hold them under "settings").
+    """Settings from a preset name ("default", "course"), a stored profile ("profile:NAME",
+    applied onto the default preset) or a JSON file: plain settings, a `calibrate`/`tune`
+    output or a recorded session.json (both hold them under "settings"), or a profile file.
     None -> None (the estimators then use the default preset). A file of a preset's name wins
     over the preset."""
     if spec is None:
@@ -43,11 +42,17 @@ def load_settings(spec: str | Path | None) -> ekf.EKFSettings | None:
     text = str(spec)
     if text in ekf.PRESETS and not Path(text).exists():
         return ekf.PRESETS[text]
+    if text.startswith("profile:") and not Path(text).exists():
+        return profiles.ProfileStore().load(text.split(":", 1)[1]).to_settings()
     path = Path(text)
     if not path.exists():
         presets = ", ".join(ekf.PRESETS)
-        raise ConfigError(f"settings file not found: {text} (or give a preset: {presets})")
+        raise ConfigError(f"settings file not found: {text} (or give a preset: {presets}, "
+                          "or profile:NAME)")
     try:
+        data = json.loads(path.read_text())
+        if isinstance(data, dict) and data.get("kind") == profiles.KIND:
+            return profiles.Profile.from_dict(data).to_settings()
         return ekf.EKFSettings.load(path)
     except (OSError, ValueError, TypeError) as error:
         raise ConfigError(f"bad settings file {text}: {error}") from None

@@ -7,11 +7,12 @@ replay give the same estimates bit for bit, same-time and duplicated lines inclu
 from __future__ import annotations
 
 from collections.abc import Iterable
+from dataclasses import dataclass
 
 import numpy as np
 
 import ekf
-from ekf.metrics import ErrorSummary, intervals_mask
+from ekf.metrics import ErrorSummary, intervals_mask, rmse
 from app.engine.runner import SENSORS, EstimatorRunner, Rows
 from app.stream.logfile import LogData
 from app.stream.protocol import Sample
@@ -46,6 +47,30 @@ def evaluate_log(log: LogData, estimator: str = "ekf", settings: ekf.EKFSettings
     rows = run_offline(log.samples, estimator, settings, sensors)
     ori_times = np.unique(np.fromiter((s.t_ms for s in log.samples if s.tag == "ORI"),
                                       dtype=np.int64))
+    return reference_errors(rows, ori_times, intervals_ms, skip_s).summary
+
+
+@dataclass
+class ReferenceErrors:
+    """The estimate against ORI at the ORI times: t_ms (M,), the total, heading and inclination
+    error angles (M,) degrees, `scored` (M,) bool: inside the intervals and after the skip, and
+    the RMSE summary over the scored rows."""
+
+    t_ms: np.ndarray
+    total_deg: np.ndarray
+    heading_deg: np.ndarray
+    inclination_deg: np.ndarray
+    scored: np.ndarray
+    summary: ErrorSummary
+
+
+def reference_errors(rows: Rows, ori_times: np.ndarray, intervals_ms: list | None = None,
+                     skip_s: float = 0.0) -> ReferenceErrors:
+    """Errors of `rows` (a whole run, :func:`run_offline`) at the distinct ORI times (the
+    estimate there is the latest at or before it, as a viewer sees it), scored over
+    `intervals_ms` (None: everywhere) after the first `skip_s` seconds of estimates.
+
+    Raises ValueError when there is no ORI or no sensor sample."""
     if len(ori_times) == 0:
         raise ValueError("the log has no ORI lines to compare with")
     if not rows.has_sample.any():
@@ -57,4 +82,9 @@ def evaluate_log(log: LogData, estimator: str = "ekf", settings: ekf.EKFSettings
     q_ref = rows.phone_quat[at_ori]
     t_ref = rows.t_ms[at_ori]
     mask = intervals_mask(t_ref, intervals_ms) & (t_ref >= first_estimate + skip_s * 1000.0)
-    return ekf.summarize(q_est, q_ref, mask)
+    ok = mask & np.isfinite(q_est).all(axis=1) & np.isfinite(q_ref).all(axis=1)
+    total, heading, inclination = ekf.error_angles_deg(q_est, q_ref)
+    # the figures of ekf.summarize(q_est, q_ref, mask), from the angles computed once
+    summary = ErrorSummary(rmse(total[ok]), rmse(heading[ok]), rmse(inclination[ok]),
+                           int(ok.sum()))
+    return ReferenceErrors(t_ref, total, heading, inclination, mask, summary)

@@ -446,7 +446,12 @@ class Engine:
             runner.set_settings(command.settings)
             if self.recorder is not None:
                 self.recorder.set_settings(command.settings)
-            self._record_event("settings")
+                if command.calibration is not None:
+                    self.recorder.set_calibration(command.calibration)
+            details = {"source": command.source} if command.source else {}
+            if command.calibration is not None:
+                details["profile"] = command.calibration.get("name")
+            self._record_event("settings", **details)
         elif isinstance(command, ResetFilter):
             runner.reset()
             self._record_event("reset")

@@ -115,6 +115,12 @@ class Recorder:
             self.session["settings"] = _jsonable(settings)
             self._dirty = True
 
+    def set_calibration(self, calibration: Any) -> None:
+        """The calibration profile the settings came from (session.json "calibration")."""
+        with self._lock:
+            self.session["calibration"] = _jsonable(calibration)
+            self._dirty = True
+
     def set_stats(self, stats: dict[str, Any]) -> None:
         with self._lock:
             self.session["stats"] = stats

@@ -1,0 +1,223 @@
+"""The calibration commands: calibrate (task 2 at rest), calibrate-mag (hard and soft iron) and
+tune (search settings against the log's reference). Headless: Qt is imported only for --plots,
+inside the function that draws (app.ui.figures), and its absence is a one-line error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import ekf
+from app.cli import options
+from app.cli.offline import intervals_of, read_log
+from app.engine import config, profiles, tuning
+from app.engine.calibration import RestCalibration, mag_from_log, rest_from_log
+from app.engine.refilter import PreparedLog
+
+
+def _write_json(path: str, payload: dict[str, Any]) -> None:
+    try:
+        Path(path).write_text(json.dumps(profiles._jsonable(payload), indent=2) + "\n")
+    except OSError as error:
+        raise config.ConfigError(f"cannot write {path}: {error.strerror or error}") from None
+    print(f"settings written to {path}")
+
+
+def _figures():
+    """app.ui.figures, or a one-line ConfigError when Qt cannot be imported."""
+    try:
+        from app.ui import figures
+    except ImportError as error:
+        raise config.ConfigError(f"--plots needs Qt (PySide6, pyqtgraph): {error}") from None
+    return figures
+
+
+def _keep_in_profile(name: str, **parts: Any) -> None:
+    store = profiles.ProfileStore()
+    try:
+        profile = store.load(name)
+    except config.ConfigError:
+        profile = profiles.Profile(name)
+    for key, value in parts.items():
+        setattr(profile, key, value)
+    print(f"profile {profile.name!r} saved to {store.save(profile)}")
+
+
+# ---- calibrate ------------------------------------------------------------------------------------
+
+def _print_rest(rest: RestCalibration, t0: float) -> None:
+    if rest.interval_s is not None:
+        start, end = rest.interval_s
+        print(f"{rest.how}: {start - t0:.2f} s to {end - t0:.2f} s from the start of the log")
+    print(rest.analysis.result.format_table())
+    print()
+    print(rest.analysis.format_report())
+    if rest.allan is not None:
+        print()
+        print(rest.allan.format_table())
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    log = read_log(args.log)
+    start, end = args.range if args.range else (None, None)
+    rest = rest_from_log(log, start, None if end == float("inf") else end, whole=args.whole)
+    _print_rest(rest, float(log.to_arrays().t_s[0]))
+    result = rest.analysis.result
+    calibration = {"rest": result.to_dict(), "analysis": rest.analysis.to_dict(),
+                   "allan": rest.allan.to_dict() if rest.allan else None}
+    if args.output:
+        base = config.load_settings(args.settings) or ekf.PRESETS["default"]
+        _write_json(args.output, {"settings": result.to_settings(base).to_dict(),
+                                  "calibration": calibration, "source": str(args.log)})
+    if args.profile:
+        _keep_in_profile(args.profile, rest=result.to_dict(),
+                         allan=rest.allan.to_dict() if rest.allan else None)
+    if args.plots:
+        for path in _figures().save_rest_figures(rest.analysis, rest.allan, args.plots):
+            print(f"wrote {path}")
+    return 0
+
+
+# ---- calibrate-mag --------------------------------------------------------------------------------
+
+def cmd_calibrate_mag(args: argparse.Namespace) -> int:
+    log = read_log(args.log)
+    start, end = args.range if args.range else (None, None)
+    result, raw = mag_from_log(log, start, None if end == float("inf") else end)
+    print(result.format_report())
+    if args.output:
+        base = config.load_settings(args.settings) or ekf.PRESETS["default"]
+        settings = base.with_changes(**result.settings_changes())
+        _write_json(args.output, {"settings": settings.to_dict(),
+                                  "calibration": {"mag": result.to_dict()},
+                                  "source": str(args.log)})
+    if args.profile:
+        _keep_in_profile(args.profile, mag=result.to_dict())
+    if args.plots:
+        for path in _figures().save_mag_figures(result, raw, args.plots):
+            print(f"wrote {path}")
+    return 0
+
+
+# ---- tune -----------------------------------------------------------------------------------------
+
+def _range_ms(prepared: PreparedLog, span: tuple[float, float]) -> list[list[float]]:
+    start = prepared.start_ms
+    hi = min(span[1], prepared.duration_s)
+    return [[start + span[0] * 1000.0, start + hi * 1000.0]]
+
+
+def _targets(args: argparse.Namespace, prepared: PreparedLog) -> tuple[tuning.Target,
+                                                                          tuning.Target | None]:
+    """The tuning range and the check range: given, or the log's halves."""
+    if args.range:
+        tune_ms, tune_label = _range_ms(prepared, args.range), "range %g:%g s" % args.range
+    else:
+        tune_ms, tune_label = intervals_of(args)
+    check_prepared, check_label = prepared, ""
+    if args.check_log:
+        check_prepared, check_label = PreparedLog.from_log(read_log(args.check_log)), \
+            Path(args.check_log).name
+    if args.check_intervals:
+        check_ms = config.read_intervals(args.check_intervals)
+        check_label = check_label or f"intervals {Path(args.check_intervals).name}"
+    elif args.check_range:
+        check_ms = _range_ms(check_prepared, args.check_range)
+        check_label = check_label or "range %g:%g s" % args.check_range
+    elif args.check_log:
+        check_ms = None
+    elif tune_ms is None and not args.no_check:     # nothing chosen: tune on one half
+        half = prepared.duration_s / 2.0
+        tune_ms, tune_label = _range_ms(prepared, (0.0, half)), "first half"
+        check_ms, check_label = _range_ms(prepared, (half, prepared.duration_s)), "second half"
+    else:
+        return tuning.Target(prepared, tune_ms, args.skip, tune_label), None
+    return (tuning.Target(prepared, tune_ms, args.skip, tune_label),
+            tuning.Target(check_prepared, check_ms, args.skip, check_label))
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    sensors = config.sensor_list(args.sensors)
+    names = config.estimator_names(args.estimator)
+    if len(names) != 1 or names[0] not in ("ekf", "course"):
+        raise config.ConfigError("tune: give one EKF --estimator (ekf or course)")
+    base = config.load_settings(args.settings) or ekf.PRESETS["default"]
+    parameters = tuning.parse_parameters(args.params, base)
+    prepared = PreparedLog.from_log(read_log(args.log))
+    if len(prepared.ori_times) == 0:
+        raise config.ConfigError(f"tune: {args.log} has no ORI lines to tune against")
+    target, check = _targets(args, prepared)
+    print(f"tuning {', '.join(p.name for p in parameters)} on {args.log} "
+          f"({target.label or 'whole log'}), at most {args.max_evals} runs ...", flush=True)
+    try:
+        result = tuning.tune(target, base, parameters, check, args.max_evals, args.objective,
+                             names[0], sensors)
+    except ValueError as error:
+        raise config.ConfigError(f"tune: {error}") from None
+    print(result.format_report())
+    payload = {"settings": result.best.to_dict(), "tuning": result.to_dict(),
+               "source": str(args.log)}
+    if args.output:
+        _write_json(args.output, payload)
+    if args.profile:
+        _keep_in_profile(args.profile, settings=result.best.to_dict(), tuning=result.to_dict())
+    return 0
+
+
+# ---- registration ---------------------------------------------------------------------------------
+
+def add_commands(sub) -> None:
+    c = sub.add_parser("calibrate", help="noise statistics from rest data (task 2) and settings")
+    c.add_argument("log")
+    options.add_output(c)
+    options.add_settings(c, "base settings to complete (default preset otherwise)")
+    c.add_argument("--whole", action="store_true",
+                   help="use the whole log instead of the longest still interval")
+    options.add_range(c, "--range", "use this stretch instead of the longest still interval")
+    options.add_profile(c)
+    options.add_plots(c)
+    c.set_defaults(func=cmd_calibrate)
+
+    m = sub.add_parser("calibrate-mag", help="magnetometer hard- and soft-iron fit (turn the "
+                                             "phone in every direction while recording)")
+    m.add_argument("log")
+    options.add_output(m, "the base settings with the magnetometer correction")
+    options.add_settings(m, "base settings to add the correction to (default preset otherwise)")
+    options.add_range(m, "--range", "use only this stretch")
+    options.add_profile(m)
+    options.add_plots(m)
+    m.set_defaults(func=cmd_calibrate_mag)
+
+    _add_tune(sub)
+
+
+def _add_tune(sub) -> None:
+    t = sub.add_parser("tune", help="search settings minimising the RMSE against the log's ORI "
+                                    "(tune on one range, check on another)")
+    t.add_argument("log")
+    options.add_output(t, "the tuned settings and what the search did")
+    options.add_settings(t, "settings to start from (default preset otherwise)")
+    options.add_estimator(t)
+    options.add_sensors(t)
+    t.add_argument("--params", metavar="A,B=LO:HI,...",
+                   help="settings to tune, optionally with a range (default "
+                        f"{','.join(tuning.DEFAULT_PARAMETERS)})")
+    options.add_intervals(t, help_text="tune on these score_intervals_ms (default: LOG's sibling "
+                                       ".json; neither: the first half of the log)")
+    options.add_range(t, "--range", "tune on this stretch")
+    options.add_intervals(t, "--check-intervals", "check on these score_intervals_ms")
+    options.add_range(t, "--check-range", "check on this stretch")
+    t.add_argument("--check-log", metavar="LOG",
+                   help="check on another log (its --check-intervals/--check-range, or all)")
+    t.add_argument("--no-check", action="store_true",
+                   help="no check range (the figures are then only those tuned on)")
+    options.add_skip(t)
+    t.add_argument("--max-evals", type=int, default=60, metavar="N",
+                   help="at most N runs of the filter (default 60)")
+    t.add_argument("--objective", choices=tuning.OBJECTIVES, default="total",
+                   help="the RMSE minimised (default total)")
+    options.add_profile(t)
+    t.set_defaults(func=cmd_tune)

@@ -1,0 +1,168 @@
+"""Calibration from a log or from live samples: the one path of `calibrate`, `calibrate-mag` and
+the calibration workspace (Qt-free).
+
+* :func:`rest_from_log` picks the rest stretch of a log (the longest still interval, a chosen
+  time range, or all of it) and analyses it: task-2 statistics with normality, autocorrelation
+  and warnings (:func:`ekf.noise.analyse_rest`) and the gyroscope's Allan deviation.
+* :func:`mag_from_log` fits the magnetometer's hard and soft iron to a log's readings.
+* :class:`SampleCollector` gathers the live plot chunks' samples (acc, gyr, mag with their
+  times) for a duration of phone time, for the workspace's Start button.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ekf import calibration, magcal
+from ekf._optional import MissingLibrary
+from ekf.allan import AllanResult, allan_deviation
+from ekf.noise import RestAnalysis, analyse_rest
+from app.engine.errors import ConfigError
+from app.stream.logfile import LogData
+
+SENSORS = ("acc", "gyr", "mag")
+
+
+@dataclass
+class RestCalibration:
+    """A rest stretch analysed: the analysis (statistics, normality, autocorrelation,
+    warnings), the Allan deviation (None with too few gyro samples), the interval used
+    (seconds, the log's time axis; None: everything given) and how it was chosen."""
+
+    analysis: RestAnalysis
+    allan: AllanResult | None
+    interval_s: tuple[float, float] | None
+    how: str
+
+
+def _sensor_series(log: LogData, chosen: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    arrays = log.to_arrays()
+    t_s = arrays.t_s
+    out: dict[str, np.ndarray] = {}
+    for name in SENSORS:
+        values = getattr(arrays, name)
+        keep = np.all(np.isfinite(values), axis=1)
+        if chosen is not None:
+            keep &= chosen
+        out["t_" + name], out[name] = t_s[keep], values[keep]
+    return out
+
+
+def analyse_series(series: dict[str, np.ndarray], interval_s: tuple[float, float] | None = None,
+                   how: str = "") -> RestCalibration:
+    """Analyse per-sensor samples (keys t_acc, acc, t_gyr, gyr, t_mag, mag; seconds and sensor
+    units). ConfigError when a library is missing."""
+    try:
+        analysis = analyse_rest(**series)
+        allan = None
+        if len(series.get("t_gyr", ())) >= 10:
+            try:
+                allan = allan_deviation(series["t_gyr"], series["gyr"])
+            except ValueError:
+                allan = None        # e.g. a constant (quantised) gyro axis
+    except MissingLibrary as error:
+        raise ConfigError(str(error)) from None
+    return RestCalibration(analysis, allan, interval_s, how)
+
+
+def rest_from_log(log: LogData, start_s: float | None = None, end_s: float | None = None,
+                  whole: bool = False) -> RestCalibration:
+    """The rest calibration of a log: [start_s, end_s] seconds from the log's start when given,
+    everything with `whole`, else the longest still interval. ConfigError when there is no
+    accelerometer or no still interval."""
+    arrays = log.to_arrays()
+    t_s = arrays.t_s
+    if len(t_s) == 0 or np.isnan(arrays.acc).all():
+        raise ConfigError("calibrate: the log has no ACC lines")
+    if start_s is not None or end_s is not None:
+        lo = t_s[0] + (start_s or 0.0)
+        hi = t_s[0] + end_s if end_s is not None else t_s[-1]
+        if not hi > lo:
+            raise ConfigError(f"calibrate: empty range {start_s}..{end_s} s")
+        chosen, how = (t_s >= lo) & (t_s <= hi), "chosen range"
+        interval = (float(lo), float(hi))
+    elif whole:
+        chosen, how, interval = np.ones(len(t_s), bool), "whole log", None
+    else:
+        segment = calibration.find_rest_segment(t_s, arrays.gyr, arrays.acc)
+        if segment is None:
+            raise ConfigError("calibrate: found no still interval of at least 1 s "
+                              "(use --whole to take all)")
+        chosen, how = segment.mask(t_s), "longest still interval"
+        interval = (segment.start_s, segment.end_s)
+    return analyse_series(_sensor_series(log, chosen), interval, how)
+
+
+def mag_from_log(log: LogData, start_s: float | None = None,
+                 end_s: float | None = None) -> tuple[magcal.MagCalibration, np.ndarray]:
+    """The magnetometer fit of a log's readings (optionally [start_s, end_s] from its start):
+    (result, the raw readings (N, 3)). ConfigError without enough MAG lines."""
+    series = _sensor_series(log)
+    t, mag = series["t_mag"], series["mag"]
+    if len(t) and (start_s is not None or end_s is not None):
+        t0 = log.to_arrays().t_s[0]
+        keep = (t >= t0 + (start_s or 0.0)) & (t <= t0 + (end_s if end_s is not None
+                                                          else np.inf))
+        mag = mag[keep]
+    try:
+        return magcal.calibrate_magnetometer(mag), mag
+    except ValueError as error:
+        raise ConfigError(f"calibrate-mag: {error}") from None
+
+
+@dataclass
+class SampleCollector:
+    """Collect live samples for `duration_s` of phone time from the first sample on.
+
+    add(plot_chunk) takes a snapshot's PlotChunk (t_acc/acc, t_gyr/gyr, t_mag/mag); `done`
+    turns true once a sample later than the duration arrives (duration_s None: never, stop by
+    hand); series() gives the per-sensor arrays analyse_series reads.
+    max_samples bounds the memory per sensor."""
+
+    duration_s: float | None = 10.0
+    max_samples: int = 2_000_000
+    _parts: dict[str, list[tuple[np.ndarray, np.ndarray]]] = field(
+        default_factory=lambda: {name: [] for name in SENSORS})
+    start_s: float | None = None
+    latest_s: float | None = None
+    counts: dict[str, int] = field(default_factory=lambda: {name: 0 for name in SENSORS})
+    past_end: bool = False
+
+    def add(self, chunk: object) -> None:
+        for name in SENSORS:
+            t = np.asarray(getattr(chunk, "t_" + name), dtype=float)
+            if len(t) == 0 or self.counts[name] >= self.max_samples:
+                continue
+            values = np.asarray(getattr(chunk, name), dtype=float).reshape(-1, 3)
+            if self.start_s is None:
+                self.start_s = float(t[0])
+            if self.duration_s is not None:
+                keep = t <= self.start_s + self.duration_s
+                self.past_end |= not keep.all()
+                t, values = t[keep], values[keep]
+            if len(t):
+                self._parts[name].append((t, values))
+                self.counts[name] += len(t)
+                self.latest_s = max(self.latest_s or -np.inf, float(t[-1]))
+
+    @property
+    def elapsed_s(self) -> float:
+        if self.start_s is None or self.latest_s is None:
+            return 0.0
+        return self.latest_s - self.start_s
+
+    @property
+    def done(self) -> bool:
+        """A sample beyond the duration has arrived: the stretch is complete."""
+        return self.past_end
+
+    def series(self) -> dict[str, np.ndarray]:
+        out: dict[str, np.ndarray] = {}
+        for name in SENSORS:
+            parts = self._parts[name]
+            out["t_" + name] = (np.concatenate([p[0] for p in parts]) if parts
+                                else np.empty(0))
+            out[name] = np.concatenate([p[1] for p in parts]) if parts else np.empty((0, 3))
+        return out

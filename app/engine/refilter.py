@@ -1,0 +1,253 @@
+"""Instant re-filter: a whole session run again with other settings, in the background, for an
+A/B comparison with a kept "ghost" run.
+
+The log is turned into ordered sample arrays once (:class:`PreparedLog`); each re-run feeds them
+to a fresh :class:`~app.engine.runner.EstimatorRunner` in one call, i.e. through the compiled
+batch path (the estimators' ``run_batch``, one nogil loop), so the rows are those of `filter`
+and of a live replay, bit for bit, and a 10-minute 100 Hz session takes a few tens of
+milliseconds (benchmarks/tuning.py). Errors against ORI are :func:`app.engine.offline.
+reference_errors`' (the `evaluate` figures).
+
+:class:`Refilterer` runs requests in a thread (latest request wins: a settings change while a
+run is under way replaces the waiting one) and hands each result to a callback, from that
+thread; a widget forwards it to the GUI thread (a queued signal). Qt-free.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import ekf
+from app.engine.offline import ReferenceErrors, reference_errors
+from app.engine.runner import SENSORS, EstimatorRunner, Rows
+from app.stream.fastparse import samples_to_arrays
+from app.stream.logfile import LogData
+
+ORI_CODE = 3
+
+
+@dataclass
+class PreparedLog:
+    """A log's ordered filter-tag samples as arrays (t_ms int64, tag codes GYR 0, ACC 1, MAG 2,
+    ORI 3, values (n, 4)), and its distinct ORI times."""
+
+    t_ms: np.ndarray
+    tag: np.ndarray
+    values: np.ndarray
+    ori_times: np.ndarray
+    path: str = ""
+
+    @classmethod
+    def from_log(cls, log: LogData) -> "PreparedLog":
+        arrays = samples_to_arrays(log.samples)
+        ori = np.unique(arrays.t_ms[arrays.tag == ORI_CODE])
+        return cls(arrays.t_ms, arrays.tag, arrays.values, ori, log.path)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_ms[-1] - self.t_ms[0]) / 1000.0 if len(self.t_ms) else 0.0
+
+    @property
+    def start_ms(self) -> int:
+        return int(self.t_ms[0]) if len(self.t_ms) else 0
+
+    def until(self, t_end_ms: float | None) -> "PreparedLog":
+        """The samples up to and including t_end_ms (None: all): a run scored up to there needs
+        nothing later."""
+        if t_end_ms is None:
+            return self
+        n = int(np.searchsorted(self.t_ms, t_end_ms, side="right"))
+        return PreparedLog(self.t_ms[:n], self.tag[:n], self.values[:n],
+                           self.ori_times[self.ori_times <= t_end_ms], self.path)
+
+
+def prepare(log: LogData | PreparedLog) -> PreparedLog:
+    return log if isinstance(log, PreparedLog) else PreparedLog.from_log(log)
+
+
+@dataclass
+class RefilterResult:
+    """One run: its settings, estimator, the rows (every distinct time), the errors against ORI
+    (None when the log has no ORI), the wall time it took, and a label ("A", "ghost", ...)."""
+
+    settings: ekf.EKFSettings
+    estimator: str
+    rows: Rows = field(repr=False)
+    errors: ReferenceErrors | None = field(repr=False)
+    elapsed_s: float
+    label: str = ""
+
+    @property
+    def summary(self) -> ekf.metrics.ErrorSummary | None:
+        return None if self.errors is None else self.errors.summary
+
+
+def run_rows(prepared: PreparedLog, settings: ekf.EKFSettings | None, estimator: str = "ekf",
+             sensors: Iterable[str] = SENSORS) -> Rows:
+    """The rows of a whole run (one runner, one call through the batch path)."""
+    runner = EstimatorRunner(estimator, settings, sensors)
+    runner.feed_arrays(prepared.t_ms, prepared.tag, prepared.values)
+    runner.finish()
+    return runner.take_rows()
+
+
+def refilter(log: LogData | PreparedLog, settings: ekf.EKFSettings | None,
+             estimator: str = "ekf", sensors: Iterable[str] = SENSORS,
+             intervals_ms: list | None = None, skip_s: float = 0.0,
+             label: str = "") -> RefilterResult:
+    """Run the whole log with `settings` and score it against ORI (see the module's docstring).
+    """
+    prepared = prepare(log)
+    started = time.perf_counter()
+    rows = run_rows(prepared, settings, estimator, sensors)
+    errors = None
+    if len(prepared.ori_times) and rows.has_sample.any():
+        errors = reference_errors(rows, prepared.ori_times, intervals_ms, skip_s)
+    return RefilterResult(settings if settings is not None else ekf.PRESETS["default"],
+                          estimator, rows, errors, time.perf_counter() - started, label)
+
+
+def ab_rows(current: RefilterResult | None,
+            ghost: RefilterResult | None) -> list[tuple[str, float, float, float, int]]:
+    """The A/B error table: (label, total, heading, inclination RMSE in degrees, samples) for the
+    current run, the ghost and their difference (current - ghost), where available."""
+    out = []
+    for label, result in (("current", current), ("ghost", ghost)):
+        if result is not None and result.summary is not None:
+            s = result.summary
+            out.append((label, s.total_rmse_deg, s.heading_rmse_deg, s.inclination_rmse_deg,
+                        s.samples))
+    if len(out) == 2:
+        a, b = out
+        out.append(("difference", a[1] - b[1], a[2] - b[2], a[3] - b[3], a[4] - b[4]))
+    return out
+
+
+def angle_between_runs_deg(current: RefilterResult, ghost: RefilterResult) -> np.ndarray:
+    """Per row of the current run, the angle (degrees) between its estimate and the ghost's at
+    the same time (NaN where the ghost has no row there): the "difference" curve."""
+    from app.engine.runner import angles_deg
+
+    index = np.searchsorted(ghost.rows.t_ms, current.rows.t_ms)
+    index = np.clip(index, 0, max(len(ghost.rows) - 1, 0))
+    out = np.full(len(current.rows), np.nan)
+    if len(ghost.rows) == 0:
+        return out
+    same = ghost.rows.t_ms[index] == current.rows.t_ms
+    out[same] = angles_deg(current.rows.quat[same], ghost.rows.quat[index[same]])
+    return out
+
+
+class Refilterer:
+    """Background re-runs of one log for A/B comparison.
+
+    log: LogData or PreparedLog; estimator, sensors, intervals_ms, skip_s: as for
+    :func:`refilter`; on_result(result) is called from the worker thread after each run,
+    on_error(exception) when a run fails. :meth:`submit` queues a run with new settings (a
+    waiting request is replaced: the latest wins); :meth:`keep_ghost` keeps the current run as
+    the ghost. Call :meth:`close` when done."""
+
+    def __init__(self, log: LogData | PreparedLog, estimator: str = "ekf",
+                 sensors: Iterable[str] = SENSORS, intervals_ms: list | None = None,
+                 skip_s: float = 0.0,
+                 on_result: Callable[[RefilterResult], Any] | None = None,
+                 on_error: Callable[[BaseException], Any] | None = None) -> None:
+        self.prepared = prepare(log)
+        self.estimator = estimator
+        self.sensors = tuple(sensors)
+        self.intervals_ms = intervals_ms
+        self.skip_s = skip_s
+        self.on_result = on_result
+        self.on_error = on_error
+        self.current: RefilterResult | None = None
+        self.ghost: RefilterResult | None = None
+        self.runs = 0
+        self._pending: ekf.EKFSettings | None = None
+        self._has_pending = False
+        self._busy = False
+        self._closed = False
+        self._cond = threading.Condition()
+        self._thread = threading.Thread(target=self._loop, name="refilter", daemon=True)
+        self._thread.start()
+
+    def submit(self, settings: ekf.EKFSettings | None) -> None:
+        """Re-run the whole log with `settings` (replaces a request not yet started)."""
+        with self._cond:
+            self._pending, self._has_pending = settings, True
+            self._cond.notify_all()
+
+    def keep_ghost(self) -> RefilterResult | None:
+        """Keep the current run as the ghost (returned); None when there is no run yet."""
+        with self._cond:
+            if self.current is not None:
+                self.ghost = RefilterResult(self.current.settings, self.current.estimator,
+                                            self.current.rows, self.current.errors,
+                                            self.current.elapsed_s, "ghost")
+            return self.ghost
+
+    def clear_ghost(self) -> None:
+        with self._cond:
+            self.ghost = None
+
+    def table(self) -> list[tuple[str, float, float, float, int]]:
+        with self._cond:
+            return ab_rows(self.current, self.ghost)
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Block until no run is waiting or under way (tests, the command line)."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with self._cond:
+            while self._has_pending or self._busy:
+                remaining = None if deadline is None else deadline - time.monotonic()
+                if remaining is not None and remaining <= 0:
+                    return False
+                self._cond.wait(remaining)
+            return True
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+        self._thread.join(timeout=5.0)
+
+    def _loop(self) -> None:
+        while True:
+            with self._cond:
+                while not self._has_pending and not self._closed:
+                    self._cond.wait()
+                if self._closed:
+                    return
+                settings, self._has_pending, self._busy = self._pending, False, True
+            try:
+                result = refilter(self.prepared, settings, self.estimator, self.sensors,
+                                  self.intervals_ms, self.skip_s, label="current")
+            except Exception as error:   # reported, never lost: the caller shows it
+                self._finish(None)
+                if self.on_error is not None:
+                    self.on_error(error)
+                continue
+            self._finish(result)
+            if self.on_result is not None:
+                self.on_result(result)
+
+    def _finish(self, result: RefilterResult | None) -> None:
+        with self._cond:
+            if result is not None:
+                self.current = result
+                self.runs += 1
+            self._busy = False
+            self._cond.notify_all()
+
+
+def prepare_path(path: str | Path) -> PreparedLog:
+    """A log file or session folder, read and prepared (ConfigError when unusable)."""
+    from app.engine.config import open_log
+
+    return PreparedLog.from_log(open_log(path))
