@@ -78,7 +78,8 @@ class RestWarning:
 class RestAnalysis:
     """result: the task-2 statistics (means, covariances, g, m0, bias); axes: per available
     sensor one :class:`AxisReport` per axis; warnings; moving: the rows of the common time axis
-    `t_s` judged not still; duration_s: the span of the data."""
+    `t_s` judged not still; duration_s: the span of the data; series: per sensor the (times,
+    values) analysed (the time series to draw)."""
 
     result: CalibrationResult
     axes: dict[str, list[AxisReport]]
@@ -86,6 +87,7 @@ class RestAnalysis:
     t_s: np.ndarray = field(repr=False)
     moving: np.ndarray = field(repr=False)
     duration_s: float = 0.0
+    series: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
 
     def warning_kinds(self) -> set[str]:
         return {w.kind for w in self.warnings}
@@ -252,4 +254,4 @@ def analyse_rest(t_acc: ArrayLike | None = None, acc: ArrayLike | None = None,
                 f"{low:g}–{high:g} {UNITS['mag']} (the Earth's): iron or a magnet nearby, or "
                 "an uncalibrated magnetometer (see the magnetometer calibration)"))
     duration = float(t_all[-1] - t_all[0]) if len(t_all) > 1 else 0.0
-    return RestAnalysis(result, axes, warnings, t_all, moving, duration)
+    return RestAnalysis(result, axes, warnings, t_all, moving, duration, series)
