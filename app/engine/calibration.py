@@ -131,13 +131,17 @@ class SampleCollector:
     past_end: bool = False
 
     def add(self, chunk: object) -> None:
+        if self.start_s is None:
+            firsts = [float(getattr(chunk, "t_" + name)[0]) for name in SENSORS
+                      if len(getattr(chunk, "t_" + name))]
+            if not firsts:
+                return
+            self.start_s = min(firsts)
         for name in SENSORS:
             t = np.asarray(getattr(chunk, "t_" + name), dtype=float)
             if len(t) == 0 or self.counts[name] >= self.max_samples:
                 continue
             values = np.asarray(getattr(chunk, name), dtype=float).reshape(-1, 3)
-            if self.start_s is None:
-                self.start_s = float(t[0])
             if self.duration_s is not None:
                 keep = t <= self.start_s + self.duration_s
                 self.past_end |= not keep.all()

@@ -1,0 +1,271 @@
+"""The settings panel: every filter setting with its value, unit, default, course value and the
+one-line explanation, all taken from the declarations (``ekf.settings_rows()``, no second copy),
+editable live.
+
+A change is parsed and checked (``EKFSettings.from_dict``, the rules of `--settings` files) and
+sent as ``SetSettings`` (the engine applies it at the next batch and records it in the session
+timeline); a bad value is refused with a one-line message and the cell goes back. Reset to the
+default or the course preset, save/load settings files (the one loader,
+``app.engine.config.load_settings``) and apply/save named profiles.
+
+Mounting: ``SettingsPanel(send=engine.send, settings=current)``; call :meth:`set_settings` when
+the settings change elsewhere (the calibration workspace, the tuner), without sending.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from PySide6 import QtCore, QtWidgets
+
+import ekf
+from ekf.settings import format_value
+from app.engine import config
+from app.engine.commands import SetSettings
+from app.engine.profiles import Profile, ProfileStore
+
+COLUMNS = ("setting", "value", "unit", "default", "course", "meaning")
+VALUE = 1
+_NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|[-+]?inf"
+
+
+def _numbers(text: str) -> list[float]:
+    return [float(x) for x in re.findall(_NUMBER, text)]
+
+
+def parse_value(current: Any, text: str) -> Any:
+    """A cell's text -> a value of the kind of `current` (the setting's present value):
+    numbers ("inf" allowed), vectors "(a, b, c)" (or "none" where allowed), matrices "r·I",
+    "diag(a, b, c)" or nine numbers "[a b c; d e f; g h i]". ValueError with a one-line reason.
+    """
+    text = text.strip()
+    if isinstance(current, bool):
+        if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
+            raise ValueError(f"expected true or false, got {text!r}")
+        return text.lower() in ("true", "1", "yes")
+    if isinstance(current, str):
+        return text
+    if isinstance(current, list) or (isinstance(current, tuple) and current
+                                     and isinstance(current[0], (list, tuple))):
+        return _parse_matrix(text)
+    if isinstance(current, tuple) or current is None:
+        if text.lower() in ("none", ""):
+            return None
+        values = _numbers(text)
+        if len(values) != 3:
+            raise ValueError(f"expected 3 numbers, got {text!r}")
+        return values
+    values = _numbers(text)
+    if len(values) != 1:
+        raise ValueError(f"expected a number, got {text!r}")
+    return values[0]
+
+
+def _parse_matrix(text: str) -> list[list[float]]:
+    values = _numbers(text)
+    lowered = text.lower().replace(" ", "")
+    if len(values) == 1 and (lowered.endswith("i") or re.fullmatch(_NUMBER, text.strip())):
+        r = values[0]
+        return [[r if i == j else 0.0 for j in range(3)] for i in range(3)]
+    if len(values) == 3 and lowered.startswith("diag"):
+        return [[values[i] if i == j else 0.0 for j in range(3)] for i in range(3)]
+    if len(values) == 9:
+        return [values[0:3], values[3:6], values[6:9]]
+    raise ValueError(f"expected r·I, diag(a, b, c) or 9 numbers, got {text!r}")
+
+
+class SettingsPanel(QtWidgets.QWidget):
+    """See the module's docstring. send(command): the engine's send; settings: the settings in
+    use (None: the default preset); store: profiles (None: the user's data folder)."""
+
+    settingsChanged = QtCore.Signal(object)     # the new ekf.EKFSettings, after it was sent
+
+    def __init__(self, send: Callable[[Any], None], settings: ekf.EKFSettings | None = None,
+                 store: ProfileStore | None = None,
+                 parent: QtWidgets.QWidget | None = None) -> None:
+        super().__init__(parent)
+        self._send = send
+        self.store = store or ProfileStore()
+        self.settings = settings if settings is not None else ekf.PRESETS["default"]
+        self.rows = ekf.settings_rows()
+        self._filling = False
+        self.table = QtWidgets.QTableWidget(len(self.rows), len(COLUMNS))
+        self.table.setHorizontalHeaderLabels([c.capitalize() for c in COLUMNS])
+        self.table.verticalHeader().setVisible(False)
+        self.table.horizontalHeader().setStretchLastSection(True)
+        self.table.itemChanged.connect(self._on_item_changed)
+        self.message = QtWidgets.QLabel("")
+        self.message.setWordWrap(True)
+        layout = QtWidgets.QVBoxLayout(self)
+        layout.addLayout(self._buttons())
+        layout.addWidget(self.table, 1)
+        layout.addWidget(self.message)
+        self._fill()
+
+    # -- construction -------------------------------------------------------------------------
+
+    def _buttons(self) -> QtWidgets.QLayout:
+        row = QtWidgets.QHBoxLayout()
+        self.reset_default = QtWidgets.QPushButton("Reset to default")
+        self.reset_course = QtWidgets.QPushButton("Reset to course")
+        self.reset_default.clicked.connect(lambda: self.reset_to("default"))
+        self.reset_course.clicked.connect(lambda: self.reset_to("course"))
+        self.save_button = QtWidgets.QPushButton("Save…")
+        self.load_button = QtWidgets.QPushButton("Load…")
+        self.save_button.clicked.connect(self._save_dialog)
+        self.load_button.clicked.connect(self._load_dialog)
+        self.profiles = QtWidgets.QComboBox()
+        self.profiles.setMinimumContentsLength(14)
+        self.apply_profile_button = QtWidgets.QPushButton("Apply profile")
+        self.apply_profile_button.clicked.connect(
+            lambda: self.apply_profile(self.profiles.currentText()))
+        self.save_profile_button = QtWidgets.QPushButton("Save as profile…")
+        self.save_profile_button.clicked.connect(self._save_profile_dialog)
+        for widget in (self.reset_default, self.reset_course, self.save_button,
+                       self.load_button, QtWidgets.QLabel("Profile:"), self.profiles,
+                       self.apply_profile_button, self.save_profile_button):
+            row.addWidget(widget)
+        row.addStretch(1)
+        self.refresh_profiles()
+        return row
+
+    def _fill(self) -> None:
+        self._filling = True
+        try:
+            for r, row in enumerate(self.rows):
+                value = getattr(self.settings, row.name)
+                cells = (row.name, format_value(value), row.unit, format_value(row.default),
+                         format_value(row.course), row.doc)
+                for c, text in enumerate(cells):
+                    item = self.table.item(r, c) or QtWidgets.QTableWidgetItem()
+                    item.setText(text)
+                    item.setToolTip(f"{row.name} [{row.unit}]: {row.doc}")
+                    flags = QtCore.Qt.ItemFlag.ItemIsEnabled | QtCore.Qt.ItemFlag.ItemIsSelectable
+                    if c == VALUE:
+                        flags |= QtCore.Qt.ItemFlag.ItemIsEditable
+                    item.setFlags(flags)
+                    font = item.font()
+                    font.setBold(c == VALUE and value != row.default)
+                    item.setFont(font)
+                    self.table.setItem(r, c, item)
+            self.table.resizeColumnsToContents()
+        finally:
+            self._filling = False
+
+    # -- edits --------------------------------------------------------------------------------
+
+    def row_of(self, name: str) -> int:
+        return [r.name for r in self.rows].index(name)
+
+    def edit(self, name: str, text: str) -> bool:
+        """Set one setting from text, as typing it in the cell does; True when it was sent."""
+        before = self.settings
+        self.table.item(self.row_of(name), VALUE).setText(text)
+        return self.settings is not before
+
+    def _on_item_changed(self, item: QtWidgets.QTableWidgetItem) -> None:
+        if self._filling or item.column() != VALUE:
+            return
+        name = self.rows[item.row()].name
+        try:
+            value = parse_value(getattr(self.settings, name), item.text())
+            data = self.settings.to_dict()
+            data[name] = value
+            new = ekf.EKFSettings.from_dict(data)
+        except (ValueError, TypeError) as error:
+            self.message.setText(f"{name}: {error}")
+            self._fill()
+            return
+        self.message.setText(f"{name} = {format_value(getattr(new, name))} (applied from the "
+                             "next sample)")
+        self.apply(new, source="panel")
+
+    def apply(self, settings: ekf.EKFSettings, source: str = "panel",
+              calibration: dict | None = None) -> None:
+        """Send new settings to the engine and show them."""
+        self._send(SetSettings(settings, calibration=calibration, source=source))
+        self.set_settings(settings)
+        self.settingsChanged.emit(settings)
+
+    def set_settings(self, settings: ekf.EKFSettings) -> None:
+        """Show `settings` (changed elsewhere); nothing is sent."""
+        self.settings = settings
+        self._fill()
+
+    def reset_to(self, preset: str) -> None:
+        self.apply(ekf.PRESETS[preset], source=f"reset to {preset}")
+        self.message.setText(f"reset to the {preset} preset")
+
+    # -- files and profiles -------------------------------------------------------------------
+
+    def save_to(self, path: str | Path) -> None:
+        try:
+            self.settings.save(path)
+        except OSError as error:
+            self.message.setText(f"cannot save {path}: {error.strerror or error}")
+            return
+        self.message.setText(f"saved {path}")
+
+    def load_from(self, path: str | Path) -> bool:
+        try:
+            settings = config.load_settings(str(path))
+        except config.ConfigError as error:
+            self.message.setText(str(error))
+            return False
+        self.apply(settings, source=f"loaded {Path(path).name}")
+        self.message.setText(f"loaded {path}")
+        return True
+
+    def refresh_profiles(self) -> None:
+        current = self.profiles.currentText()
+        self.profiles.clear()
+        self.profiles.addItems(self.store.names())
+        if current:
+            self.profiles.setCurrentText(current)
+
+    def apply_profile(self, name: str) -> bool:
+        """The profile applied onto the settings in use, sent with the profile for the session."""
+        if not name:
+            self.message.setText("no profile chosen")
+            return False
+        try:
+            profile = self.store.load(name)
+            settings = profile.to_settings(self.settings)
+        except (config.ConfigError, ValueError, TypeError) as error:
+            self.message.setText(f"profile {name!r}: {error}")
+            return False
+        self.apply(settings, source="profile", calibration=profile.to_dict())
+        self.message.setText(f"profile {name!r} applied")
+        return True
+
+    def save_profile(self, name: str) -> Path | None:
+        """The settings in use kept as a profile of that name."""
+        try:
+            path = self.store.save(Profile(name, settings=self.settings.to_dict()))
+        except config.ConfigError as error:
+            self.message.setText(str(error))
+            return None
+        self.refresh_profiles()
+        self.profiles.setCurrentText(name)
+        self.message.setText(f"profile {name!r} saved to {path}")
+        return path
+
+    def _save_dialog(self) -> None:
+        path, _ = QtWidgets.QFileDialog.getSaveFileName(self, "Save settings", "settings.json",
+                                                        "JSON (*.json)")
+        if path:
+            self.save_to(path)
+
+    def _load_dialog(self) -> None:
+        path, _ = QtWidgets.QFileDialog.getOpenFileName(self, "Load settings", "",
+                                                        "JSON (*.json)")
+        if path:
+            self.load_from(path)
+
+    def _save_profile_dialog(self) -> None:
+        name, ok = QtWidgets.QInputDialog.getText(self, "Save as profile", "Profile name:")
+        if ok and name.strip():
+            self.save_profile(name.strip())

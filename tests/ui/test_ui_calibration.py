@@ -1,0 +1,156 @@
+"""The calibration workspace driven with pytest-qt by crafted snapshots: a simulated rest stream
+through Start, the warnings on a moving one, the magnetometer cloud filling a sphere, Apply and
+profiles. The 3D cloud needs OpenGL (marked gl)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import ekf
+from ekf.simulate import DEFAULT_NOISE_STD, simulate
+from app.engine.commands import SetSettings
+from app.engine.profiles import ProfileStore
+from app.engine.snapshot import PlotChunk, Snapshot
+from app.ui.calibration import CalibrationWorkspace
+
+BIAS = (0.01, -0.02, 0.005)
+
+
+def snapshots(session, per_snapshot_s: float = 0.25):
+    """The session's samples as the engine's snapshots would carry them, a frame at a time."""
+    t = {name: getattr(session, name).t_ms / 1000.0 for name in ("acc", "gyr", "mag")}
+    start, end = min(v[0] for v in t.values()), max(v[-1] for v in t.values())
+    seq = 0
+    for lo in np.arange(start, end + per_snapshot_s, per_snapshot_s):
+        parts = {}
+        for name in ("acc", "gyr", "mag"):
+            chosen = (t[name] >= lo) & (t[name] < lo + per_snapshot_s)
+            parts["t_" + name] = t[name][chosen]
+            parts[name] = getattr(session, name).values[chosen]
+        seq += 1
+        yield Snapshot(seq=seq, plot=PlotChunk(**parts))
+
+
+@pytest.fixture
+def workspace(qtbot, tmp_path):
+    sent = []
+    widget = CalibrationWorkspace(sent.append, settings=lambda: ekf.PRESETS["course"],
+                                  store=ProfileStore(tmp_path / "profiles"))
+    qtbot.addWidget(widget)
+    widget.sent = sent
+    return widget
+
+
+def test_start_collects_ten_seconds_and_finds_the_noise_and_bias(workspace):
+    rest = simulate(duration_s=15.0, script="rest", seed=11, gyro_bias=BIAS)
+    workspace.rest.start()
+    assert workspace.rest.duration.value() == 10.0
+    for snapshot in snapshots(rest):
+        workspace.feed(snapshot)
+    assert not workspace.rest.collecting and workspace.rest.progress.value() == 100
+    result = workspace.rest.result
+    assert 9.9 <= result.analysis.duration_s <= 10.0
+    stats = result.analysis.result
+    np.testing.assert_allclose(stats.gyr.std, DEFAULT_NOISE_STD["gyr"], rtol=0.1)
+    np.testing.assert_allclose(stats.gyr_bias, BIAS, rtol=0.1)
+    assert workspace.rest.table.rowCount() == 9
+    assert workspace.rest.table.item(0, 0).text() == "acc"
+    assert workspace.rest.warnings.text() == ""
+    assert "Gyroscope" in workspace.rest.series_plots[1].titleLabel.text
+    assert workspace.allan.allan is not None          # the Allan tab follows the rest tab
+    assert "angle random walk" in workspace.allan.summary.text()
+
+
+def test_a_moving_stream_is_warned_about(workspace):
+    moving = simulate(duration_s=12.0, seed=3)
+    workspace.rest.start(8.0)
+    for snapshot in snapshots(moving):
+        workspace.feed(snapshot)
+    text = workspace.rest.warnings.text()
+    assert "moved" in text
+
+
+def test_stop_early_analyses_what_came_and_warns_of_too_few(workspace):
+    rest = simulate(duration_s=1.0, script="rest", seed=2)
+    workspace.rest.start()
+    for snapshot in snapshots(rest):
+        workspace.feed(snapshot)
+    workspace.rest.start_button.click()               # Stop
+    assert "only" in workspace.rest.warnings.text()   # too few samples
+
+
+def _turning_readings(n, seed=0):
+    rng = np.random.default_rng(seed)
+    d = rng.standard_normal((n, 3))
+    return 45.0 * d / np.linalg.norm(d, axis=1, keepdims=True) + [20.0, -30.0, 150.0]
+
+
+def test_the_magnetometer_cloud_fills_a_sphere_live(workspace):
+    readings = _turning_readings(1200)
+    workspace.mag.start_button.click()
+    coverages = []
+    for k in range(0, len(readings), 60):
+        chunk = PlotChunk(t_mag=np.arange(60) * 0.02 + k, mag=readings[k:k + 60])
+        workspace.feed(Snapshot(seq=k, plot=chunk))
+        coverages.append(workspace.mag.coverage_bar.value())
+    assert coverages == sorted(coverages) and coverages[-1] == 100
+    result = workspace.mag.result
+    np.testing.assert_allclose(result.offset, [20, -30, 150], atol=0.5)
+    assert "spread" in workspace.mag.summary.text()
+    assert len(workspace.mag.projection_plots[0].items) >= 2     # raw and corrected clouds
+
+
+def test_apply_sends_the_settings_with_the_profile_and_profiles_round_trip(workspace):
+    rest = simulate(duration_s=12.0, script="rest", seed=11, gyro_bias=BIAS)
+    workspace.rest.start()
+    for snapshot in snapshots(rest):
+        workspace.feed(snapshot)
+    workspace.mag.start_button.click()
+    workspace.feed(Snapshot(plot=PlotChunk(t_mag=np.arange(800) * 0.02,
+                                           mag=_turning_readings(800))))
+    workspace.mag.start_button.click()                 # Stop: a final fit
+    workspace.name.setText("Test phone")
+    settings = workspace.apply()
+    command = workspace.sent[-1]
+    assert isinstance(command, SetSettings) and command.source == "calibration"
+    assert command.calibration["name"] == "Test phone"
+    np.testing.assert_allclose(settings.gyr_bias, BIAS, rtol=0.1)
+    np.testing.assert_allclose(settings.mag_hard_iron, [20, -30, 150], atol=0.5)
+    # onto the course model the measured noise goes too
+    assert settings.acc_noise_cov[2][2] == pytest.approx(DEFAULT_NOISE_STD["acc"][2] ** 2,
+                                                         rel=0.25)
+    assert workspace.save_profile() is not None
+    assert workspace.profiles.findText("Test phone") >= 0
+    other = CalibrationWorkspace(workspace.sent.append, store=workspace.store)
+    profile = other.load_profile("Test phone")
+    assert profile.rest and profile.mag
+    again = other.apply()
+    assert again.mag_hard_iron == settings.mag_hard_iron and again.g == settings.g
+    other.deleteLater()
+
+
+def test_apply_without_anything_says_so(workspace):
+    assert workspace.apply() is None
+    assert "nothing to apply" in workspace.message.text()
+    assert workspace.load_profile("nobody") is None
+
+
+def test_a_stretch_of_a_log(workspace, realphone_dir):
+    assert workspace.analyse_log(realphone_dir / "tsrt14_lab2_calibration.txt")
+    stats = workspace.rest.result.analysis.result
+    assert stats.g == pytest.approx(9.0, abs=0.05)
+    assert workspace.rest.result.how == "longest still interval"
+    assert not workspace.analyse_log(realphone_dir / "no_such.txt")
+
+
+@pytest.mark.gl
+def test_the_3d_cloud_with_opengl(qtbot, tmp_path):
+    widget = CalibrationWorkspace(lambda c: None, store=ProfileStore(tmp_path), use_gl=True)
+    qtbot.addWidget(widget)
+    widget.show()
+    widget.mag.start_button.click()
+    widget.feed(Snapshot(plot=PlotChunk(t_mag=np.arange(500) * 0.02,
+                                        mag=_turning_readings(500))))
+    assert widget.mag.view3d is not None
+    assert widget.mag.scatter3d.pos.shape == (500, 3)
