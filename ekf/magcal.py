@@ -32,6 +32,8 @@ COVERAGE_BINS = 100
 ELLIPSOID_MIN_COVERAGE = 0.35
 """Below this coverage the nine-coefficient fit is ill-posed: only the offset is fitted."""
 MIN_SAMPLES = 20
+OUTLIER_PASSES = 8
+"""At most this many refits leaving out readings far off the sphere (see _inliers)."""
 EARTH_FIELD_RANGE_UT = (25.0, 65.0)
 
 
@@ -125,7 +127,8 @@ class MagCalibration:
     offset (3,) µT and soft_iron (3, 3) (det 1): the correction S (m - b); field_strength R µT;
     model "ellipsoid" or "sphere" (offset only); samples; coverage (0..1) seen from the fitted
     centre; fit_error_pct: RMS of ‖S (m - b)‖ - R relative to R; norm_mean/std_before/after:
-    ‖m‖ of the raw and the corrected readings [µT]; nothing_to_correct: the correction changes
+    ‖m‖ of the raw and the corrected readings [µT] (these figures over the readings fitted:
+    those far off the sphere, a magnet passing by, are left out and counted in `outliers`); nothing_to_correct: the correction changes
     the spread of ‖m‖ by less than it is worth (the phone had calibrated already); message: one
     line for the user."""
 
@@ -142,6 +145,7 @@ class MagCalibration:
     norm_std_after: float
     nothing_to_correct: bool
     message: str = ""
+    outliers: int = 0
     counts: np.ndarray = field(default_factory=lambda: np.zeros(COVERAGE_BINS, int), repr=False)
 
     def correct(self, mag: ArrayLike) -> np.ndarray:
@@ -176,7 +180,8 @@ class MagCalibration:
                 "fit_error_pct": self.fit_error_pct,
                 "norm_mean_before": self.norm_mean_before, "norm_std_before": self.norm_std_before,
                 "norm_mean_after": self.norm_mean_after, "norm_std_after": self.norm_std_after,
-                "nothing_to_correct": self.nothing_to_correct, "message": self.message}
+                "nothing_to_correct": self.nothing_to_correct, "message": self.message,
+                "outliers": self.outliers}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "MagCalibration":
@@ -196,6 +201,23 @@ def _fit(m: np.ndarray, min_coverage: float) -> tuple[np.ndarray, np.ndarray, fl
         except ValueError:
             pass
     return center, np.eye(3), radius, "sphere"
+
+
+def _inliers(m: np.ndarray) -> np.ndarray:
+    """Readings on the field's sphere: a sphere is fitted and the readings more than 3.5 robust
+    standard deviations off it (a magnet or iron passing by) left out, until none is. The
+    sphere is stiffer than the ellipsoid, which bends towards such readings."""
+    used = np.ones(len(m), bool)
+    for _ in range(OUTLIER_PASSES):
+        center, radius = fit_sphere(m[used])
+        residual = np.linalg.norm(m - center, axis=1) - radius
+        middle = np.median(residual[used])
+        spread = 1.4826 * np.median(np.abs(residual[used] - middle))
+        keep = np.abs(residual - middle) <= max(3.5 * spread, 0.01 * radius)
+        if keep.sum() < MIN_SAMPLES or np.array_equal(keep, used):
+            break
+        used = keep
+    return used
 
 
 def _nothing_to_correct(norms_before: np.ndarray, std_after: float, covered: float) -> bool:
@@ -218,10 +240,13 @@ def calibrate_magnetometer(mag: ArrayLike,
     if len(m) < MIN_SAMPLES:
         raise ValueError(f"the magnetometer fit needs at least {MIN_SAMPLES} readings, "
                          f"got {len(m)}")
-    offset, soft_iron, strength, model = _fit(m, min_coverage)
-    norms_before = np.linalg.norm(m, axis=1)
-    norms_after = np.linalg.norm(correct(m, offset, soft_iron), axis=1)
-    counts = direction_counts(m, offset, soft_iron)
+    used = _inliers(m)
+    offset, soft_iron, strength, model = _fit(m[used], min_coverage)
+    outliers = int(len(m) - used.sum())
+    inliers = m[used]           # the figures are those of the readings fitted
+    norms_before = np.linalg.norm(inliers, axis=1)
+    norms_after = np.linalg.norm(correct(inliers, offset, soft_iron), axis=1)
+    counts = direction_counts(inliers, offset, soft_iron)
     fit_error = float(100.0 * np.sqrt(np.mean((norms_after - strength) ** 2)) / strength)
     covered = float(np.mean(counts > 0))
     nothing = _nothing_to_correct(norms_before, float(norms_after.std()), covered)
@@ -232,15 +257,21 @@ def calibrate_magnetometer(mag: ArrayLike,
     elif not low <= strength <= high:
         message = (f"the fitted field strength {strength:.1f} uT is not the Earth's "
                    f"({low:g}-{high:g} uT): turn the phone in more directions, away from iron")
-    elif model == "sphere":
+    elif model == "sphere" and covered < min_coverage:
         message = (f"offset only: turn the phone in more directions for the soft-iron matrix "
                    f"(coverage {100 * covered:.0f} %, {100 * min_coverage:.0f} % needed)")
+    elif model == "sphere":
+        message = ("offset only: the readings do not determine a soft-iron matrix (turn the "
+                   "phone further, away from iron)")
     else:
         message = ""
+    if outliers:
+        message = (message + "; " if message else "") + \
+            f"{outliers} readings far off the sphere left out (iron or a magnet nearby?)"
     return MagCalibration(offset, soft_iron, strength, model, len(m), covered, fit_error,
                           float(norms_before.mean()), float(norms_before.std()),
                           float(norms_after.mean()), float(norms_after.std()), nothing, message,
-                          counts)
+                          outliers, counts)
 
 
 def settings_correction(settings: Any) -> tuple[np.ndarray, np.ndarray] | None:

@@ -82,6 +82,10 @@ def rest_from_log(log: LogData, start_s: float | None = None, end_s: float | Non
         if not hi > lo:
             raise ConfigError(f"calibrate: empty range {start_s}..{end_s} s")
         chosen, how = (t_s >= lo) & (t_s <= hi), "chosen range"
+        if chosen.sum() < 2:
+            raise ConfigError(f"calibrate: nothing in the range {start_s or 0:g}.."
+                              f"{'end' if end_s is None else format(end_s, 'g')} s "
+                              f"(the log lasts {t_s[-1] - t_s[0]:.1f} s)")
         interval = (float(lo), float(hi))
     elif whole:
         chosen, how, interval = np.ones(len(t_s), bool), "whole log", None

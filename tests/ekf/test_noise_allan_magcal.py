@@ -186,3 +186,13 @@ def test_the_settings_correction_is_none_for_the_identity():
     offset, soft = magcal.settings_correction(s)
     np.testing.assert_array_equal(offset, [1, 2, 3])
     np.testing.assert_array_equal(soft, np.eye(3))
+
+
+def test_a_magnet_passing_by_is_left_out_of_the_fit():
+    session = simulate(duration_s=40.0, seed=5)       # the script has a magnetic disturbance
+    raw = session.mag.values + OFFSET
+    disturbed = session.inside(session.mag_disturbance_intervals_ms, session.mag.t_ms)
+    cal = magcal.calibrate_magnetometer(raw)
+    np.testing.assert_allclose(cal.offset, OFFSET, atol=0.3)
+    assert cal.outliers >= 0.5 * disturbed.sum() and "left out" in cal.message
+    assert cal.fit_error_pct < 3.0
