@@ -150,7 +150,8 @@ def test_numerics_stream_engine_and_commands_import_without_qt():
                 importlib.import_module(m.name)
         import app.cli, app.paths
         parser = app.cli.build_parser()
-        for cmd in ("filter", "evaluate", "calibrate", "simulate", "send", "serve"):
+        for cmd in ("filter", "evaluate", "calibrate", "calibrate-mag", "tune", "simulate",
+                    "send", "serve"):
             parser.parse_args([cmd, "x"] if cmd not in ("simulate", "serve") else
                               ([cmd, "-o", "x"] if cmd == "simulate" else [cmd]))
         print("ok")

@@ -47,8 +47,7 @@ def load_settings(spec: str | Path | None) -> ekf.EKFSettings | None:
     path = Path(text)
     if not path.exists():
         presets = ", ".join(ekf.PRESETS)
-        raise ConfigError(f"settings file not found: {text} (or give a preset: {presets}, "
-                          "or profile:NAME)")
+        raise ConfigError(f"settings file not found: {text} (or give a preset: {presets})")
     try:
         data = json.loads(path.read_text())
         if isinstance(data, dict) and data.get("kind") == profiles.KIND:

@@ -22,7 +22,7 @@ from app.engine.config import ConfigError, SourceOptions, load_settings, make_so
 from app.engine.worker import Engine
 
 GUI_SWITCH_INTERVAL_S = 0.0002
-HEADLESS_COMMANDS = "filter, evaluate, calibrate, simulate, send, serve"
+HEADLESS_COMMANDS = "filter, evaluate, calibrate, calibrate-mag, tune, simulate, send, serve"
 
 
 @dataclass
