@@ -67,11 +67,14 @@ class RestTab(QtWidgets.QWidget):
                   self.from_log_button, self.progress):
             controls.addWidget(w)
         self.histograms = pg.GraphicsLayoutWidget()
+        self.histograms.setBackground("w")
         self.histogram_plots = [[self.histograms.addPlot(row=r, col=c) for c in range(3)]
                                 for r in range(3)]
         self.series = pg.GraphicsLayoutWidget()
+        self.series.setBackground("w")
         self.series_plots = [self.series.addPlot(row=r, col=0) for r in range(3)]
         self.acf = pg.GraphicsLayoutWidget()
+        self.acf.setBackground("w")
         self.acf_plots = [self.acf.addPlot(row=r, col=0) for r in range(3)]
         self.table = QtWidgets.QTableWidget(0, 10)
         self.table.setHorizontalHeaderLabels(["sensor", "axis", "mean", "std", "cov x", "cov y",
@@ -229,6 +232,7 @@ class MagTab(QtWidgets.QWidget):
         for w in (self.start_button, self.clear_button, self.coverage_bar):
             controls.addWidget(w)
         self.cloud = pg.GraphicsLayoutWidget()
+        self.cloud.setBackground("w")
         self.projection_plots = [self.cloud.addPlot(row=0, col=k) for k in range(3)]
         self.view3d = self._make_3d() if use_gl else None
         layout = QtWidgets.QVBoxLayout(self)
@@ -248,6 +252,9 @@ class MagTab(QtWidgets.QWidget):
         return view
 
     def toggle(self) -> None:
+        """Start a new cloud, or stop and fit it."""
+        if not self.collecting:
+            self.clear()
         self.collecting = not self.collecting
         self.start_button.setText("Stop" if self.collecting else "Start")
         if not self.collecting and self.count >= magcal.MIN_SAMPLES:
