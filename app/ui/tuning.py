@@ -234,9 +234,10 @@ class TuningPanel(QtWidgets.QWidget):
 
 
 class ABCompareView(QtWidgets.QWidget):
-    """The A/B error table of a Refilterer's current run and ghost. Connect nothing: it listens
-    to the refilterer through :meth:`on_result` (call it from Refilterer's on_result; it is
-    thread-safe, the table is redrawn in the GUI thread)."""
+    """The A/B error table of a Refilterer's current run and ghost. It hooks itself onto the
+    refilterer's on_result (after any callback already there): each run's result reaches the
+    GUI thread through a queued signal, :attr:`resultReady`, which a window can also use to
+    redraw its plots and ghost curves."""
 
     resultReady = QtCore.Signal(object)      # RefilterResult, in the GUI thread
 
@@ -251,6 +252,14 @@ class ABCompareView(QtWidgets.QWidget):
         self.clear_button = QtWidgets.QPushButton("Clear ghost")
         self.clear_button.clicked.connect(self.clear_ghost)
         self.resultReady.connect(self._show, QtCore.Qt.ConnectionType.QueuedConnection)
+        previous = refilterer.on_result
+
+        def forward(result: RefilterResult) -> None:
+            if previous is not None:
+                previous(result)
+            self.on_result(result)
+
+        refilterer.on_result = forward
         buttons = QtWidgets.QHBoxLayout()
         for w in (self.keep_button, self.clear_button, self.timing):
             buttons.addWidget(w)

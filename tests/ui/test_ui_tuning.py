@@ -78,10 +78,9 @@ def test_no_parameter_chosen_is_refused(panel):
 
 
 def test_ab_view_shows_current_ghost_and_difference(qtbot, prepared):
-    view_holder = []
-    refilterer = Refilterer(prepared, on_result=lambda r: view_holder[0].on_result(r))
-    view = ABCompareView(refilterer)
-    view_holder.append(view)
+    seen = []
+    refilterer = Refilterer(prepared, on_result=seen.append)
+    view = ABCompareView(refilterer)       # hooks itself on after the callback already there
     qtbot.addWidget(view)
     try:
         refilterer.submit(ekf.PRESETS["course"])
@@ -95,5 +94,6 @@ def test_ab_view_shows_current_ghost_and_difference(qtbot, prepared):
         assert "ms" in view.timing.text()
         view.clear_button.click()
         assert view.table.rowCount() == 1
+        assert len(seen) == 2
     finally:
         refilterer.close()
