@@ -416,7 +416,7 @@ class Engine:
         if partial_line_damaged:
             if parser._pending or parser._discarding:
                 kind = "too_long" if parser._discarding else "damaged"
-                parser._count_bad(kind, "line cut off by the end of the connection")
+                parser._count_bad(kind, "line cut off by the end of the connection", "cut off")
             parser.reset_line()
         else:
             self._parsed(parser.finish_arrays())
