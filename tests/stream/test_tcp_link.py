@@ -100,6 +100,8 @@ def test_silent_client_then_disconnect_mid_line(engine):
 
 
 def test_two_clients_in_a_row_and_at_once(engine):
+    """The phone keeps its stream: a second connection while it streams waits (it is not
+    closed, and neither is the phone), then takes over when the phone hangs up."""
     port = engine.source.port
     with PhoneEmulator("127.0.0.1", port) as first:
         first.send(_lines(10))
@@ -108,14 +110,23 @@ def test_two_clients_in_a_row_and_at_once(engine):
     old.send(_lines(10, t0=1100))
     _wait(lambda: _health(engine).lines_total == 60)
     new = PhoneEmulator("127.0.0.1", port).connect()
-    _wait(lambda: engine.source.server.connections == 3)
-    old.sock.settimeout(2.0)                      # the old one is closed by the server
-    assert _wait(lambda: _closed(old.sock))
     new.send(_lines(10, t0=1200))
-    new.close()
-    old.close()
+    _wait(lambda: _health(engine).waiting_peers == [_peer(new)])
+    old.send(_lines(10, t0=1300))                 # the phone goes on streaming
     health = _wait(lambda: (h := _health(engine)).lines_total == 90 and h)
+    assert health.peer == _peer(old) and health.connection_state == "connected"
+    old.sock.settimeout(0.2)
+    assert not _closed(old.sock)                  # nobody cut the phone off
+    old.close()
+    health = _wait(lambda: (h := _health(engine)).lines_total == 120 and h)
+    assert health.peer == _peer(new) and health.waiting_peers == []
+    new.close()
     assert health.damaged == 0 and engine.running
+
+
+def _peer(phone: PhoneEmulator) -> str:
+    host, port = phone.sock.getsockname()[:2]
+    return f"{host}:{port}"
 
 
 def _closed(sock: socket.socket) -> bool:
