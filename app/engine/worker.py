@@ -315,7 +315,7 @@ class Engine:
 
     def _check_recording(self) -> None:
         """A recording that stopped (write error, size or free-space limit) is reported once;
-        its estimates.csv stops with it, so `filter raw.txt` still reproduces the file."""
+        its estimates.csv stops with it (the session ends there)."""
         recorder = self.recorder
         if recorder is None or recorder.error is None or self._recording_reported:
             return
@@ -323,11 +323,8 @@ class Engine:
         log.error("recording stopped: %s", recorder.error)
         self._warn("recording", f"recording stopped: {recorder.error}", force=True)
         if self.estimates is not None:
-            try:
-                self.estimates.write(self._runner.take_rows())
-            finally:
-                self.estimates.close()
-                self.estimates = None
+            self.estimates.close()
+            self.estimates = None
 
     def _on_failure(self, error: BaseException) -> bool:
         """Log and publish a failure; True when there were too many to go on."""

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 import threading
 import time
 from dataclasses import asdict, is_dataclass
@@ -71,11 +72,13 @@ def _cut_partial_line(path: Path) -> None:
     """A write that failed half-way may leave part of a line at the end of raw.txt (it could
     parse to a wrong value): cut the file after its last complete line. Best effort."""
     try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return                 # /dev/full, a pipe: nothing to cut
         with open(path, "r+b") as stream:
             size = stream.seek(0, os.SEEK_END)
             start = max(0, size - 8192)
             stream.seek(start)
-            tail = stream.read()
+            tail = stream.read(8192)
             if tail and not tail.endswith(b"\n"):
                 stream.truncate(start + tail.rfind(b"\n") + 1)
     except OSError:
