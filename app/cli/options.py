@@ -82,10 +82,10 @@ def add_limits(parser: argparse.ArgumentParser) -> None:
     """--limits: the physical bounds of a sample."""
     defaults = config.sensor_limits("").text()
     parser.add_argument("--limits", type=LIMITS, default=config.sensor_limits(""),
-                        metavar="acc=A,gyr=G,mag=M,ori=T",
+                        metavar="acc=A,gyr=G,mag=M,ori=T,floor=F",
                         help="physical bounds: |acc| <= A m/s^2, |gyr| <= G rad/s, |mag| <= M uT, "
-                             "ORI norm within 1 +- T; a sample beyond them is a damaged line "
-                             f"(default {defaults})")
+                             "ORI norm within 1 +- T, |acc|, |mag| >= F (not a zero vector); a "
+                             f"sample beyond them is a damaged line (default {defaults})")
 
 
 def add_connect(parser: argparse.ArgumentParser) -> None:

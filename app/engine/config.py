@@ -103,8 +103,8 @@ def replay_speed(value: float | str) -> float:
 
 
 def sensor_limits(text: str | Limits) -> Limits:
-    """"acc=2000,gyr=100,mag=10000,ori=0.01" (any of them; the others keep their defaults) ->
-    the physical bounds a sample must respect (a sample beyond them is a damaged line)."""
+    """"acc=2000,gyr=100,mag=10000,ori=0.01,floor=1e-6" (any of them; the others keep their
+    defaults) -> the physical bounds a sample must respect (others are damaged lines)."""
     if isinstance(text, Limits):
         return text
     names = {f.name: f.name for f in fields(Limits)} | {"ori": "ori_tolerance"}
@@ -119,8 +119,8 @@ def sensor_limits(text: str | Limits) -> Limits:
         except ValueError:
             number = math.nan
         if key is None or not number > 0 or number == math.inf:
-            raise ConfigError(f"--limits: expected NAME=VALUE with NAME in acc, gyr, mag, ori "
-                              f"and VALUE > 0, got {part.strip()!r}")
+            raise ConfigError(f"--limits: expected NAME=VALUE with NAME in acc, gyr, mag, ori, "
+                              f"floor and VALUE > 0, got {part.strip()!r}")
         changes[key] = number
     if changes.get("ori_tolerance", 0.0) >= 1.0:
         raise ConfigError("--limits: ori (the tolerance on the quaternion's norm) must be < 1")

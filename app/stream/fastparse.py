@@ -136,7 +136,8 @@ def _in_bounds(v, tag, bounds):
     """The physical bounds of protocol.check_limits, with the same arithmetic (squared norms
     added left to right against the same squared bounds)."""
     if tag < 3:
-        return (v[0] * v[0] + v[1] * v[1]) + v[2] * v[2] <= bounds[tag]
+        norm2 = (v[0] * v[0] + v[1] * v[1]) + v[2] * v[2]
+        return norm2 <= bounds[tag] and (tag == 0 or norm2 >= bounds[5])
     for j in range(4):
         if not -1.0 <= v[j] <= 1.0:
             return False
@@ -461,8 +462,12 @@ class FastLineParser(LineParser):
         keep = (kind[:n] == _FAST) | (kind[:n] == _FAST_SLOW)
         fast = np.flatnonzero(keep)
         good = keep.copy()          # every line that gave a sample: the recorded ones
+        fast_ori = np.flatnonzero(keep & (tag[:n] == 3))
+        first_ori = int(fast_ori[0]) if len(fast_ori) else n
         other = self._python_lines(buffer, kind[:n], reason[:n], starts, ends, line, keep,
-                                   good, t_ms, tag, values, base)
+                                   good, t_ms, tag, values, base, first_ori)
+        if len(fast_ori):
+            self._ori4_seen = True
         stats.lines = base + count
         stats.empty += n_empty
         self._count_fast(tag[fast])
@@ -482,12 +487,14 @@ class FastLineParser(LineParser):
         rows = np.unique(np.asarray(rows))
         v = values[rows]
         codes = tag[rows]
-        gyr2, acc2, mag2, low2, high2 = self.limits.squared
+        gyr2, acc2, mag2, low2, high2, floor2 = self.limits.squared
         with np.errstate(invalid="ignore", over="ignore"):    # inf is out of range: fine
             norm3 = (v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]) + v[:, 2] * v[:, 2]
             norm4 = norm3 + v[:, 3] * v[:, 3]
             ori_ok = (np.abs(v) <= 1.0).all(axis=1) & (low2 <= norm4) & (norm4 <= high2)
-        ok = np.where(codes == 3, ori_ok, norm3 <= np.array([gyr2, acc2, mag2, 0.0])[codes])
+        vector_ok = (norm3 <= np.array([gyr2, acc2, mag2, 0.0])[codes]) \
+            & ((codes == 0) | (norm3 >= floor2))
+        ok = np.where(codes == 3, ori_ok, vector_ok)
         kind[rows[~ok]] = _PYTHON
         ori = rows[ok & (codes == 3)]
         flip = ori[values[ori, 0] < 0.0]
@@ -496,7 +503,7 @@ class FastLineParser(LineParser):
     def _python_lines(self, buffer: bytes, kind: np.ndarray, reason: np.ndarray,
                       starts: np.ndarray, ends: np.ndarray, line: np.ndarray, keep: np.ndarray,
                       good: np.ndarray, t_ms: np.ndarray, tag: np.ndarray, values: np.ndarray,
-                      base: int) -> list[tuple[int, Sample]]:
+                      base: int, first_ori: int) -> list[tuple[int, Sample]]:
         """The lines Python parses, in line order, numbered as LineParser numbers them; the
         damaged lines the kernel found are counted by reason (the first ones through Python,
         for their example messages). Returns the other-tag samples with their line index."""
@@ -508,6 +515,8 @@ class FastLineParser(LineParser):
         other: list[tuple[int, Sample]] = []
         for index in visit.tolist():
             stats.lines = base + int(line[index])
+            if index > first_ori:
+                self._ori4_seen = True   # a 4-value ORI line came before (compiled)
             if kind[index] == _DAMAGED and len(stats.bad_examples) >= _MAX_BAD_EXAMPLES:
                 self._count_bad("damaged", "", KERNEL_REASONS[int(reason[index])])
                 continue

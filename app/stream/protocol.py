@@ -60,25 +60,29 @@ class Limits:
     saturates near 160 m/s^2, its gyroscope near 35 rad/s; the Earth's field is 25-65 uT).
 
     acc [m/s^2], gyr [rad/s], mag [uT]: bounds on the vector's norm (RAWGYR/RAWMAG: on each of
-    their two vectors); ori_tolerance: a 4-value ORI must have every component in [-1, 1] and
-    a norm within 1 +- ori_tolerance (a 3-value ORI a vector part of norm <= 1).
+    their two vectors); floor: ACC and MAG need a norm of at least this (a zero vector has no
+    direction and is no reading of a real sensor, far below any phone's resolution);
+    ori_tolerance: a 4-value ORI must have every component in [-1, 1] and a norm within
+    1 +- ori_tolerance (a 3-value ORI a vector part of norm <= 1).
     """
 
     acc: float = 2000.0
     gyr: float = 100.0
     mag: float = 10000.0
     ori_tolerance: float = 0.01
+    floor: float = 1e-6
 
     @cached_property
-    def squared(self) -> tuple[float, float, float, float, float]:
-        """(gyr^2, acc^2, mag^2, lowest and highest squared ORI norm): what both parsers compare
-        the squared norms with (the same doubles, so they agree to the bit)."""
+    def squared(self) -> tuple[float, float, float, float, float, float]:
+        """(gyr^2, acc^2, mag^2, lowest and highest squared ORI norm, floor^2): what both
+        parsers compare the squared norms with (the same doubles, so they agree to the bit)."""
         return (self.gyr * self.gyr, self.acc * self.acc, self.mag * self.mag,
-                (1.0 - self.ori_tolerance) ** 2, (1.0 + self.ori_tolerance) ** 2)
+                (1.0 - self.ori_tolerance) ** 2, (1.0 + self.ori_tolerance) ** 2,
+                self.floor * self.floor)
 
     def text(self) -> str:
         return (f"acc={self.acc:g},gyr={self.gyr:g},mag={self.mag:g},"
-                f"ori={self.ori_tolerance:g}")
+                f"ori={self.ori_tolerance:g},floor={self.floor:g}")
 
 
 DEFAULT_LIMITS = Limits()
@@ -140,16 +144,18 @@ def _squared_norm(values: tuple[float, ...]) -> float:
 def check_limits(tag: str, values: tuple[float, ...], limits: Limits = DEFAULT_LIMITS) -> None:
     """ParseError("damaged", reason "<TAG> out of range") when a value is outside the physical
     bounds (values as written on the line, before the ORI w >= 0 flip)."""
-    gyr2, acc2, mag2, ori_low2, ori_high2 = limits.squared
+    gyr2, acc2, mag2, ori_low2, ori_high2, floor2 = limits.squared
     bound = {"GYR": gyr2, "ACC": acc2, "MAG": mag2, "RAWGYR": gyr2, "RAWMAG": mag2}.get(tag)
     if bound is not None:
         vectors = (values,) if len(values) == 3 else (values[:3], values[3:])
-        if all(_squared_norm(vector) <= bound for vector in vectors):
-            return
         unit = {"GYR": "rad/s", "ACC": "m/s^2", "MAG": "uT"}.get(tag[-3:], "")
-        limit = math.sqrt(bound)
-        raise _damaged(f"{tag} out of range",
-                       f"{tag} beyond the physical bound |v| <= {limit:g} {unit}")
+        if not all(_squared_norm(vector) <= bound for vector in vectors):
+            raise _damaged(f"{tag} out of range",
+                           f"{tag} beyond the physical bound |v| <= {math.sqrt(bound):g} {unit}")
+        if tag in ("ACC", "MAG") and not _squared_norm(values) >= floor2:
+            raise _damaged(f"{tag} out of range", f"{tag} is a zero vector (|v| < "
+                           f"{math.sqrt(floor2):g} {unit}): no reading of a real sensor")
+        return
     if tag == "ORI":
         norm2 = _squared_norm(values)
         if len(values) == 3:
@@ -316,11 +322,16 @@ class LineParser:
         self.limits = limits
         self._pending = b""
         self._discarding = False
+        # A stream of 4-value ORI lines never sends a 3-value one: that is a torn line (its
+        # vector part would always pass the norm check).
+        self._ori4_seen = False
 
     def reset_line(self) -> None:
-        """Drop a partial line (the connection it came from is gone). Not counted."""
+        """Drop a partial line (the connection it came from is gone). Not counted. The next
+        stream may come from another app version: 3-value ORI lines are fine again."""
         self._pending = b""
         self._discarding = False
+        self._ori4_seen = False
 
     def feed(self, data: bytes) -> list[Sample]:
         """Parse the complete lines in pending + data; keep the unfinished tail (bounded)."""
@@ -403,6 +414,14 @@ class LineParser:
                 if tag in names or len(names) < 32:
                     names[tag] = names.get(tag, 0) + 1
             return False
+        if sample.tag == "ORI":
+            if text.count("\t") == 4:                   # 3 values
+                if self._ori4_seen:
+                    self._count_bad("damaged", "ORI with 3 values in a stream of 4-value ORI "
+                                    "lines (a torn line)", "value count")
+                    return False
+            else:
+                self._ori4_seen = True
         stats = self.stats
         stats.lines += 1
         stats.good += 1

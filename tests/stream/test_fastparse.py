@@ -16,7 +16,7 @@ from app.stream.protocol import (DEFAULT_LIMITS, LineParser, Limits, ParseError,
                                  java_float_text, parse_line)
 
 # bounds the generated numbers cross often (1, 7, 9, 10, 12, 0.5 ...)
-TIGHT = Limits(acc=10.0, gyr=1.0, mag=12.0, ori_tolerance=1e-7)
+TIGHT = Limits(acc=10.0, gyr=1.0, mag=12.0, ori_tolerance=1e-7, floor=0.5)
 
 
 def _key(samples):

@@ -171,3 +171,20 @@ def _parse_in_chunks(data: bytes, cuts: list[int], max_line_bytes: int) -> tuple
 def test_any_bytes_any_chunking_same_samples_never_raises(data, cuts, max_line_bytes):
     whole = _parse_in_chunks(data, [], max_line_bytes)
     assert _parse_in_chunks(data, cuts, max_line_bytes) == whole
+
+
+@pytest.mark.parametrize("make", [LineParser, "fast"])
+def test_a_torn_ori_line_is_damaged_and_a_three_value_stream_is_fine(make):
+    """Was: an ORI line torn to 3 values was taken as a 3-value ORI. Its vector part always has
+    a norm <= 1, so what gives it away is the stream: 4-value ORI lines before it."""
+    from app.stream.fastparse import FastLineParser
+    parser = LineParser() if make is LineParser else FastLineParser()
+    four = b"1\tORI\t0.9\t0.3\t0.3\t0.1\n"
+    torn = b"2\tORI\t0.9\t0.3\t0.3\n"
+    assert [s.t_ms for s in parser.feed(four + torn + four)] == [1, 1]
+    assert parser.stats.damaged_reasons == {"value count": 1}
+    assert "torn" in parser.stats.bad_examples[0][2]
+    parser.reset_line()                                  # a new connection
+    three = parser.feed(b"5\tORI\t0.142\t-0.005\t0.03\n6\tORI\t0.9\t0.9\t0.9\n")
+    assert [s.t_ms for s in three] == [5]                # the second is no vector part
+    assert parser.stats.damaged_reasons == {"value count": 1, "ORI out of range": 1}
