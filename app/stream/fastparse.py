@@ -582,3 +582,4 @@ class FastLineParser(LineParser):
 def warm_up() -> None:
     """Compile (or load from numba's cache) the kernel before the first chunk arrives."""
     FastLineParser().feed_arrays(b"1\tGYR\t1.0\t-2.5E-3\t0\n2\tORI\t-1.0\t0.0\t0.0\t0.0\n")
+    has_good_line(b"x\n1\tGYR\t1.0\t-2.5E-3\t0\n")       # the TCP server's test
