@@ -339,7 +339,8 @@ class EstimatorRunner:
 
     def feed_ordered(self, ordered) -> None:
         """The output of :meth:`app.stream.ordering.TimeOrderer.push_arrays` (an OrderedArrays):
-        fed piece by piece, a new session started where the orderer says so."""
+        fed piece by piece, a new session started where the orderer says so (also when that
+        output is empty: the new session's first samples may still be held)."""
         for new, piece in ordered.pieces():
             if new:
                 self.new_session()

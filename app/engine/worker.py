@@ -370,10 +370,11 @@ class Engine:
 
     def _feed(self, ordered: OrderedArrays) -> None:
         if len(ordered.session_starts):
-            # A clock that does not continue the previous stream's: nothing carries over.
+            # A clock that does not continue the previous stream's: nothing carries over (the
+            # session may start while its first samples are still held: nothing released yet).
             self._previous_own_euler = self._previous_phone_euler = None
             self._record_event("session", reason="the clock does not continue")
-        if len(ordered):
+        if len(ordered) or len(ordered.session_starts):
             self._runner.feed_ordered(ordered)
             self.samples_processed += len(ordered)
 

@@ -456,7 +456,7 @@ class FastLineParser(LineParser):
                                           slow_numbers)
         assert lines == count
         if n_slow:
-            self._convert_slow(buffer, slow_numbers[:n_slow], tag, values, kind)
+            self._convert_slow(buffer, slow_numbers[:n_slow], tag, values, kind, reason)
         stats = self.stats
         base = stats.lines
         keep = (kind[:n] == _FAST) | (kind[:n] == _FAST_SLOW)
@@ -479,9 +479,10 @@ class FastLineParser(LineParser):
         return ParsedArrays(t_ms[rows], tag[rows], values[rows], line[rows], other)
 
     def _convert_slow(self, buffer: bytes, slow: np.ndarray, tag: np.ndarray,
-                      values: np.ndarray, kind: np.ndarray) -> None:
-        """Valid, finite numbers beyond the exact fast path: Python's own conversion, then the
-        bounds (a row outside them goes to Python, which gives its exact message)."""
+                      values: np.ndarray, kind: np.ndarray, reason: np.ndarray) -> None:
+        """Valid, finite numbers beyond the exact fast path (1e160 among them): Python's own
+        conversion, then the bounds (a row outside them is damaged, "<TAG> out of range": the
+        line is well formed, so that is what parse_line finds too)."""
         rows, columns, first, last = slow.T.tolist()
         values[rows, columns] = [float(buffer[a:b]) for a, b in zip(first, last)]
         rows = np.unique(np.asarray(rows))
@@ -495,7 +496,8 @@ class FastLineParser(LineParser):
         vector_ok = (norm3 <= np.array([gyr2, acc2, mag2, 0.0])[codes]) \
             & ((codes == 0) | (norm3 >= floor2))
         ok = np.where(codes == 3, ori_ok, vector_ok)
-        kind[rows[~ok]] = _PYTHON
+        kind[rows[~ok]] = _DAMAGED
+        reason[rows[~ok]] = 4 + codes[~ok]
         ori = rows[ok & (codes == 3)]
         flip = ori[values[ori, 0] < 0.0]
         values[flip] = -values[flip]          # q and -q: keep w >= 0 (parse_line)

@@ -11,8 +11,9 @@ through untouched (RSSWIFI/GPS may carry epoch ms and never reach a filter's dt)
   first sample is more than ``align_threshold_ms`` (250 ms) away from the reference's latest
   time sits on another clock, whatever the size of the offset: it gets a constant offset that
   aligns it (snapped to whole seconds when within window_ms / 2 of them), reported in
-  ``stats.clock_quirks``. Closer than that it is a tag that arrives late, which the adaptive
-  window below absorbs. At the start of a segment releases wait at least ``startup_hold_ms``,
+  ``stats.clock_quirks`` (a tag that fits the clock of a tag already aligned takes that
+  offset: tags sharing a clock share it exactly). Closer than that it is a tag arriving late,
+  which the adaptive window below absorbs. At the start of a segment releases wait at least ``startup_hold_ms``,
   until two tags are there and no new tag has shown up for ``window_ms`` (at most 4 x
   startup_hold_ms), so a sensor starting a little late keeps its first samples; the hold ends
   at once when all four filter tags are there (none can start late any more).
@@ -626,11 +627,16 @@ class TimeOrderer:
             reference_offset = int(state[_OFFSET + reference])
             offset = reference_offset
             if abs(raw + reference_offset - reference_latest) > self.align_threshold_ms:
-                offset = reference_latest - raw
-                whole_seconds = round((offset - reference_offset) / 1000) * 1000 \
-                    + reference_offset
-                if abs(offset - whole_seconds) <= self.window_ms // 2:
-                    offset = whole_seconds
+                offset = next((int(state[_OFFSET + other]) for other in range(4)
+                               if state[_HAS_OFFSET + other] and abs(
+                                   raw + int(state[_OFFSET + other]) - reference_latest)
+                               <= self.align_threshold_ms), None)
+                if offset is None:
+                    offset = reference_latest - raw
+                    whole_seconds = round((offset - reference_offset) / 1000) * 1000 \
+                        + reference_offset
+                    if abs(offset - whole_seconds) <= self.window_ms // 2:
+                        offset = whole_seconds
                 difference = -(offset - reference_offset)
                 self._quirk(f"{name} clock {difference:+d} ms vs "
                             f"{FILTER_TAGS[reference]} (aligned)")

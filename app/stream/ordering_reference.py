@@ -188,12 +188,19 @@ class ReferenceTimeOrderer:
         reference_latest = self._last[self._reference]
         reference_offset = self._offsets[self._reference]
         if abs(raw + reference_offset - reference_latest) > self.align_threshold_ms:
-            offset = reference_latest - raw
-            # The estimate is off by the batching delay (~10 ms); the known quirk is a whole
-            # number of seconds (131,072 s), so snap to one when this close to it.
-            whole_seconds = round((offset - reference_offset) / 1000) * 1000 + reference_offset
-            if abs(offset - whole_seconds) <= self.window_ms // 2:
-                offset = whole_seconds
+            # Another tag's clock (a phone's GYR and MAG share one)? Then its offset, exactly.
+            offset = next((self._offsets[other] for other in FILTER_TAGS
+                           if other in self._offsets and abs(
+                               raw + self._offsets[other] - reference_latest)
+                           <= self.align_threshold_ms), None)
+            if offset is None:
+                offset = reference_latest - raw
+                # The estimate is off by the batching delay (~10 ms); the known quirk is a
+                # whole number of seconds (131,072 s), so snap to one when this close to it.
+                whole_seconds = round((offset - reference_offset) / 1000) * 1000 \
+                    + reference_offset
+                if abs(offset - whole_seconds) <= self.window_ms // 2:
+                    offset = whole_seconds
             difference = -(offset - reference_offset)
             self._quirk(f"{sample.tag} clock {difference:+d} ms vs {self._reference} (aligned)")
             return offset

@@ -232,6 +232,9 @@ class Recorder:
             return
         try:
             status = os.statvfs(self.directory)
+        except FileNotFoundError:
+            self._stop(f"the folder {self.directory} was removed")
+            return
         except OSError as error:
             self._stop(f"cannot read the free space of {self.directory}: "
                        f"{error.strerror or error}")

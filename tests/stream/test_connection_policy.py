@@ -190,18 +190,27 @@ def test_a_16_mib_newline_flood_before_the_phone_delays_it_less_than_a_second(ma
     phone.close()
 
 
-def test_an_earlier_strangers_clock_never_shifts_the_phone(make_engine, tmp_path):
+@pytest.mark.parametrize("paced", [False, True])
+def test_an_earlier_strangers_clock_never_shifts_the_phone(make_engine, tmp_path, paced):
     """Was: a stranger's samples at t ~ 1e18 ms shifted the phone's time axis and left its
-    estimate 12.6 deg off. Now the phone's session is its own: its times, its estimate."""
+    estimate 12.6 deg off. Now the phone's session is its own: its times, its estimate. Paced:
+    the new session starts while its first samples are still held (released chunks later)."""
     engine = make_engine()
     port = engine.source.port
     with _phone(port) as stranger:
-        stranger.send(_lines(100, t0=STRANGER_T0) + _lines(100, t0=STRANGER_T0 + 2000).replace(
-            b"MAG\t0.0\t20.0", b"MAG\t30.0\t-5.0"))
+        stranger.send(_lines(100, t0=STRANGER_T0).replace(b"ACC\t0.0\t0.0\t9.81",
+                                                          b"ACC\t0.0\t9.81\t0.0")
+                      + _lines(100, t0=STRANGER_T0 + 2000).replace(b"MAG\t0.0\t20.0",
+                                                                   b"MAG\t30.0\t-5.0"))
     _wait(lambda: _health(engine).connection_state == "disconnected")
     phone_lines = _lines(300, t0=50_000)
     with _phone(port) as phone:
-        phone.send(phone_lines)
+        if paced:
+            for start in range(0, len(phone_lines), 400):
+                phone.send(phone_lines[start:start + 400])
+                time.sleep(0.01)
+        else:
+            phone.send(phone_lines)
     _wait(lambda: (s := engine.snapshot_now()).t_ms == 50_000 + 2990
           and s.health.connection_state == "disconnected")
     rows = [r for r in engine.rows_log if len(r) and r.t_ms[0] < STRANGER_T0]

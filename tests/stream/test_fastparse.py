@@ -140,3 +140,26 @@ def test_java_float_text_numbers_parse_to_the_same_double():
     assert len(parsed.t_ms) == len(doubles)
     assert np.array_equal(parsed.values[:, 0], doubles)
     assert np.array_equal(parsed.values[:, 1], -doubles)
+
+
+def test_floods_of_empty_and_junk_lines_take_no_python_per_line(monkeypatch):
+    """Issue 10, item 3: empty lines, control bytes, lines without a TAB or with a bad time
+    and samples out of range are counted in the kernel; Python sees only the first damaged
+    lines (for their example messages)."""
+    calls = []
+    original = LineParser._line
+
+    def counting(self, raw, *args, **kwargs):
+        calls.append(raw)
+        return original(self, raw, *args, **kwargs)
+
+    monkeypatch.setattr(LineParser, "_line", counting)
+    flood = (b"\n" * 200_000 + b"x\n" * 50_000 + b"\x00\x01\n" * 50_000 + b"12a\tACC\n" * 50_000
+             + b"  \t \r\n" * 50_000 + b"5\tACC\t1e160\t0\t0\n" * 50_000 + b"6\tACC\t0\t0\t9.8\n")
+    parser = FastLineParser()
+    parsed = parser.feed_arrays(flood)
+    assert len(parsed.t_ms) == 1 and len(calls) == 20
+    stats = parser.stats
+    assert stats.empty == 250_000 and stats.lines == 450_001 and stats.good == 1
+    assert stats.damaged_reasons == {"no tag": 50_000, "binary data": 50_000,
+                                     "bad time": 50_000, "ACC out of range": 50_000}
