@@ -18,7 +18,7 @@ import ekf
 from app.cli import options
 from app.engine import config
 from app.engine.estimates import EstimatesWriter
-from app.engine.snapshot import Snapshot
+from app.engine.snapshot import Snapshot, lag_text
 from app.engine.worker import Engine
 from app.stream.emulator import PhoneEmulator
 from app.stream.lines import LogError, read_lines
@@ -66,6 +66,8 @@ def health_line(snapshot: Snapshot) -> str:
         parts.append("connections closed: " + reasons_text(health.connections_closed))
     if health.clock_quirks:
         parts.append("clock: " + "; ".join(health.clock_quirks))
+    if health.reorder_window_ms > 100:
+        parts.append(lag_text(health))
     if health.recording and health.recording.startswith("recording stopped"):
         parts.append(health.recording)
     if snapshot.own_quat is not None and snapshot.t_ms is not None:

@@ -69,6 +69,13 @@ class StreamHealth:
     recording: str | None = None             # "recording into DIR (1.2 MB)" / "recording stopped: ..."
 
 
+def lag_text(health: StreamHealth) -> str:
+    """"reorder window 197 ms (MAG 150 ms behind)": the window and the tags that widen it."""
+    lags = ", ".join(f"{tag} {lag} ms behind" for tag, lag in sorted(health.lags_ms.items())
+                     if lag + lag // 4 + 10 > 100)
+    return f"reorder window {health.reorder_window_ms} ms" + (f" ({lags})" if lags else "")
+
+
 @dataclass
 class PlotChunk:
     """New samples since the previous snapshot (each array may be empty).

@@ -18,7 +18,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 from app.engine.commands import (AcceptConnection, IgnoreConnection, ReplayControl,
                                  SetAllowedNetworks)
 from app.engine.config import ConfigError, allowed_networks
-from app.engine.snapshot import StreamHealth
+from app.engine.snapshot import StreamHealth, lag_text
 from app.stream.protocol import reasons_text
 
 SEEK_STEPS = 1000
@@ -200,7 +200,10 @@ class ConnectionPanel(QtWidgets.QWidget):
         self._set_text(self.lines_label,
                        f"{health.lines_per_s:.0f} lines/s, {health.lines_total} total")
         self._set_text(self.problems_label, problems_text(health))
-        self._set_text(self.quirks_label, "; ".join(health.clock_quirks) or "none")
+        clock = list(health.clock_quirks)
+        if health.reorder_window_ms > 100:
+            clock.append(lag_text(health))
+        self._set_text(self.quirks_label, "; ".join(clock) or "none")
         self._set_text(self.recording_label, health.recording or "off")
         self._update_waiting(health.waiting_peers)
         if health.allowed != self._allowed_shown and not self.allow_field.hasFocus():
