@@ -204,9 +204,15 @@ class TcpServer:
 
     def control(self, command: Any) -> None:
         """AcceptConnection / IgnoreConnection / SetAllowedNetworks (applied by the server
-        thread, in order). SetAllowedNetworks raises ValueError for a bad address here."""
+        thread, in order). A bad address in SetAllowedNetworks changes nothing: an "error"
+        event says why (app.engine.config.allowed_networks checks the user's text first)."""
         if isinstance(command, SetAllowedNetworks):
-            parse_networks(command.networks)
+            try:
+                parse_networks(command.networks)
+            except ValueError as error:
+                self._put(SourceEvent("error", detail=f"allowed addresses unchanged: {error}",
+                                      t_host=time.perf_counter()))
+                return
         self._commands.append(command)
         self._wake()
 

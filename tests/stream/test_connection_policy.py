@@ -143,6 +143,10 @@ def test_allow_restricts_who_may_connect(make_engine):
     other.send(_lines(10, t0=5000))
     health = _wait(lambda: (h := _health(engine)).lines_total == 60 and h)
     assert health.connections_closed == {"not allowed": 2} and health.peer == _peer(other)
+    engine.send(SetAllowedNetworks(("10.0.0.300",)))          # a bad one changes nothing
+    health = _wait(lambda: (h := _health(engine)) and any(
+        "allowed addresses unchanged" in warning for warning in h.warnings) and h)
+    assert health.allowed == ["127.0.0.2/32"] and engine.running and not engine.failures
     for client in (outsider, phone, other):
         client.close()
 
