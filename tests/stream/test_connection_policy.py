@@ -167,7 +167,11 @@ def test_connections_sending_nothing_valid_are_closed_and_counted(make_engine):
         client.close()
 
 
-def test_a_16_mib_newline_flood_before_the_phone_delays_it_less_than_a_second(make_engine):
+def test_a_16_mib_newline_flood_before_the_phone_costs_its_first_64_kib_only(make_engine):
+    """Was: 16 MiB of newlines before the phone delayed its data by 45 s (all of them went
+    through the slow per-line path, and the shared queue blocked accepting). Now the flooder is
+    closed after 64 KiB without a valid line and the phone streams at once (the delay itself is
+    measured by benchmarks/chaos.py)."""
     engine = make_engine()
     port = engine.source.port
     flood = _phone(port)
@@ -183,13 +187,12 @@ def test_a_16_mib_newline_flood_before_the_phone_delays_it_less_than_a_second(ma
         except OSError:
             break                                 # closed by the server: junk
     phone = _phone(port)
-    started = time.monotonic()
     phone.send(_lines(50))
-    _wait(lambda: _health(engine).rates_hz and _health(engine).peer == _peer(phone)
-          and engine.rows_log)
-    assert time.monotonic() - started < 1.0
-    health = _health(engine)
+    health = _wait(lambda: (h := _health(engine)).peer == _peer(phone)
+                   and h.rates_hz and engine.rows_log and h)
     assert health.connections_closed == {"nothing valid": 1}
+    # what reached the engine of the flood: its first 64 KiB and what was in flight
+    assert health.lines_total - 150 <= 2 * 65536
     flood.sock.close()
     phone.close()
 
