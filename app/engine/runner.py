@@ -305,6 +305,23 @@ class EstimatorRunner:
         for estimator in [self.main] + [c.estimator for c in self.comparisons]:
             estimator.set_settings(settings)
 
+    def new_session(self) -> None:
+        """A stream whose clock does not continue the previous one (another phone, a reboot,
+        an earlier connection's fake clock): commit the open row, forget every estimator's state
+        and the phone's orientation; nothing of the earlier stream carries over."""
+        self.finish()
+        self.reset()
+        self.phone_quat = None
+
+    def feed_ordered(self, ordered) -> None:
+        """The output of :meth:`app.stream.ordering.TimeOrderer.push_arrays` (an OrderedArrays):
+        fed piece by piece, a new session started where the orderer says so (also when that
+        output is empty: the new session's first samples may still be held)."""
+        for new, piece in ordered.pieces():
+            if new:
+                self.new_session()
+            self.feed_arrays(ordered.t_ms[piece], ordered.tag[piece], ordered.values[piece])
+
     def reset(self) -> None:
         """Forget the orientation of every estimator; they re-initialise from the next samples."""
         self.main.reset()

@@ -56,6 +56,21 @@ class StreamHealth:
     out_of_order: int = 0
     clock_quirks: list[str] = field(default_factory=list)     # human-readable, e.g. "ACC clock +131072000 ms (aligned)"
     warnings: list[str] = field(default_factory=list)         # rate-limited messages for the status bar
+    damaged_reasons: dict[str, int] = field(default_factory=dict)   # e.g. {"ACC out of range": 2}
+    sessions: int = 0                        # new sessions (a clock that did not continue)
+    reorder_window_ms: int = 100             # the time orderer's window now (adapts to lags)
+    lags_ms: dict[str, int] = field(default_factory=dict)     # learned lag per tag
+    waiting_peers: list[str] = field(default_factory=list)    # connections waiting to stream
+    connections_closed: dict[str, int] = field(default_factory=dict)  # reason -> count
+    allowed: list[str] = field(default_factory=list)          # who may connect (empty: anyone)
+    recording: str | None = None             # "recording into DIR (1.2 MB)" / "recording stopped: ..."
+
+
+def lag_text(health: StreamHealth) -> str:
+    """"reorder window 197 ms (MAG 150 ms behind)": the window and the tags that widen it."""
+    lags = ", ".join(f"{tag} {lag} ms behind" for tag, lag in sorted(health.lags_ms.items())
+                     if lag + lag // 4 + 10 > 100)
+    return f"reorder window {health.reorder_window_ms} ms" + (f" ({lags})" if lags else "")
 
 
 @dataclass

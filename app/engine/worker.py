@@ -7,6 +7,13 @@ one :class:`~app.engine.snapshot.PlotChunk`. Neither side waits for the other; b
 bounded. Commands (:mod:`app.engine.commands`) go in with :meth:`Engine.send` and are applied
 between two batches of samples, in the order they were sent.
 
+Nothing a client sends reaches a filter unchecked: the parser rejects values outside the
+physical bounds (:class:`~app.stream.protocol.Limits`; counted as damaged by reason), and a
+stream whose clock does not continue the previous one's starts a new session (the orderer says
+where; the estimators start afresh, nothing of an earlier connection carries over). A recording
+that fails (disk full, folder removed, size or free-space limit) stops with a one-line warning
+while the stream and the estimates go on.
+
 A failure while processing a batch never ends the engine silently: it is logged with its
 traceback, published in the snapshots (:class:`~app.engine.snapshot.EngineFailure`, which the
 window shows with a "copy details" button and `serve` prints) and the engine goes on with the
@@ -38,6 +45,7 @@ import numpy as np
 import ekf
 from app.engine.commands import (AlignHeading, ReplayControl, ResetFilter, SetComparisonsEnabled,
                                  SetEstimator, SetSensorEnabled, SetSettings)
+from app.stream.events import CONNECTION_COMMANDS
 from app.engine.estimates import EstimatesWriter
 from app.engine.runner import SENSORS, EstimatorRunner, Rows
 from app.engine.snapshot import (Comparison, EngineFailure, FilterStatus, PlotChunk, Snapshot,
@@ -46,7 +54,7 @@ from app.stream import fastparse, ordering
 from app.stream.events import Chunk, SourceEvent
 from app.stream.fastparse import ParsedArrays
 from app.stream.ordering import OrderedArrays, TimeOrderer
-from app.stream.protocol import FILTER_TAGS
+from app.stream.protocol import DEFAULT_LIMITS, FILTER_TAGS, Limits
 from app.stream.recorder import Recorder
 from app.stream.sources import Source
 
@@ -106,7 +114,8 @@ class Engine:
     combinations too; recorder: an :class:`app.stream.recorder.Recorder` that gets every received
     known-tag line; estimates: an :class:`~app.engine.estimates.EstimatesWriter` that gets every
     estimate row (a recording's estimates.csv); record_rows: keep every estimate row in
-    :attr:`rows_log` (tests/benchmarks: unbounded memory).
+    :attr:`rows_log` (tests/benchmarks: unbounded memory); limits: the physical bounds a sample
+    must respect (others are damaged lines).
     """
 
     def __init__(self, source: Source, settings: ekf.EKFSettings | None = None,
@@ -114,7 +123,8 @@ class Engine:
                  sensors: Iterable[str] = SENSORS, recorder: Recorder | None = None,
                  estimates: EstimatesWriter | None = None, record_rows: bool = False,
                  max_plot_rows: int = 60_000,
-                 orderer_options: dict[str, Any] | None = None) -> None:
+                 orderer_options: dict[str, Any] | None = None,
+                 limits: Limits = DEFAULT_LIMITS) -> None:
         if estimator not in ekf.ESTIMATORS:
             raise ValueError(f"unknown estimator {estimator!r}; choose from "
                              f"{', '.join(ekf.ESTIMATORS)}")
@@ -122,7 +132,9 @@ class Engine:
         self.recorder = recorder
         self.estimates = estimates
         self.record_rows = record_rows
+        self.limits = limits
         self.rows_log: list[Rows] = []
+        self._recording_reported = False
         self._orderer_options = dict(orderer_options or {})
         self._runner = EstimatorRunner(estimator, settings, sensors, comparisons,
                                        collect_plot=True)
@@ -161,6 +173,7 @@ class Engine:
         self.waiting_since: float | None = None
         self.samples_processed = 0
         self._parser_retired = [0, 0, 0, 0, 0]   # counts of parsers replaced by a seek
+        self._reasons_retired: dict[str, int] = {}
         self._order_retired = 0
 
     # -- lifecycle --------------------------------------------------------------------------------
@@ -241,9 +254,10 @@ class Engine:
 
     def _new_parser(self) -> fastparse.FastLineParser:
         if self.recorder is None:
-            return fastparse.FastLineParser()
+            return fastparse.FastLineParser(limits=self.limits)
         return fastparse.FastLineParser(raw_sink=self.recorder.write_line,
-                                        raw_block_sink=self.recorder.write_block)
+                                        raw_block_sink=self.recorder.write_block,
+                                        limits=self.limits)
 
     def _run(self) -> None:
         while not self._stop.is_set():
@@ -295,8 +309,22 @@ class Engine:
             self._publish(now)
         if self.recorder is not None:
             self.recorder.tick()
+            self._check_recording()
         if self.estimates is not None:
             self.estimates.flush()
+
+    def _check_recording(self) -> None:
+        """A recording that stopped (write error, size or free-space limit) is reported once;
+        its estimates.csv stops with it (the session ends there)."""
+        recorder = self.recorder
+        if recorder is None or recorder.error is None or self._recording_reported:
+            return
+        self._recording_reported = True
+        log.error("recording stopped: %s", recorder.error)
+        self._warn("recording", f"recording stopped: {recorder.error}", force=True)
+        if self.estimates is not None:
+            self.estimates.close()
+            self.estimates = None
 
     def _on_failure(self, error: BaseException) -> bool:
         """Log and publish a failure; True when there were too many to go on."""
@@ -341,8 +369,13 @@ class Engine:
             self._seq += 1
 
     def _feed(self, ordered: OrderedArrays) -> None:
-        if len(ordered):
-            self._runner.feed_arrays(ordered.t_ms, ordered.tag, ordered.values)
+        if len(ordered.session_starts):
+            # A clock that does not continue the previous stream's: nothing carries over (the
+            # session may start while its first samples are still held: nothing released yet).
+            self._previous_own_euler = self._previous_phone_euler = None
+            self._record_event("session", reason="the clock does not continue")
+        if len(ordered) or len(ordered.session_starts):
+            self._runner.feed_ordered(ordered)
             self.samples_processed += len(ordered)
 
     def _parsed(self, parsed: ParsedArrays) -> None:
@@ -380,7 +413,7 @@ class Engine:
             self._record_event("disconnected", peer=event.peer, reason=event.detail)
         elif kind == "loop":
             self._end_of_stream(partial_line_damaged=False)
-            self._feed(self._orderer.restart_arrays())
+            self._feed(self._orderer.restart_arrays(continue_time=True))
         elif kind == "seek":
             # Re-run the filter from the start of the log up to the target (the source sends
             # those lines unpaced): the estimate there is exactly what playing would give.
@@ -401,12 +434,16 @@ class Engine:
             self._connection_state = "finished"
         elif kind == "error":
             self._warn("error", event.detail, force=True)
+        elif kind == "closed":
+            self._warn("closed", event.detail)
 
     def _retire_parser(self) -> None:
         stats = self._parser.stats
         for index, value in enumerate((stats.lines, stats.damaged, stats.unknown,
                                        stats.too_long, stats.good)):
             self._parser_retired[index] += value
+        for reason, count in stats.damaged_reasons.items():
+            self._reasons_retired[reason] = self._reasons_retired.get(reason, 0) + count
         self._parser = self._new_parser()
 
     def _end_of_stream(self, partial_line_damaged: bool) -> None:
@@ -416,7 +453,7 @@ class Engine:
         if partial_line_damaged:
             if parser._pending or parser._discarding:
                 kind = "too_long" if parser._discarding else "damaged"
-                parser._count_bad(kind, "line cut off by the end of the connection")
+                parser._count_bad(kind, "line cut off by the end of the connection", "cut off")
             parser.reset_line()
         else:
             self._parsed(parser.finish_arrays())
@@ -457,7 +494,7 @@ class Engine:
                 self._warn("align", "align heading: no PHONE orientation (ORI) yet", force=True)
         elif isinstance(command, SetComparisonsEnabled):
             runner.set_comparisons_enabled(command.enabled)
-        elif isinstance(command, ReplayControl):
+        elif isinstance(command, (ReplayControl, *CONNECTION_COMMANDS)):
             self.source.control(command)
         else:
             self._warn("command", f"unknown command {command!r}", force=True)
@@ -522,9 +559,11 @@ class Engine:
     def _stats_dict(self) -> dict[str, Any]:
         health = self._latest.health
         return {"lines": health.lines_total, "damaged": health.damaged,
+                "damaged_reasons": dict(health.damaged_reasons),
                 "unknown": health.unknown, "too_long": health.too_long,
                 "out_of_order": health.out_of_order, "clock_quirks": list(health.clock_quirks),
-                "rates_hz": dict(health.rates_hz)}
+                "sessions": health.sessions, "rates_hz": dict(health.rates_hz),
+                "connections_closed": dict(health.connections_closed)}
 
     def _publish(self, now: float) -> None:
         """Hand the rows and plot samples since the last publish to their consumers and make a
@@ -602,11 +641,29 @@ class Engine:
         state = info.get("connection_state", "waiting")
         if self.source.kind == "tcp":
             state = self._connection_state if state != "waiting" else "waiting"
+        reasons = dict(self._reasons_retired)
+        for reason, count in parse.damaged_reasons.items():
+            reasons[reason] = reasons.get(reason, 0) + count
+        order = self._orderer.stats
         return StreamHealth(
             connection_state=state, peer=info.get("peer") or self._peer,
             listen_addresses=list(info.get("listen_addresses") or []), port=info.get("port"),
             rates_hz=self._rates(), lines_per_s=round(self._lines_per_s(now, lines_total), 1),
             lines_total=lines_total, damaged=parse.damaged + retired[1],
             unknown=parse.unknown + retired[2], too_long=parse.too_long + retired[3],
-            out_of_order=self._orderer.stats.out_of_order + self._order_retired,
-            clock_quirks=list(self._orderer.stats.clock_quirks), warnings=list(self._warnings))
+            out_of_order=order.out_of_order + self._order_retired,
+            clock_quirks=list(order.clock_quirks), warnings=list(self._warnings),
+            damaged_reasons=reasons, sessions=order.sessions,
+            reorder_window_ms=order.window_ms, lags_ms=dict(order.lags_ms),
+            waiting_peers=list(info.get("waiting_peers") or []),
+            connections_closed=dict(info.get("connections_closed") or {}),
+            allowed=list(info.get("allowed") or []), recording=self._recording_text())
+
+    def _recording_text(self) -> str | None:
+        recorder = self.recorder
+        if recorder is None:
+            return None
+        if recorder.error is not None:
+            return f"recording stopped: {recorder.error}"
+        return (f"recording into {recorder.directory} "
+                f"({recorder.bytes_written / 2**20:.1f} MB)")

@@ -1,7 +1,12 @@
-"""Connection panel: where the phone should connect, what arrives, and replay controls.
+"""Connection panel: where the phone should connect, what arrives, who may connect, and replay
+controls.
 
-Shows StreamHealth from the snapshot (addresses, port, state, rates, counters, clock quirks)
-and, while replaying, play/pause, speed, loop and a seek slider that send ReplayControl.
+Shows StreamHealth from the snapshot (addresses, port, state, rates, counters with the damaged
+lines by reason, the connections closed, clock quirks, the recording) and, while replaying,
+play/pause, speed, loop and a seek slider that send ReplayControl. While the phone streams, a
+new device that connects waits: the panel asks "a new device at ADDRESS wants to stream:
+accept?" (Accept / Ignore send AcceptConnection / IgnoreConnection). "Allow only" restricts who
+may connect (SetAllowedNetworks; the same check as --allow).
 """
 
 from __future__ import annotations
@@ -10,13 +15,33 @@ from typing import Any, Callable
 
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from app.engine.commands import ReplayControl
-from app.engine.snapshot import StreamHealth
+from app.engine.commands import (AcceptConnection, IgnoreConnection, ReplayControl,
+                                 SetAllowedNetworks)
+from app.engine.config import ConfigError, allowed_networks
+from app.engine.snapshot import StreamHealth, lag_text
+from app.stream.protocol import reasons_text
 
 SEEK_STEPS = 1000
 SPEEDS = (0.25, 0.5, 1.0, 2.0, 5.0, 10.0)
 STATE_COLORS = {"waiting": "#b07d00", "connected": "#1e8c3a", "disconnected": "#b3261e",
                 "replaying": "#1f5fbf", "finished": "#555555"}
+
+
+def waiting_text(peer: str) -> str:
+    """The question for a device waiting to stream ("192.168.1.42:51234" -> its address)."""
+    address = peer.rsplit(":", 1)[0] if ":" in peer else peer
+    return f"A new device at {address} wants to stream: accept?"
+
+
+def problems_text(health: StreamHealth) -> str:
+    damaged = f"{health.damaged} damaged"
+    if health.damaged_reasons:
+        damaged += f" ({reasons_text(health.damaged_reasons)})"
+    text = (f"{damaged}, {health.unknown} unknown, {health.out_of_order} out of order, "
+            f"{health.too_long} too long")
+    if health.connections_closed:
+        text += f"; connections closed: {reasons_text(health.connections_closed)}"
+    return text
 
 
 def connection_text(health: StreamHealth) -> str:
@@ -53,6 +78,8 @@ class ConnectionPanel(QtWidgets.QWidget):
         listen_layout.addWidget(self.address_field, 1)
         listen_layout.addWidget(self.copy_button)
         layout.addWidget(listen_box)
+        layout.addWidget(self._build_waiting_box())
+        layout.addWidget(self._build_allow_box())
 
         stream_box = QtWidgets.QGroupBox("Stream")
         form = QtWidgets.QFormLayout(stream_box)
@@ -70,6 +97,9 @@ class ConnectionPanel(QtWidgets.QWidget):
         form.addRow("Lines", self.lines_label)
         form.addRow("Problems", self.problems_label)
         form.addRow("Clock", self.quirks_label)
+        self.recording_label = QtWidgets.QLabel("")
+        self.recording_label.setWordWrap(True)
+        form.addRow("Recording", self.recording_label)
         layout.addWidget(stream_box)
 
         self.replay_box = QtWidgets.QGroupBox("Replay")
@@ -101,6 +131,45 @@ class ConnectionPanel(QtWidgets.QWidget):
         layout.addWidget(self.replay_box)
         layout.addStretch(1)
 
+    def _build_waiting_box(self) -> QtWidgets.QGroupBox:
+        self.waiting_box = QtWidgets.QGroupBox("New device")
+        box = QtWidgets.QHBoxLayout(self.waiting_box)
+        self.waiting_label = QtWidgets.QLabel("")
+        self.waiting_label.setWordWrap(True)
+        self.accept_button = QtWidgets.QPushButton("Accept")
+        self.accept_button.setToolTip("Let this device take over the stream (the current one "
+                                      "is disconnected)")
+        self.ignore_button = QtWidgets.QPushButton("Ignore")
+        self.ignore_button.setToolTip("Close this device's connection; the phone keeps "
+                                      "streaming")
+        self.accept_button.clicked.connect(self.accept_waiting)
+        self.ignore_button.clicked.connect(self.ignore_waiting)
+        box.addWidget(self.waiting_label, 1)
+        box.addWidget(self.accept_button)
+        box.addWidget(self.ignore_button)
+        self.waiting_box.setVisible(False)
+        self._waiting_peer: str | None = None
+        return self.waiting_box
+
+    def _build_allow_box(self) -> QtWidgets.QGroupBox:
+        box = QtWidgets.QGroupBox("Allow only")
+        layout = QtWidgets.QGridLayout(box)
+        self.allow_field = QtWidgets.QLineEdit()
+        self.allow_field.setPlaceholderText("anyone (e.g. 192.168.1.42, 192.168.1.0/24)")
+        self.allow_field.setToolTip("Addresses or networks that may connect, separated by "
+                                    "commas; empty: anyone. Others are closed and counted.")
+        self.allow_field.returnPressed.connect(self.apply_allow)
+        self.allow_button = QtWidgets.QPushButton("Apply")
+        self.allow_button.clicked.connect(self.apply_allow)
+        self.allow_error = QtWidgets.QLabel("")
+        self.allow_error.setStyleSheet("color: #b3261e")
+        self.allow_error.setWordWrap(True)
+        layout.addWidget(self.allow_field, 0, 0)
+        layout.addWidget(self.allow_button, 0, 1)
+        layout.addWidget(self.allow_error, 1, 0, 1, 2)
+        self._allowed_shown: list[str] | None = None
+        return box
+
     # ---- listening address ----------------------------------------------------------------
 
     def address_text(self) -> str:
@@ -130,10 +199,48 @@ class ConnectionPanel(QtWidgets.QWidget):
         self._set_text(self.rates_label, rates or "–")
         self._set_text(self.lines_label,
                        f"{health.lines_per_s:.0f} lines/s, {health.lines_total} total")
-        self._set_text(self.problems_label,
-                       f"{health.damaged} damaged, {health.unknown} unknown, "
-                       f"{health.out_of_order} out of order, {health.too_long} too long")
-        self._set_text(self.quirks_label, "; ".join(health.clock_quirks) or "none")
+        self._set_text(self.problems_label, problems_text(health))
+        clock = list(health.clock_quirks)
+        if health.reorder_window_ms > 100:
+            clock.append(lag_text(health))
+        self._set_text(self.quirks_label, "; ".join(clock) or "none")
+        self._set_text(self.recording_label, health.recording or "off")
+        self._update_waiting(health.waiting_peers)
+        if health.allowed != self._allowed_shown and not self.allow_field.hasFocus():
+            self._allowed_shown = list(health.allowed)
+            self.allow_field.setText(", ".join(health.allowed))
+
+    def _update_waiting(self, peers: list[str]) -> None:
+        peer = peers[0] if peers else None
+        if peer != self._waiting_peer:
+            self._waiting_peer = peer
+            if peer is not None:
+                more = f" ({len(peers) - 1} more waiting)" if len(peers) > 1 else ""
+                self.waiting_label.setText(waiting_text(peer) + more)
+                self.waiting_label.setToolTip(peer)
+        if self.waiting_box.isHidden() != (peer is None):
+            self.waiting_box.setVisible(peer is not None)
+
+    # ---- who may stream -------------------------------------------------------------------
+
+    def accept_waiting(self) -> None:
+        if self._waiting_peer is not None:
+            self._send(AcceptConnection(self._waiting_peer))
+
+    def ignore_waiting(self) -> None:
+        if self._waiting_peer is not None:
+            self._send(IgnoreConnection(self._waiting_peer))
+
+    def apply_allow(self) -> None:
+        """The allow field -> SetAllowedNetworks, or the problem shown under it."""
+        try:
+            networks = allowed_networks(self.allow_field.text())
+        except ConfigError as error:
+            self.allow_error.setText(str(error).replace("--allow: ", ""))
+            return
+        self.allow_error.setText("")
+        self._allowed_shown = None           # show what the server applies
+        self._send(SetAllowedNetworks(networks))
 
     def update_replay(self, replay: dict[str, Any] | None) -> None:
         """Follow the replay's state (every frame: only changed widgets are touched)."""

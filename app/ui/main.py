@@ -38,7 +38,8 @@ class WindowOptions:
 
 def build_engine(options: WindowOptions) -> Engine:
     """An (unstarted) engine for the options; ConfigError for a bad path or setting."""
-    return Engine(make_source(options.source), settings=load_settings(options.settings))
+    return Engine(make_source(options.source), settings=load_settings(options.settings),
+                  limits=options.source.limits)
 
 
 def check_display() -> None:

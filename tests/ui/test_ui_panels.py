@@ -7,7 +7,8 @@ import pytest
 from ui_helpers import status_of
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from app.engine.commands import (AlignHeading, ReplayControl, ResetFilter, SetComparisonsEnabled,
+from app.engine.commands import (AcceptConnection, AlignHeading, IgnoreConnection, ReplayControl,
+                                 ResetFilter, SetAllowedNetworks, SetComparisonsEnabled,
                                  SetEstimator, SetSensorEnabled)
 from app.engine.snapshot import Comparison, FilterStatus, StreamHealth
 from app.ui.connection import ConnectionPanel
@@ -154,6 +155,45 @@ def test_connection_panel_shows_addresses_state_and_counters(qtbot):
     assert "131072000" in panel.quirks_label.text()
     assert not panel.replay_box.isVisibleTo(panel)
     assert sent == []
+
+
+def test_connection_panel_asks_about_a_waiting_device_and_sets_who_may_connect(qtbot):
+    sent: list[object] = []
+    panel = ConnectionPanel(sent.append)
+    qtbot.addWidget(panel)
+    panel.show()
+    health = StreamHealth(connection_state="connected", peer="192.168.1.23:51234", port=3400,
+                          damaged=3, damaged_reasons={"ACC out of range": 2, "binary data": 1},
+                          connections_closed={"nothing valid": 4},
+                          recording="recording stopped: cannot write raw.txt: No space left")
+    panel.update_health(health)
+    assert not panel.waiting_box.isVisible()
+    assert "3 damaged (2 ACC out of range, 1 binary data)" in panel.problems_label.text()
+    assert "connections closed: 4 nothing valid" in panel.problems_label.text()
+    assert "No space left" in panel.recording_label.text()
+
+    health.waiting_peers = ["192.168.1.42:40000", "192.168.1.43:40001"]
+    panel.update_health(health)
+    assert panel.waiting_box.isVisible()
+    assert panel.waiting_label.text().startswith(
+        "A new device at 192.168.1.42 wants to stream: accept?")
+    qtbot.mouseClick(panel.accept_button, QtCore.Qt.MouseButton.LeftButton)
+    qtbot.mouseClick(panel.ignore_button, QtCore.Qt.MouseButton.LeftButton)
+    assert sent == [AcceptConnection("192.168.1.42:40000"), IgnoreConnection("192.168.1.42:40000")]
+    health.waiting_peers = []
+    panel.update_health(health)
+    assert not panel.waiting_box.isVisible()
+
+    sent.clear()
+    panel.allow_field.setText("192.168.1.42, 10.0.0.0/8")
+    qtbot.mouseClick(panel.allow_button, QtCore.Qt.MouseButton.LeftButton)
+    assert sent == [SetAllowedNetworks(("192.168.1.42/32", "10.0.0.0/8"))]
+    panel.allow_field.setText("192.168.1.300")
+    qtbot.mouseClick(panel.allow_button, QtCore.Qt.MouseButton.LeftButton)
+    assert len(sent) == 1 and "not an address" in panel.allow_error.text()
+    health.allowed = ["192.168.1.42/32"]
+    panel.update_health(health)
+    assert panel.allow_field.text() == "192.168.1.42/32"
 
 
 def test_replay_controls_send_replay_commands(qtbot):
