@@ -86,10 +86,16 @@ def test_poll_merges_plot_samples_and_fills_snapshot():
         assert snapshot is not None and engine.poll() is None      # nothing new since
     plot = snapshot.plot
     assert len(plot.t_gyr) == 300 and len(plot.t_acc) == 300 and len(plot.t_mag) == 51
-    assert len(plot.t_est) == 600 and plot.own_euler_deg.shape == (600, 3)
-    assert np.all(np.diff(plot.t_est) > 0)
+    # OWN at our sensor times, PHONE at its own (3 ms later), in seconds since the start
+    assert len(plot.t_est) == 300 and plot.own_euler_deg.shape == (300, 3)
+    assert len(plot.t_ori) == 300 and plot.t_ori[0] == pytest.approx(0.003)
+    assert plot.t_est[0] == 0.0 and np.all(np.diff(plot.t_est) > 0)
+    assert snapshot.t0_ms == 1000
     yaw = plot.own_euler_deg[:, 0]
-    assert yaw.max() - yaw.min() > 300 and np.all(np.abs(np.diff(yaw)) < 10)  # unwrapped, no 360° jumps
+    assert yaw.max() - yaw.min() > 300 and np.abs(yaw).max() <= 180.0   # wrapped to ±180°
+    assert np.sum(np.abs(np.diff(yaw)) > 180) == 1 and np.sum(np.abs(np.diff(yaw)) > 10) == 1
+    # OWN turns at 3 rad/s, PHONE stays: the error grows, compared at PHONE's times
+    assert len(plot.t_err) == 299 and plot.error_deg[:, 0].max() > 150
     assert snapshot.own_quat.shape == (4,) and snapshot.own_cov.shape == (4, 4)
     assert snapshot.phone_quat.tolist() == [1.0, 0.0, 0.0, 0.0]
     assert [c.name for c in snapshot.comparisons][0] == "gyr+acc+mag"

@@ -102,7 +102,7 @@ def _lines(draw):
 def test_any_finite_values_in_any_order_give_finite_unit_quaternions(tmp_path_factory, data,
                                                                      estimator):
     """The EKF (the engine's default and all 7 comparison filters), the course filter and gyro
-    integration. complementary and accmag: see the xfail below."""
+    integration (complementary and accmag: a field along gravity below)."""
     path = tmp_path_factory.mktemp("prop") / "log.txt"
     path.write_bytes(data)
     try:
@@ -118,9 +118,6 @@ def test_any_finite_values_in_any_order_give_finite_unit_quaternions(tmp_path_fa
     assert math.isfinite(float(np.sum(rows.quat)))
 
 
-@pytest.mark.xfail(strict=True, reason="ekf/ (not this layer): complementary and accmag start "
-                   "from TRIAD, which gives NaN for a field parallel to gravity (a magnetic "
-                   "pole, a magnet); reported to the filters' owner")
 @pytest.mark.parametrize("estimator", ["complementary", "accmag"])
 def test_a_field_parallel_to_gravity_gives_finite_quaternions(tmp_path, estimator):
     path = tmp_path / "pole.txt"

@@ -47,4 +47,8 @@ class AlignHeading:
 
 @dataclass(frozen=True)
 class SetComparisonsEnabled:
+    """Run (or stop) the 7 sensor combinations side by side; `estimator` (a name from
+    ekf.ESTIMATORS) chooses which estimator they run, None keeps the current one."""
+
     enabled: bool
+    estimator: str | None = None

@@ -233,7 +233,8 @@ class LineReplaySource(Source):
         return {"connection_state": state, "peer": self.name, "port": None,
                 "listen_addresses": [],
                 "replay": {"position_s": self.position_s, "duration_s": self.duration_s,
-                           "speed": self.speed, "paused": self.paused, "loop": self.loop}}
+                           "speed": self.speed, "paused": self.paused, "loop": self.loop,
+                           "finished": self._finished, "name": self.name}}
 
 
 class LogFileSource(LineReplaySource):

@@ -1,9 +1,8 @@
-"""Connection panel: where the phone should connect, what arrives, who may connect, and replay
-controls.
+"""Connection panel: where the phone should connect, what arrives and who may connect.
 
 Shows StreamHealth from the snapshot (addresses, port, state, rates, counters with the damaged
-lines by reason, the connections closed, clock quirks, the recording) and, while replaying,
-play/pause, speed, loop and a seek slider that send ReplayControl. While the phone streams, a
+lines by reason, the connections closed, clock quirks, the recording); the replay's controls
+are in the transport bar (app/ui/transport.py). While the phone streams, a
 new device that connects waits: the panel asks "a new device at ADDRESS wants to stream:
 accept?" (Accept / Ignore send AcceptConnection / IgnoreConnection). "Allow only" restricts who
 may connect (SetAllowedNetworks; the same check as --allow).
@@ -11,18 +10,15 @@ may connect (SetAllowedNetworks; the same check as --allow).
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Callable
 
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from app.engine.commands import (AcceptConnection, IgnoreConnection, ReplayControl,
-                                 SetAllowedNetworks)
+from app.engine.commands import AcceptConnection, IgnoreConnection, SetAllowedNetworks
 from app.engine.config import ConfigError, allowed_networks
 from app.engine.snapshot import StreamHealth, lag_text
 from app.stream.protocol import reasons_text
 
-SEEK_STEPS = 1000
-SPEEDS = (0.25, 0.5, 1.0, 2.0, 5.0, 10.0)
 STATE_COLORS = {"waiting": "#b07d00", "connected": "#1e8c3a", "disconnected": "#b3261e",
                 "replaying": "#1f5fbf", "finished": "#555555"}
 
@@ -55,14 +51,12 @@ def connection_text(health: StreamHealth) -> str:
 
 
 class ConnectionPanel(QtWidgets.QWidget):
-    """Stream health and replay controls. `send(command)` forwards ReplayControl commands."""
+    """Stream health and who may connect. `send(command)` forwards connection commands."""
 
     def __init__(self, send: Callable[[object], None],
                  parent: QtWidgets.QWidget | None = None) -> None:
         super().__init__(parent)
         self._send = send
-        self._seeking = False
-        self._replay: dict[str, Any] | None = None
         layout = QtWidgets.QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
 
@@ -102,33 +96,6 @@ class ConnectionPanel(QtWidgets.QWidget):
         form.addRow("Recording", self.recording_label)
         layout.addWidget(stream_box)
 
-        self.replay_box = QtWidgets.QGroupBox("Replay")
-        replay_layout = QtWidgets.QGridLayout(self.replay_box)
-        self.play_button = QtWidgets.QPushButton("Pause")
-        self.play_button.setToolTip("Play / pause the replay (Space)")
-        self.play_button.clicked.connect(self.toggle_replay_paused)
-        self.speed_combo = QtWidgets.QComboBox()
-        for speed in SPEEDS:
-            self.speed_combo.addItem(f"{speed:g}×", speed)
-        self.speed_combo.setCurrentIndex(SPEEDS.index(1.0))
-        self.speed_combo.activated.connect(
-            lambda index: self._send(ReplayControl(speed=float(self.speed_combo.itemData(index)))))
-        self.loop_checkbox = QtWidgets.QCheckBox("Loop")
-        self.loop_checkbox.clicked.connect(lambda checked: self._send(ReplayControl(loop=checked)))
-        self.seek_slider = QtWidgets.QSlider(QtCore.Qt.Orientation.Horizontal)
-        self.seek_slider.setRange(0, SEEK_STEPS)
-        self.seek_slider.sliderPressed.connect(self._on_seek_pressed)
-        self.seek_slider.sliderReleased.connect(self._on_seek_released)
-        # Clicks on the groove and arrow keys change the value without a drag.
-        self.seek_slider.valueChanged.connect(self._on_seek_value_changed)
-        self.position_label = QtWidgets.QLabel("0.0 / 0.0 s")
-        replay_layout.addWidget(self.play_button, 0, 0)
-        replay_layout.addWidget(self.speed_combo, 0, 1)
-        replay_layout.addWidget(self.loop_checkbox, 0, 2)
-        replay_layout.addWidget(self.seek_slider, 1, 0, 1, 2)
-        replay_layout.addWidget(self.position_label, 1, 2)
-        self.replay_box.setVisible(False)
-        layout.addWidget(self.replay_box)
         layout.addStretch(1)
 
     def _build_waiting_box(self) -> QtWidgets.QGroupBox:
@@ -241,64 +208,6 @@ class ConnectionPanel(QtWidgets.QWidget):
         self.allow_error.setText("")
         self._allowed_shown = None           # show what the server applies
         self._send(SetAllowedNetworks(networks))
-
-    def update_replay(self, replay: dict[str, Any] | None) -> None:
-        """Follow the replay's state (every frame: only changed widgets are touched)."""
-        self._replay = replay
-        if self.replay_box.isHidden() != (replay is None):
-            self.replay_box.setVisible(replay is not None)
-        if replay is None:
-            return
-        paused = bool(replay.get("paused", False))
-        if self.play_button.text() != ("Play" if paused else "Pause"):
-            self.play_button.setText("Play" if paused else "Pause")
-        speed = float(replay.get("speed", 1.0))
-        index = self.speed_combo.findData(speed)
-        if index < 0:
-            self.speed_combo.addItem(f"{speed:g}×", speed)
-            index = self.speed_combo.count() - 1
-        if index != self.speed_combo.currentIndex():
-            self.speed_combo.setCurrentIndex(index)
-        if self.loop_checkbox.isChecked() != bool(replay.get("loop", False)):
-            self.loop_checkbox.setChecked(bool(replay.get("loop", False)))
-        position = float(replay.get("position_s", 0.0))
-        duration = float(replay.get("duration_s", 0.0))
-        if not self._seeking and duration > 0:
-            self.seek_slider.blockSignals(True)
-            self.seek_slider.setValue(int(round(SEEK_STEPS * min(position / duration, 1.0))))
-            self.seek_slider.blockSignals(False)
-        self._set_text(self.position_label, f"{position:.1f} / {duration:.1f} s")
-
-    @property
-    def replaying(self) -> bool:
-        return self._replay is not None
-
-    # ---- user intent -> commands ----------------------------------------------------------
-
-    def toggle_replay_paused(self) -> None:
-        if self._replay is None:
-            return
-        paused = not bool(self._replay.get("paused", False))
-        self._replay = {**self._replay, "paused": paused}   # until the engine confirms
-        self.play_button.setText("Play" if paused else "Pause")
-        self._send(ReplayControl(paused=paused))
-
-    def _on_seek_pressed(self) -> None:
-        self._seeking = True
-
-    def _on_seek_released(self) -> None:
-        self._seeking = False
-        self.seek_to_fraction(self.seek_slider.value() / SEEK_STEPS)
-
-    def _on_seek_value_changed(self, value: int) -> None:
-        if not self._seeking and not self.seek_slider.isSliderDown():
-            self.seek_to_fraction(value / SEEK_STEPS)
-
-    def seek_to_fraction(self, fraction: float) -> None:
-        if self._replay is None:
-            return
-        duration = float(self._replay.get("duration_s", 0.0))
-        self._send(ReplayControl(seek_s=max(0.0, min(fraction, 1.0)) * duration))
 
     @staticmethod
     def _set_text(label: QtWidgets.QLabel, text: str) -> None:
