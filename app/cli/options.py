@@ -53,7 +53,18 @@ def positive(text: str) -> float:
     return value
 
 
+def window_size(text: str) -> tuple[int, int]:
+    try:
+        width, height = (int(part) for part in text.lower().split("x"))
+    except ValueError:
+        raise config.ConfigError(f"expected WIDTHxHEIGHT, e.g. 1280x720, got {text!r}") from None
+    if not (320 <= width <= 10_000 and 240 <= height <= 10_000):
+        raise config.ConfigError(f"window size out of range: {text}")
+    return width, height
+
+
 PORT = _checked(config.port_number)
+WINDOW_SIZE = _checked(window_size)
 SPEED = _checked(config.replay_speed)
 NON_NEGATIVE = _checked(non_negative)
 POSITIVE = _checked(positive)
@@ -147,6 +158,9 @@ def add_window(parser: argparse.ArgumentParser) -> None:
     add_limits(group)
     group.add_argument("--screenshot", metavar="PNG",
                        help="save the window to PNG after --exit-after seconds, then quit")
+    group.add_argument("--window-size", type=WINDOW_SIZE, metavar="WxH",
+                       help="open the window at this size, e.g. 1280x720 (default: fitted to "
+                            "the screen, or as it was last closed)")
     group.add_argument("--exit-after", type=NON_NEGATIVE, metavar="S",
                        help="quit after S seconds")
 

@@ -229,7 +229,7 @@ class ComparisonPanel(QtWidgets.QWidget, _FollowsEngine):
             table.setRowCount(len(comparisons))
         for row, comparison in enumerate(comparisons):
             enough = comparison.samples >= MIN_COMPARED
-            texts = [comparison.name.replace("+", " + ")] + [
+            texts = [comparison.name] + [
                 _degrees(value) if enough else "—" for value in comparison.rmse_deg]
             for column, text in enumerate(texts):
                 item = table.item(row, column)

@@ -37,7 +37,7 @@ class Light(QtWidgets.QWidget):
         super().__init__(parent)
         self.name = name
         self.state = "no data"
-        self.setMinimumSize(96, 58)
+        self.setMinimumSize(84, 66)
         self.setSizePolicy(QtWidgets.QSizePolicy.Policy.Preferred,
                            QtWidgets.QSizePolicy.Policy.Fixed)
         self.setToolTip(f"{name}: no data yet")
@@ -69,8 +69,10 @@ class Light(QtWidgets.QWidget):
         painter.setPen(QtGui.QPen(color.darker(150), 1.5))
         painter.drawEllipse(QtCore.QRectF(x, 4, diameter, diameter))
         painter.setPen(self.palette().color(QtGui.QPalette.ColorRole.WindowText))
-        painter.drawText(QtCore.QRectF(0, 4 + diameter + 2, self.width(), 20),
-                         QtCore.Qt.AlignmentFlag.AlignHCenter, self.caption)
+        # two lines (the name, then its state), so a narrow dock never cuts the state off
+        painter.drawText(QtCore.QRectF(0, 4 + diameter + 1, self.width(), 36),
+                         QtCore.Qt.AlignmentFlag.AlignHCenter,
+                         f"{self.name}\n{CAPTIONS[self.state]}")
         painter.end()
 
 

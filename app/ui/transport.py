@@ -24,8 +24,8 @@ def position_text(position_s: float, duration_s: float) -> str:
     """"m:ss.s / m:ss.s" (or seconds for short logs)."""
     span = max(duration_s, position_s)
     long = span >= 60.0
-    return (f"{time_text(position_s, 600.0 if long else 0.0, 1)} / "
-            f"{time_text(duration_s, 600.0 if long else 0.0, 1)}" + ("" if long else " s"))
+    return (f"{time_text(position_s, 300.0 if long else 0.0, 1)} / "
+            f"{time_text(duration_s, 300.0 if long else 0.0, 1)}" + ("" if long else " s"))
 
 
 class TransportBar(QtWidgets.QFrame):
@@ -45,8 +45,12 @@ class TransportBar(QtWidgets.QFrame):
         layout.setContentsMargins(4, 2, 4, 2)
         self.play_button = QtWidgets.QToolButton()
         self.play_button.setObjectName("play_button")
-        self.play_button.setText("▶ Play")
-        self.play_button.setToolButtonStyle(QtCore.Qt.ToolButtonStyle.ToolButtonTextOnly)
+        self.play_button.setToolButtonStyle(QtCore.Qt.ToolButtonStyle.ToolButtonTextBesideIcon)
+        self.play_button.setMinimumWidth(84)
+        self._icons = {"Play": self.style().standardIcon(
+            QtWidgets.QStyle.StandardPixmap.SP_MediaPlay), "Pause": self.style().standardIcon(
+            QtWidgets.QStyle.StandardPixmap.SP_MediaPause)}
+        self._show_play(True)
         self.play_button.setToolTip("Play / pause the replay (Space)")
         self.play_button.clicked.connect(self.toggle_paused)
         self.speed_combo = QtWidgets.QComboBox()
@@ -100,7 +104,7 @@ class TransportBar(QtWidgets.QFrame):
         _set_text(self.source_label, source)
         finished = bool(replay.get("finished", False))
         paused = bool(replay.get("paused", False)) or finished
-        _set_text(self.play_button, "▶ Play" if paused else "⏸ Pause")
+        self._show_play(paused)
         speed = float(replay.get("speed", 1.0))
         index = self.speed_combo.findData(speed)
         if index < 0:
@@ -133,7 +137,14 @@ class TransportBar(QtWidgets.QFrame):
         else:
             self._send(ReplayControl(paused=paused))
         self._replay = {**self._replay, "paused": paused, "finished": False}
-        _set_text(self.play_button, "▶ Play" if paused else "⏸ Pause")
+        self._show_play(paused)
+
+    def _show_play(self, paused: bool) -> None:
+        """The button offers what a click does: Play when paused (or at the end), else Pause."""
+        text = "Play" if paused else "Pause"
+        if self.play_button.text() != text:
+            self.play_button.setText(text)
+            self.play_button.setIcon(self._icons[text])
 
     def _on_seek_pressed(self) -> None:
         self._seeking = True
