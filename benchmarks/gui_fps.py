@@ -62,7 +62,8 @@ class FrameCounter:
                 return False
 
         self._filter = _Filter()
-        window.plots.graphics.viewport().installEventFilter(self._filter)
+        for group in window.plots.groups.values():      # only the shown tab paints
+            group.graphics.viewport().installEventFilter(self._filter)
 
     @property
     def gl_paints(self) -> int:
@@ -106,6 +107,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--switch-interval", type=float, default=None, metavar="S",
                         help="override the GIL switch interval the application sets")
     parser.add_argument("--profile", metavar="FILE", help="cProfile the GUI thread at 1x")
+    parser.add_argument("--tab", choices=("sensors", "orientation", "error"), default="sensors",
+                        help="the tab of plots shown while measuring (orientation: PHONE's "
+                             "dashed curves, the dearest to draw)")
     parser.add_argument("--quick", action="store_true",
                         help="a smoke run: 1 s per speed on a 20 s session")
     parser.add_argument("--render-every-frame", action="store_true",
@@ -146,6 +150,7 @@ def main(argv: list[str] | None = None) -> int:
                                     QtCore.QSettings.Format.IniFormat)
         window = MainWindow(engine, settings=settings, use_gl=False if args.no_gl else None)
         window.resize(1600, 1000)
+        window.plots.set_current_group(args.tab)
         window.show()
         counter = FrameCounter(window)
         try:

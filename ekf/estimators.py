@@ -64,6 +64,9 @@ class SimpleState:
     mag_enabled: bool = state_field("the magnetometer is switched in",
                                     lambda settings, enabled: bool(enabled["mag"]), kind=bool)
     initialised: bool = state_field("started from the first readings", _value(False), kind=bool)
+    heading_from_mag: bool = state_field("the heading came from a magnetometer reading (a "
+                                         "tilt-only start takes it from the next one)",
+                                         _value(False), kind=bool)
     q: np.ndarray = state_field("the orientation (w first, sensor -> ENU, w >= 0)",
                                 lambda settings, enabled: quat.IDENTITY.copy(), shape=(4,))
     omega: np.ndarray = state_field("latest gyroscope sample", _zeros3, unit="rad/s", shape=(3,))
@@ -158,6 +161,9 @@ class _SimpleEstimator(EstimatorBase):
         st = self._state
         acc = st.acc if st.acc_enabled and st.acc_valid else None
         mag = st.mag if st.mag_enabled and st.mag_valid else None
+        if (acc is not None and mag is not None and np.linalg.norm(np.cross(acc, mag))
+                <= 1e-6 * np.linalg.norm(acc) * np.linalg.norm(mag)):
+            mag = None       # a field along gravity (a pole, a magnet) has no heading: tilt only
         if acc is not None and mag is not None:
             q = acc_mag_quaternion(acc, mag)
         elif acc is not None:
@@ -172,10 +178,29 @@ class _SimpleEstimator(EstimatorBase):
             return None
         return quat.normalize(quat.multiply(quat.from_axis_angle([0, 0, 1], st.heading_offset), q))
 
-    def _initialise(self) -> None:
+    def _initialise(self, t: float) -> None:
+        """Start where the EKF starts: from the first accelerometer reading and a magnetometer
+        reading at most 0.1 s old (TRIAD); without one, tilt now and the heading from the next
+        magnetometer reading (_take_heading)."""
+        st = self._state
+        recent_mag = st.mag_valid and t - st.mag_t <= 0.1
+        if not recent_mag:
+            st.mag_valid = False
         q = self._absolute()
-        self._state.q[:] = quat.IDENTITY if q is None else q
-        self._state.initialised = True
+        st.q[:] = quat.IDENTITY if q is None else q
+        st.initialised = True
+        st.heading_from_mag = st.mag_valid and st.mag_enabled
+
+    def _take_heading(self, y: np.ndarray) -> None:
+        """After a tilt-only start: keep the tilt, turn about up to the field's heading."""
+        st = self._state
+        up = quat.to_matrix(st.q)[2]            # world up in the sensor frame
+        if np.linalg.norm(np.cross(up, y)) <= 1e-6 * np.linalg.norm(y):
+            return                              # a field along up has no heading
+        q = acc_mag_quaternion(up, y)
+        st.q[:] = quat.normalize(quat.multiply(
+            quat.from_axis_angle([0, 0, 1], st.heading_offset), q))
+        st.heading_from_mag = True
 
     def update_gyr(self, t: float, gyr: ArrayLike) -> None:
         self._advance(t)
@@ -185,7 +210,7 @@ class _SimpleEstimator(EstimatorBase):
             st.omega_valid = True
             st.omega_t = t
             if not st.initialised and not (st.acc_enabled or st.mag_enabled):
-                self._initialise()
+                self._initialise(t)
 
     def update_acc(self, t: float, acc: ArrayLike) -> None:
         self._advance(t)
@@ -199,7 +224,7 @@ class _SimpleEstimator(EstimatorBase):
             st.acc_valid = True
             st.acc_t = t
         if not st.initialised:
-            self._initialise()
+            self._initialise(t)
             return
         self._absolute_update(t, ok, "acc")
 
@@ -213,11 +238,14 @@ class _SimpleEstimator(EstimatorBase):
         st.mag_valid = True
         st.mag_t = t
         st.diagnostics.mag_norm = float(np.linalg.norm(y))
-        if not st.initialised and not st.acc_enabled:
-            self._initialise()
+        if not st.initialised:
+            if not st.acc_enabled:
+                self._initialise(t)
             return
-        if st.initialised:
-            self._absolute_update(t, True, "mag")
+        if not st.heading_from_mag:
+            self._take_heading(y)
+            return
+        self._absolute_update(t, True, "mag")
 
     def _absolute_update(self, t: float, ok: bool, sensor: str) -> None:
         raise NotImplementedError

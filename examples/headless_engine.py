@@ -33,10 +33,12 @@ def main(argv: list[str]) -> int:
             if snapshot is None or snapshot.own_quat is None or snapshot.t_ms is None:
                 continue
             yaw, pitch, roll = quaternion.to_euler(snapshot.own_quat) * 57.29577951308232
-            best = min(snapshot.comparisons, key=lambda c: c.rmse_deg, default=None)
+            compared = [c for c in snapshot.comparisons if c.samples]
+            best = min(compared, key=lambda c: c.rmse_deg[0], default=None)
             print(f"t = {snapshot.t_ms / 1000:7.2f} s  yaw {yaw:7.1f}°  pitch {pitch:6.1f}°  "
                   f"roll {roll:6.1f}°  {len(snapshot.plot.t_est)} new estimates"
-                  + (f"  best combination so far: {best.name} ({best.rmse_deg:.1f}° RMSE)"
+                  + (f"  best combination so far: {best.name} ({best.rmse_deg[0]:.1f}° RMSE "
+                     "against PHONE)"
                      if best else ""))
             if not switched and time.monotonic() - started > args.seconds / 2:
                 engine.send(SetSensorEnabled("mag", False))   # user intent, as a command

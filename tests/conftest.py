@@ -16,13 +16,18 @@ import pytest
 
 if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
     os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+# Offscreen Qt pretends an 800x600 screen; the window is tested on a 1920x1080 one (a window
+# is never larger than its screen), so give the platform that screen.
+if os.environ.get("QT_QPA_PLATFORM") == "offscreen":
+    os.environ["QT_QPA_PLATFORM"] = ("offscreen:configfile="
+                                     + str(Path(__file__).with_name("offscreen_screen.json")))
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("ORIENTATION_LAB_SHARED", REPO.parent / "shared"))
 
 
 def offscreen() -> bool:
-    return os.environ.get("QT_QPA_PLATFORM", "") == "offscreen"
+    return os.environ.get("QT_QPA_PLATFORM", "").startswith("offscreen")
 
 
 def pytest_collection_modifyitems(config, items):

@@ -146,7 +146,7 @@ def test_ab_table_and_the_difference_curve(sim_log):
     assert ab_rows(a, None)[0][0] == "current" and len(ab_rows(a, None)) == 1
     angle = angle_between_runs_deg(a, b)
     assert angle.shape == (len(a.rows),) and np.nanmax(angle) > 0
-    assert np.all(angle_between_runs_deg(a, a)[np.isfinite(angle)] < 1e-6)
+    assert np.all(angle_between_runs_deg(a, a)[np.isfinite(angle)] < 1e-4)   # acos near 1
 
 
 def test_refilterer_runs_in_the_background_latest_request_wins(sim_log):

@@ -336,7 +336,15 @@ def test_serve_record_writes_estimates_that_filter_reproduces(tmp_path, realphon
     assert stream.getvalue() == recorded
 
 
-def test_serve_refuses_to_record_over_a_session(tmp_path):
-    (tmp_path / "raw.txt").write_text("1\tACC\t0\t0\t9.8\n")
-    result = _serve(["--record", str(tmp_path), "--exit-after", "0"])
-    assert result.returncode == 2 and "already holds a recorded session" in result.stderr
+def test_serve_records_beside_a_session_never_over_it(tmp_path):
+    """Was: refused (and before that, appended to the first session's raw.txt). Now a second
+    recording into the same folder makes a new session folder and says so."""
+    folder = tmp_path / "rec"
+    folder.mkdir()
+    (folder / "raw.txt").write_text("1\tACC\t0\t0\t9.8\n")
+    result = _serve(["--record", str(folder), "--exit-after", "0"])
+    assert result.returncode == 0, result.stderr
+    assert f"{folder} already holds a recorded session: recording into {folder}-2" \
+        in result.stderr
+    assert (folder / "raw.txt").read_text() == "1\tACC\t0\t0\t9.8\n"
+    assert (tmp_path / "rec-2" / "session.json").exists()

@@ -12,7 +12,8 @@ import ekf
 from app.stream.logfile import read_log
 from app.stream.protocol import Sample
 from app.engine.offline import run_offline
-from app.engine.runner import COMBINATIONS, EstimatorRunner, angle_deg
+from app.engine.compare import SameInstant
+from app.engine.runner import COMBINATIONS, EstimatorRunner
 
 REALPHONE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "realphone"
 
@@ -26,14 +27,21 @@ def _still_samples(seconds: float = 3.0) -> list[Sample]:
     return out
 
 
-def test_rows_per_distinct_time_and_phone_angle():
-    rows = run_offline(_still_samples())
+def test_rows_per_distinct_time_and_errors_at_the_phone_times():
+    runner = EstimatorRunner()
+    runner.feed_many(_still_samples())
+    runner.finish()
+    rows = runner.take_rows()
     assert len(rows) == 600                           # sensor times and ORI times
     assert rows.t_ms.tolist() == sorted(set(rows.t_ms.tolist()))
+    assert rows.has_sample.sum() == 300
     assert np.isnan(rows.phone_quat[0]).all() and not np.isnan(rows.phone_quat[-1]).any()
-    # flat, field pointing north: identity; the phone says identity too
-    assert rows.angle_deg[-1] < 1.0
     assert np.allclose(np.linalg.norm(rows.quat, axis=1), 1.0)
+    # flat, field pointing north: identity; the phone says identity too. Every ORI but the last
+    # (no estimate after it yet) is compared, at its own time.
+    errors = runner.take_errors()
+    assert errors.t_ms.tolist() == [1005 + 10 * k for k in range(299)]
+    assert errors.error_deg.shape == (299, 3) and errors.error_deg.max() < 1.0
 
 
 def test_comparisons_cover_the_seven_sensor_sets():
@@ -44,8 +52,19 @@ def test_comparisons_cover_the_seven_sensor_sets():
         "gyr+acc+mag", "gyr+acc", "gyr+mag", "acc+mag", "gyr", "acc", "mag"]
     assert len(COMBINATIONS) == 7
     by_name = {c.name: c for c in runner.comparisons}
-    assert by_name["gyr+acc+mag"].rmse_deg < 2.0 and by_name["acc+mag"].count > 0
-    assert all(math.isfinite(c.angle_to_phone_deg) for c in runner.comparisons)
+    assert by_name["gyr+acc+mag"].errors.rmse()[0] < 2.0
+    assert by_name["acc+mag"].errors.count == 299
+    assert all(np.isfinite(c.errors.latest).all() for c in runner.comparisons)
+
+
+def test_comparisons_run_the_chosen_estimator():
+    runner = EstimatorRunner(comparisons=True)
+    runner.set_comparisons_enabled(True, "complementary")
+    assert runner.comparison_estimator == "complementary"
+    assert {c.estimator.name for c in runner.comparisons} == {"complementary"}
+    assert [c.sensors for c in runner.comparisons] == list(COMBINATIONS)
+    with pytest.raises(ValueError):
+        runner.set_comparisons_enabled(True, "kalman")
 
 
 def test_commands_switch_sensors_and_estimator():
@@ -56,17 +75,10 @@ def test_commands_switch_sensors_and_estimator():
     assert runner.estimator_name == "complementary" and runner.sensors_enabled["mag"] is False
     with pytest.raises(ValueError):
         runner.set_sensor_enabled("baro", True)
-    assert runner.align_heading() is False          # no ORI yet
+    assert runner.align_heading() is None           # no ORI yet
     runner.feed_many(_still_samples(0.5))
-    assert runner.align_heading() is True
-
-
-def test_angle_deg():
-    assert angle_deg((1, 0, 0, 0), (-1, 0, 0, 0)) == 0.0
-    half = math.sqrt(0.5)
-    assert angle_deg((1, 0, 0, 0), (half, 0, 0, half)) == pytest.approx(90.0)
-    assert math.isnan(angle_deg(None, (1, 0, 0, 0)))
-
+    turned = runner.align_heading()
+    assert turned is not None and math.isfinite(turned)
 
 def test_run_offline_matches_filter_batch_on_sensor_rows():
     if not REALPHONE.is_dir():
@@ -89,27 +101,27 @@ def _per_sample_reference(samples, name="ekf", comparisons=False):
     main = ekf.make_estimator(name)
     compared = [ekf.make_estimator("ekf", None, combo) for combo in COMBINATIONS] \
         if comparisons else []
-    sums, counts = [0.0] * len(compared), [0] * len(compared)
     rows, acc_flags, mag_flags = [], [], []
-    row_t, phone = None, None
+    compared_rows: list[tuple[int, list]] = []          # sensor times: each comparison's quat
+    phone_t, phone_q = [], []
+    row_t, has_sample = None, False
 
     def commit():
         status = main.flags
         rows.append((row_t, main.quat.tolist(), status.acc_rejected, status.mag_rejected,
                      status.at_rest))
-        if phone is not None:
-            for index, estimator in enumerate(compared):
-                error = angle_deg(estimator.quat, phone)
-                if error == error:
-                    sums[index] += error * error
-                    counts[index] += 1
+        if has_sample:
+            compared_rows.append((row_t, [estimator.quat for estimator in compared]))
 
     for sample in samples:
         if row_t is not None and sample.t_ms != row_t:
             commit()
+            has_sample = False
         if sample.tag == "ORI":
-            phone = sample.values
+            phone_t.append(sample.t_ms)
+            phone_q.append(sample.values)
         else:
+            has_sample = True
             keyword = {"GYR": "gyr", "ACC": "acc", "MAG": "mag"}[sample.tag]
             for estimator in [main] + compared:
                 estimator.step(sample.t_ms / 1000.0, **{keyword: np.array(sample.values)})
@@ -120,6 +132,14 @@ def _per_sample_reference(samples, name="ekf", comparisons=False):
                 mag_flags.append(bool(status.mag_rejected))
         row_t = sample.t_ms
     commit()
+    sums, counts = [], []
+    for index in range(len(compared)):       # each comparison at the phone's time stamps
+        same_instant = SameInstant()
+        same_instant.add_phone(np.array(phone_t), np.array(phone_q))
+        errors = same_instant.add_estimates(np.array([t for t, _ in compared_rows]),
+                                            np.array([q[index] for _, q in compared_rows]))
+        sums.append(np.sum(errors.error_deg ** 2, axis=0))
+        counts.append(len(errors))
     return rows, acc_flags, mag_flags, sums, counts
 
 
@@ -162,8 +182,9 @@ def test_chunked_batch_path_equals_feeding_sample_by_sample(name):
         out.mag_rejected.tolist(), out.at_rest.tolist())] == rows
     assert plot["acc_rejected"].tolist() == acc_flags and plot["mag_rejected"].tolist() == mag_flags
     assert len(plot["t_gyr"]) == sum(s.tag == "GYR" for s in samples)
-    assert [c.squared_sum for c in runner.comparisons] == sums
-    assert [c.count for c in runner.comparisons] == counts
+    assert [c.errors.count for c in runner.comparisons] == counts
+    for comparison, expected in zip(runner.comparisons, sums):
+        np.testing.assert_allclose(comparison.errors.squared, expected, rtol=1e-12)
 
 
 def test_batch_path_equals_feeding_sample_by_sample_on_real_logs():

@@ -61,7 +61,7 @@ def _print_rest(rest: RestCalibration, t0: float) -> None:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    log = read_log(args.log)
+    log = read_log(args.log, args.limits)
     start, end = args.range if args.range else (None, None)
     rest = rest_from_log(log, start, None if end == float("inf") else end, whole=args.whole)
     _print_rest(rest, float(log.to_arrays().t_s[0]))
@@ -84,7 +84,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 # ---- calibrate-mag --------------------------------------------------------------------------------
 
 def cmd_calibrate_mag(args: argparse.Namespace) -> int:
-    log = read_log(args.log)
+    log = read_log(args.log, args.limits)
     start, end = args.range if args.range else (None, None)
     result, raw = mag_from_log(log, start, None if end == float("inf") else end)
     print(result.format_report())
@@ -119,7 +119,7 @@ def _targets(args: argparse.Namespace, prepared: PreparedLog) -> tuple[tuning.Ta
         tune_ms, tune_label = intervals_of(args)
     check_prepared, check_label = prepared, ""
     if args.check_log:
-        check_prepared, check_label = PreparedLog.from_log(read_log(args.check_log)), \
+        check_prepared, check_label = PreparedLog.from_log(read_log(args.check_log, args.limits)), \
             Path(args.check_log).name
     if args.check_intervals:
         check_ms = config.read_intervals(args.check_intervals)
@@ -146,7 +146,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
         raise config.ConfigError("tune: give one EKF --estimator (ekf or course)")
     base = config.load_settings(args.settings) or ekf.PRESETS["default"]
     parameters = tuning.parse_parameters(args.params, base)
-    prepared = PreparedLog.from_log(read_log(args.log))
+    prepared = PreparedLog.from_log(read_log(args.log, args.limits))
     if len(prepared.ori_times) == 0:
         raise config.ConfigError(f"tune: {args.log} has no ORI lines to tune against")
     target, check = _targets(args, prepared)
@@ -179,6 +179,7 @@ def add_commands(sub) -> None:
     options.add_range(c, "--range", "use this stretch instead of the longest still interval")
     options.add_profile(c)
     options.add_plots(c)
+    options.add_limits(c)
     c.set_defaults(func=cmd_calibrate)
 
     m = sub.add_parser("calibrate-mag", help="magnetometer hard- and soft-iron fit (turn the "
@@ -189,6 +190,7 @@ def add_commands(sub) -> None:
     options.add_range(m, "--range", "use only this stretch")
     options.add_profile(m)
     options.add_plots(m)
+    options.add_limits(m)
     m.set_defaults(func=cmd_calibrate_mag)
 
     _add_tune(sub)
@@ -220,4 +222,5 @@ def _add_tune(sub) -> None:
     t.add_argument("--objective", choices=tuning.OBJECTIVES, default="total",
                    help="the RMSE minimised (default total)")
     options.add_profile(t)
+    options.add_limits(t)
     t.set_defaults(func=cmd_tune)

@@ -12,18 +12,17 @@ import signal
 import sys
 import threading
 import time
-from pathlib import Path
 
 import ekf
 from app.cli import options
 from app.engine import config
 from app.engine.estimates import EstimatesWriter
-from app.engine.snapshot import Snapshot
+from app.engine.snapshot import Snapshot, lag_text
 from app.engine.worker import Engine
 from app.stream.emulator import PhoneEmulator
 from app.stream.lines import LogError, read_lines
+from app.stream.protocol import reasons_text
 from app.stream.recorder import Recorder
-from app.stream.sources import TcpSource
 
 
 # ---- send ---------------------------------------------------------------------------------------
@@ -55,31 +54,46 @@ def health_line(snapshot: Snapshot) -> str:
     peer = f" {health.peer}" if health.peer else ""
     parts = [f"{health.connection_state}{peer}", f"{health.lines_total} lines",
              f"{health.lines_per_s:.0f} lines/s", rates or "no samples"]
-    counters = [(health.damaged, "damaged"), (health.unknown, "unknown"),
-                (health.too_long, "too long"), (health.out_of_order, "out of order")]
+    if health.damaged:
+        parts.append(f"{health.damaged} damaged ({reasons_text(health.damaged_reasons)})")
+    counters = [(health.unknown, "unknown"), (health.too_long, "too long"),
+                (health.out_of_order, "out of order"), (health.sessions, "new sessions")]
     parts += [f"{count} {name}" for count, name in counters if count]
+    if health.waiting_peers:
+        parts.append("waiting to stream: " + ", ".join(health.waiting_peers))
+    if health.connections_closed:
+        parts.append("connections closed: " + reasons_text(health.connections_closed))
     if health.clock_quirks:
         parts.append("clock: " + "; ".join(health.clock_quirks))
+    if health.reorder_window_ms > 100:
+        parts.append(lag_text(health))
+    if health.recording and health.recording.startswith("recording stopped"):
+        parts.append(health.recording)
     if snapshot.own_quat is not None and snapshot.t_ms is not None:
         q = snapshot.own_quat
         parts.append(f"t={snapshot.t_ms} q=({q[0]:.3f} {q[1]:.3f} {q[2]:.3f} {q[3]:.3f})")
     return " | ".join(parts)
 
 
-def _recording(directory: str | None, settings: ekf.EKFSettings | None,
+def _recording(args: argparse.Namespace, settings: ekf.EKFSettings | None,
                estimator: str) -> tuple[Recorder | None, EstimatesWriter | None]:
-    """The recorder and estimates file of a session folder (None, None without --record)."""
-    if not directory:
+    """The recorder and estimates file of a session folder (None, None without --record). A
+    folder that holds a session already is left alone: the recording goes to DIR-2, ..."""
+    if not args.record:
         return None, None
-    folder = Path(directory)
-    if (folder / "raw.txt").exists():
-        raise config.ConfigError(f"{folder} already holds a recorded session; record into a new "
-                                 "folder")
+    folder, note = config.recording_folder(args.record)
+    if note:
+        print(f"orientation-lab: {note}", file=sys.stderr, flush=True)
     try:
         recorder = Recorder(folder, settings or ekf.PRESETS["default"],
-                            info={"source": "tcp", "estimator": estimator})
+                            info={"source": "tcp", "estimator": estimator},
+                            max_bytes=args.record_max_mb,
+                            min_free_bytes=args.record_min_free_mb)
     except OSError as error:
         raise config.ConfigError(str(error)) from None
+    if recorder.error:
+        recorder.close()
+        raise config.ConfigError(f"cannot record into {folder}: {recorder.error}")
     try:
         writer = EstimatesWriter(folder / "estimates.csv")
     except OSError as error:
@@ -94,9 +108,10 @@ def _start_engine(args: argparse.Namespace) -> Engine:
     if len(names) != 1:
         raise config.ConfigError("serve: give exactly one --estimator")
     settings = config.load_settings(args.settings)
-    recorder, writer = _recording(args.record, settings, names[0])
-    engine = Engine(TcpSource(args.host, args.port), settings, names[0],
-                    comparisons=not args.no_comparisons, recorder=recorder, estimates=writer)
+    source = config.make_source(options.source_options(args))
+    recorder, writer = _recording(args, settings, names[0])
+    engine = Engine(source, settings, names[0], comparisons=not args.no_comparisons,
+                    recorder=recorder, estimates=writer, limits=args.limits)
     try:
         engine.start()
     except OSError as error:
@@ -115,6 +130,7 @@ class _Watch:
         self.seen_lines = 0
         self.connected_once = False
         self.failures_shown = 0
+        self.recording_shown = False
 
     def done(self, engine: Engine, snapshot: Snapshot) -> bool:
         now = time.monotonic()
@@ -130,6 +146,11 @@ class _Watch:
                 then = "the engine stopped" if failure.fatal else "going on"
                 print(f"orientation-lab: engine error ({then}): {failure.message}",
                       file=sys.stderr, flush=True)
+        recording = health.recording or ""
+        if recording.startswith("recording stopped") and not self.recording_shown:
+            self.recording_shown = True
+            print(f"orientation-lab: {recording} (the stream and the estimates go on)",
+                  file=sys.stderr, flush=True)
         if self.args.exit_after is not None and now - self.started >= self.args.exit_after:
             return True
         idle = self.args.exit_when_idle
@@ -196,6 +217,7 @@ def add_commands(sub) -> None:
     options.add_record(serve)
     options.add_estimator(serve)
     options.add_settings(serve)
+    options.add_limits(serve)
     serve.add_argument("--no-comparisons", action="store_true",
                        help="do not run the 7 sensor-combination comparison filters")
     serve.add_argument("--exit-after", type=options.NON_NEGATIVE, metavar="S",

@@ -19,9 +19,9 @@ from app.stream.demo import write_session
 from app.stream.logfile import LogData
 
 
-def read_log(path: str) -> LogData:
-    """The log, with its one-line summary (damage, clock quirks) on stderr."""
-    log = config.open_log(path)
+def read_log(path: str, limits=None) -> LogData:
+    """The log, with its one-line summary (damage by reason, clock quirks) on stderr."""
+    log = config.open_log(path, limits or config.sensor_limits(""))
     summary = log.stats.summary()
     if summary:
         print(summary if summary.startswith(Path(path).name) else f"{path}: {summary}",
@@ -37,7 +37,7 @@ def cmd_filter(args: argparse.Namespace) -> int:
     if len(names) != 1:
         raise config.ConfigError("filter: give exactly one --estimator")
     settings = config.load_settings(args.settings)
-    rows = filter_log(read_log(args.log), names[0], settings, sensors)
+    rows = filter_log(read_log(args.log, args.limits), names[0], settings, sensors)
     try:
         if args.output:
             with open(args.output, "w", encoding="ascii", newline="\n") as stream:
@@ -68,7 +68,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     names = config.estimator_names(args.estimator)
     settings = config.load_settings(args.settings)
     intervals, where = intervals_of(args)
-    log = read_log(args.log)
+    log = read_log(args.log, args.limits)
     skip = f", after the first {args.skip:g} s" if args.skip else ""
     print(f"{args.log}: error against ORI, {where}{skip}")
     print(f"{'estimator':<16}{'samples':>9}{'total °':>10}{'heading °':>11}{'inclin. °':>11}")
@@ -105,6 +105,7 @@ def _log_filter_options(parser: argparse.ArgumentParser, several: bool) -> None:
     options.add_estimator(parser, several)
     options.add_sensors(parser)
     options.add_settings(parser)
+    options.add_limits(parser)
 
 
 def add_commands(sub) -> None:

@@ -53,18 +53,50 @@ def positive(text: str) -> float:
     return value
 
 
+def window_size(text: str) -> tuple[int, int]:
+    try:
+        width, height = (int(part) for part in text.lower().split("x"))
+    except ValueError:
+        raise config.ConfigError(f"expected WIDTHxHEIGHT, e.g. 1280x720, got {text!r}") from None
+    if not (320 <= width <= 10_000 and 240 <= height <= 10_000):
+        raise config.ConfigError(f"window size out of range: {text}")
+    return width, height
+
+
 PORT = _checked(config.port_number)
+WINDOW_SIZE = _checked(window_size)
 SPEED = _checked(config.replay_speed)
 NON_NEGATIVE = _checked(non_negative)
 POSITIVE = _checked(positive)
+ALLOW = _checked(config.allowed_network)
+LIMITS = _checked(config.sensor_limits)
+MEGABYTES = _checked(config.megabytes)
 
 
 def add_listen(parser: argparse.ArgumentParser) -> None:
-    """--host, --port: where the phone connects."""
+    """--host, --port: where the phone connects; --allow, --takeover-after: who may."""
     parser.add_argument("--host", default=config.DEFAULT_HOST,
                         help="address to listen on for the phone (default: all interfaces)")
     parser.add_argument("--port", type=PORT, default=config.DEFAULT_PORT,
                         help=f"TCP port for the phone (default {config.DEFAULT_PORT}; 0 = any)")
+    parser.add_argument("--allow", type=ALLOW, action="append", metavar="ADDRESS[/PREFIX]",
+                        help="only this address or network may connect (repeatable; default: "
+                             "anyone); others are closed and counted")
+    parser.add_argument("--takeover-after", type=NON_NEGATIVE, metavar="S",
+                        default=config.DEFAULT_TAKEOVER_S,
+                        help="a new connection waits while the phone streams; it takes over "
+                             "once the stream has been silent S seconds (default "
+                             f"{config.DEFAULT_TAKEOVER_S:g}) or has closed")
+
+
+def add_limits(parser: argparse.ArgumentParser) -> None:
+    """--limits: the physical bounds of a sample."""
+    defaults = config.sensor_limits("").text()
+    parser.add_argument("--limits", type=LIMITS, default=config.sensor_limits(""),
+                        metavar="acc=A,gyr=G,mag=M,ori=T,floor=F",
+                        help="physical bounds: |acc| <= A m/s^2, |gyr| <= G rad/s, |mag| <= M uT, "
+                             "ORI norm within 1 +- T, |acc|, |mag| >= F (not a zero vector); a "
+                             f"sample beyond them is a damaged line (default {defaults})")
 
 
 def add_connect(parser: argparse.ArgumentParser) -> None:
@@ -104,7 +136,13 @@ def add_sensors(parser: argparse.ArgumentParser) -> None:
 def add_record(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--record", metavar="DIR",
                         help="record the session into DIR (raw.txt, session.json, "
-                             "estimates.csv)")
+                             "estimates.csv); a folder holding a session already: DIR-2, ...")
+    parser.add_argument("--record-max-mb", type=MEGABYTES, default=config.megabytes(2048),
+                        metavar="MB", help="stop recording when raw.txt reaches MB (default "
+                                           "2048; 0 = no limit)")
+    parser.add_argument("--record-min-free-mb", type=MEGABYTES, default=config.megabytes(256),
+                        metavar="MB", help="stop recording when less than MB are free on the "
+                                           "disk (default 256; 0 = no limit)")
 
 
 def add_window(parser: argparse.ArgumentParser) -> None:
@@ -117,8 +155,12 @@ def add_window(parser: argparse.ArgumentParser) -> None:
                        help="play a phone log, a recorded session folder or its session.json")
     add_speed_loop(group)
     add_settings(group)
+    add_limits(group)
     group.add_argument("--screenshot", metavar="PNG",
                        help="save the window to PNG after --exit-after seconds, then quit")
+    group.add_argument("--window-size", type=WINDOW_SIZE, metavar="WxH",
+                       help="open the window at this size, e.g. 1280x720 (default: fitted to "
+                            "the screen, or as it was last closed)")
     group.add_argument("--exit-after", type=NON_NEGATIVE, metavar="S",
                        help="quit after S seconds")
 
@@ -129,7 +171,12 @@ def source_options(args: argparse.Namespace) -> config.SourceOptions:
                                 demo=bool(getattr(args, "demo", False)),
                                 replay=getattr(args, "replay", None),
                                 speed=getattr(args, "speed", 1.0),
-                                loop=bool(getattr(args, "loop", False)))
+                                loop=bool(getattr(args, "loop", False)),
+                                allow=tuple(getattr(args, "allow", None) or ()),
+                                takeover_after_s=getattr(args, "takeover_after",
+                                                         config.DEFAULT_TAKEOVER_S),
+                                limits=getattr(args, "limits", None)
+                                or config.sensor_limits(""))
 
 
 def add_intervals(parser: argparse.ArgumentParser, flag: str = "--intervals",

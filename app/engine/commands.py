@@ -1,8 +1,9 @@
 """Commands: user intent (from the window or a command) that the engine applies between two
 batches of samples, in the order they were sent. Plain frozen dataclasses, no Qt.
 
-:class:`ReplayControl` is the stream layer's (replay sources apply it); it is re-exported here so
-that every command comes from one module.
+:class:`ReplayControl` and the connection commands (:class:`AcceptConnection`,
+:class:`IgnoreConnection`, :class:`SetAllowedNetworks`) are the stream layer's (the sources apply
+them); they are re-exported here so that every command comes from one module.
 """
 
 from __future__ import annotations
@@ -10,10 +11,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from app.stream.events import ReplayControl
+from app.stream.events import (AcceptConnection, IgnoreConnection, ReplayControl,
+                               SetAllowedNetworks)
 
 __all__ = ["SetSensorEnabled", "SetEstimator", "SetSettings", "ResetFilter", "AlignHeading",
-           "SetComparisonsEnabled", "ReplayControl"]
+           "SetComparisonsEnabled", "ReplayControl", "AcceptConnection", "IgnoreConnection",
+           "SetAllowedNetworks"]
 
 
 @dataclass(frozen=True)
@@ -51,4 +54,8 @@ class AlignHeading:
 
 @dataclass(frozen=True)
 class SetComparisonsEnabled:
+    """Run (or stop) the 7 sensor combinations side by side; `estimator` (a name from
+    ekf.ESTIMATORS) chooses which estimator they run, None keeps the current one."""
+
     enabled: bool
+    estimator: str | None = None

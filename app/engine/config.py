@@ -1,16 +1,18 @@
 """One configuration for the command line and the window alike.
 
 Everything a user names by text goes through here once: filter settings (a JSON file or a preset
-name), estimator names, sensor lists, ports, replay speeds and the source to read (the phone over
-TCP, a log or recorded session, the built-in demo). Problems raise :class:`ConfigError` with a
+name), estimator names, sensor lists, ports, replay speeds, the physical bounds of a sample
+(``--limits``), who may connect (``--allow``), recording folders and limits, and the source to
+read (the phone over TCP, a log or recorded session, the built-in demo). Problems raise :class:`ConfigError` with a
 one-line message; the command line prints it and exits with status 2, the window shows it.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import ekf
@@ -19,14 +21,18 @@ from app.engine import profiles
 from app.engine.errors import ConfigError   # defined apart (profiles raise it too)
 from app.stream.lines import LogError
 from app.stream.logfile import LogData, read_log
+from app.stream.protocol import DEFAULT_LIMITS, Limits
+from app.stream.recorder import new_session_folder
 from app.stream.sources import DemoOrPhoneSource, LogFileSource, Source, TcpSource, demo_source
-from app.stream.tcp_server import DEFAULT_PORT
+from app.stream.tcp_server import DEFAULT_PORT, parse_networks
 
 DEFAULT_HOST = "0.0.0.0"
+DEFAULT_TAKEOVER_S = 3.0
 
 __all__ = ["ConfigError", "DEFAULT_HOST", "DEFAULT_PORT", "SENSORS", "SourceOptions",
            "load_settings", "estimator_names", "sensor_list", "port_number", "replay_speed",
-           "make_source", "open_log", "resolve_log_path", "read_intervals"]
+           "make_source", "open_log", "resolve_log_path", "read_intervals", "sensor_limits",
+           "allowed_network", "allowed_networks", "recording_folder", "megabytes"]
 
 
 # ---- filter settings, estimators, sensors ------------------------------------------------------
@@ -100,6 +106,70 @@ def replay_speed(value: float | str) -> float:
     return speed
 
 
+def sensor_limits(text: str | Limits) -> Limits:
+    """"acc=2000,gyr=100,mag=10000,ori=0.01,floor=1e-6" (any of them; the others keep their
+    defaults) -> the physical bounds a sample must respect (others are damaged lines)."""
+    if isinstance(text, Limits):
+        return text
+    names = {f.name: f.name for f in fields(Limits)} | {"ori": "ori_tolerance"}
+    changes = {}
+    for part in str(text).split(","):
+        if not part.strip():
+            continue
+        name, _, value = part.partition("=")
+        key = names.get(name.strip())
+        try:
+            number = float(value)
+        except ValueError:
+            number = math.nan
+        if key is None or not number > 0 or number == math.inf:
+            raise ConfigError(f"--limits: expected NAME=VALUE with NAME in acc, gyr, mag, ori, "
+                              f"floor and VALUE > 0, got {part.strip()!r}")
+        changes[key] = number
+    if changes.get("ori_tolerance", 0.0) >= 1.0:
+        raise ConfigError("--limits: ori (the tolerance on the quaternion's norm) must be < 1")
+    return replace(DEFAULT_LIMITS, **changes)
+
+
+def allowed_network(text: str) -> str:
+    """One ADDRESS[/PREFIX] (192.168.1.42, 192.168.1.0/24) -> its normal text."""
+    try:
+        return str(parse_networks([text])[0])
+    except (ValueError, IndexError):
+        raise ConfigError(f"--allow: not an address or network: {text!r} (e.g. 192.168.1.42 "
+                          "or 192.168.1.0/24)") from None
+
+
+def allowed_networks(text: str | Iterable[str] | None) -> tuple[str, ...]:
+    """Addresses and networks separated by commas or spaces (the connection panel's field), or
+    a list of them (repeated --allow) -> their normal texts; empty: anyone may connect."""
+    if text is None:
+        return ()
+    parts = text.replace(",", " ").split() if isinstance(text, str) else list(text)
+    return tuple(allowed_network(part) for part in parts if str(part).strip())
+
+
+def megabytes(value: float | str) -> int:
+    """A size in MB (>= 0; 0 = no limit) -> bytes."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"not a size in MB: {value!r}") from None
+    if not 0.0 <= number < math.inf:
+        raise ConfigError(f"expected a size in MB >= 0, got {value}")
+    return int(number * 2**20)
+
+
+def recording_folder(directory: str | Path) -> tuple[Path, str | None]:
+    """Where a recording into `directory` goes: the folder itself, or DIR-2, DIR-3, ... when it
+    already holds a session (never appended to); the second item says so (None otherwise)."""
+    directory = Path(directory)
+    folder = new_session_folder(directory)
+    if folder == directory:
+        return folder, None
+    return folder, f"{directory} already holds a recorded session: recording into {folder}"
+
+
 # ---- logs and sessions -------------------------------------------------------------------------
 
 def resolve_log_path(path: str | Path) -> Path:
@@ -123,10 +193,10 @@ def resolve_log_path(path: str | Path) -> Path:
     return path
 
 
-def open_log(path: str | Path) -> LogData:
+def open_log(path: str | Path, limits: Limits = DEFAULT_LIMITS) -> LogData:
     """Read a whole log (or recorded session) into ordered samples; ConfigError if unusable."""
     try:
-        return read_log(resolve_log_path(path))
+        return read_log(resolve_log_path(path), limits=limits)
     except LogError as error:
         raise ConfigError(str(error)) from None
     except OSError as error:
@@ -152,7 +222,9 @@ def read_intervals(path: str | Path) -> list[list[float]]:
 @dataclass
 class SourceOptions:
     """Where samples come from. replay: a log, session folder or session.json; demo: the built-in
-    session while listening for the phone; neither: the phone over TCP."""
+    session while listening for the phone; neither: the phone over TCP. allow: who may connect
+    (ADDRESS[/PREFIX] texts; empty: anyone); takeover_after_s: a waiting connection takes over
+    once the stream has been silent this long; limits: the physical bounds of a sample."""
 
     host: str = DEFAULT_HOST
     port: int = DEFAULT_PORT
@@ -160,6 +232,9 @@ class SourceOptions:
     replay: str | None = None
     speed: float = 1.0
     loop: bool = False
+    allow: tuple[str, ...] = ()
+    takeover_after_s: float = DEFAULT_TAKEOVER_S
+    limits: Limits = field(default_factory=lambda: DEFAULT_LIMITS)
 
 
 def make_source(options: SourceOptions) -> Source:
@@ -168,12 +243,21 @@ def make_source(options: SourceOptions) -> Source:
     --demo plays the demo while the TCP server listens; a phone that connects takes over."""
     port = port_number(options.port)
     speed = replay_speed(options.speed)
+    allow = allowed_networks(options.allow)
+    takeover = float(options.takeover_after_s)
+    if not 0.0 <= takeover < math.inf:
+        raise ConfigError(f"--takeover-after: expected seconds >= 0, got {takeover}")
+
+    def phone() -> TcpSource:
+        return TcpSource(options.host, port, allow=allow, takeover_after_s=takeover,
+                         limits=options.limits)
+
     try:
         if options.replay:
             return LogFileSource(resolve_log_path(options.replay), speed=speed,
                                  loop=bool(options.loop))
         if options.demo:
-            return DemoOrPhoneSource(demo_source(speed), TcpSource(options.host, port))
+            return DemoOrPhoneSource(demo_source(speed), phone())
     except LogError as error:
         raise ConfigError(str(error)) from None
-    return TcpSource(options.host, port)
+    return phone()

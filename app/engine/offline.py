@@ -20,11 +20,20 @@ from app.stream.protocol import Sample
 
 def run_offline(samples: Iterable[Sample], estimator: str = "ekf",
                 settings: ekf.EKFSettings | None = None,
-                sensors: Iterable[str] = SENSORS) -> Rows:
-    """Run one estimator over ordered samples (e.g. ``read_log(path).samples``): one row per
-    distinct phone time, exactly as the live engine produces them."""
+                sensors: Iterable[str] = SENSORS,
+                session_starts: Iterable[int] = ()) -> Rows:
+    """Run one estimator over ordered samples (e.g. ``read_log(path).samples``, with its
+    ``session_starts``: the estimators start afresh there): one row per distinct phone time,
+    exactly as the live engine produces them."""
     runner = EstimatorRunner(estimator, settings, sensors)
-    runner.feed_many(samples)
+    samples = list(samples)
+    previous = 0
+    for start in list(session_starts) + [len(samples)]:
+        if start > previous or start == len(samples):
+            runner.feed_many(samples[previous:start])
+        if start < len(samples):
+            runner.new_session()
+        previous = start
     runner.finish()
     return runner.take_rows()
 
@@ -32,7 +41,7 @@ def run_offline(samples: Iterable[Sample], estimator: str = "ekf",
 def filter_log(log: LogData, estimator: str = "ekf", settings: ekf.EKFSettings | None = None,
                sensors: Iterable[str] = SENSORS) -> Rows:
     """The estimates of a whole log: the rows at which a GYR, ACC or MAG sample arrived."""
-    rows = run_offline(log.samples, estimator, settings, sensors)
+    rows = run_offline(log.samples, estimator, settings, sensors, log.session_starts)
     return rows.select(rows.has_sample)
 
 
@@ -44,7 +53,7 @@ def evaluate_log(log: LogData, estimator: str = "ekf", settings: ekf.EKFSettings
     `intervals_ms` (None: everywhere) after the first `skip_s` seconds of estimates.
 
     Raises ValueError when the log has no ORI or no sensor samples."""
-    rows = run_offline(log.samples, estimator, settings, sensors)
+    rows = run_offline(log.samples, estimator, settings, sensors, log.session_starts)
     ori_times = np.unique(np.fromiter((s.t_ms for s in log.samples if s.tag == "ORI"),
                                       dtype=np.int64))
     return reference_errors(rows, ori_times, intervals_ms, skip_s).summary

@@ -43,12 +43,15 @@ class PreparedLog:
     values: np.ndarray
     ori_times: np.ndarray
     path: str = ""
+    session_starts: tuple[int, ...] = ()
 
     @classmethod
     def from_log(cls, log: LogData) -> "PreparedLog":
         arrays = samples_to_arrays(log.samples)
         ori = np.unique(arrays.t_ms[arrays.tag == ORI_CODE])
-        return cls(arrays.t_ms, arrays.tag, arrays.values, ori, log.path)
+        # log.samples holds only the filter tags, so its session starts index the arrays too
+        return cls(arrays.t_ms, arrays.tag, arrays.values, ori, log.path,
+                   tuple(int(k) for k in getattr(log, "session_starts", ())))
 
     @property
     def duration_s(self) -> float:
@@ -65,7 +68,8 @@ class PreparedLog:
             return self
         n = int(np.searchsorted(self.t_ms, t_end_ms, side="right"))
         return PreparedLog(self.t_ms[:n], self.tag[:n], self.values[:n],
-                           self.ori_times[self.ori_times <= t_end_ms], self.path)
+                           self.ori_times[self.ori_times <= t_end_ms], self.path,
+                           tuple(k for k in self.session_starts if k < n))
 
 
 def prepare(log: LogData | PreparedLog) -> PreparedLog:
@@ -91,9 +95,17 @@ class RefilterResult:
 
 def run_rows(prepared: PreparedLog, settings: ekf.EKFSettings | None, estimator: str = "ekf",
              sensors: Iterable[str] = SENSORS) -> Rows:
-    """The rows of a whole run (one runner, one call through the batch path)."""
+    """The rows of a whole run (one runner, one call through the batch path per stream; the
+    estimators start afresh where the log's clock restarts, as in run_offline)."""
     runner = EstimatorRunner(estimator, settings, sensors)
-    runner.feed_arrays(prepared.t_ms, prepared.tag, prepared.values)
+    previous = 0
+    for start in list(prepared.session_starts) + [len(prepared.t_ms)]:
+        if start > previous:
+            runner.feed_arrays(prepared.t_ms[previous:start], prepared.tag[previous:start],
+                               prepared.values[previous:start])
+        if start < len(prepared.t_ms):
+            runner.new_session()
+        previous = start
     runner.finish()
     return runner.take_rows()
 
@@ -133,15 +145,14 @@ def ab_rows(current: RefilterResult | None,
 def angle_between_runs_deg(current: RefilterResult, ghost: RefilterResult) -> np.ndarray:
     """Per row of the current run, the angle (degrees) between its estimate and the ghost's at
     the same time (NaN where the ghost has no row there): the "difference" curve."""
-    from app.engine.runner import angles_deg
-
     index = np.searchsorted(ghost.rows.t_ms, current.rows.t_ms)
     index = np.clip(index, 0, max(len(ghost.rows) - 1, 0))
     out = np.full(len(current.rows), np.nan)
     if len(ghost.rows) == 0:
         return out
     same = ghost.rows.t_ms[index] == current.rows.t_ms
-    out[same] = angles_deg(current.rows.quat[same], ghost.rows.quat[index[same]])
+    out[same] = np.degrees(ekf.quaternion.angle_between(current.rows.quat[same],
+                                                        ghost.rows.quat[index[same]]))
     return out
 
 

@@ -17,13 +17,14 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
 
 import ekf
 from ekf import SENSORS, magcal
+from app.engine.compare import ErrorRows, ErrorSums, SameInstant
 from app.stream.fastparse import samples_to_arrays
 from app.stream.protocol import Sample
 
@@ -37,41 +38,19 @@ def combination_name(sensors: Iterable[str]) -> str:
     return "+".join(sensors)
 
 
-def angle_deg(p, q) -> float:
-    """Angle between two unit quaternions (rotation from one to the other), degrees; NaN if
-    either is missing. Plain floats: this runs once per row."""
-    if p is None or q is None:
-        return math.nan
-    dot = abs(p[0] * q[0] + p[1] * q[1] + p[2] * q[2] + p[3] * q[3])
-    norm = math.sqrt((p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3])
-                     * (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]))
-    if not norm > 0.0:
-        return math.nan
-    return math.degrees(2.0 * math.acos(min(1.0, dot / norm)))
-
-
-def angles_deg(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Row-wise angle between quaternion stacks (N, 4), degrees; NaN where a row is NaN."""
-    dot = np.abs(np.sum(p * q, axis=1))
-    norm = np.sqrt(np.sum(p * p, axis=1) * np.sum(q * q, axis=1))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.degrees(2.0 * np.arccos(np.minimum(1.0, dot / norm)))
-
-
 @dataclass
 class Rows:
     """Per distinct phone time (rows in time order).
 
     t_ms (N,) int64; quat (N, 4) the main estimate after every sample at that time; phone_quat
-    (N, 4) the latest ORI at or before that time (NaN before the first); angle_deg (N,) OWN vs
-    PHONE; acc_rejected, mag_rejected, at_rest (N,) bool: the main estimator's lights;
+    (N, 4) the latest ORI at or before that time (NaN before the first); acc_rejected,
+    mag_rejected, at_rest (N,) bool: the main estimator's lights;
     has_sample (N,) bool: a GYR, ACC or MAG sample has this time (False: ORI only).
     """
 
     t_ms: np.ndarray
     quat: np.ndarray
     phone_quat: np.ndarray
-    angle_deg: np.ndarray
     acc_rejected: np.ndarray
     mag_rejected: np.ndarray
     at_rest: np.ndarray
@@ -86,7 +65,7 @@ class Rows:
 
     @staticmethod
     def empty() -> Rows:
-        return Rows(np.empty(0, np.int64), np.empty((0, 4)), np.empty((0, 4)), np.empty(0),
+        return Rows(np.empty(0, np.int64), np.empty((0, 4)), np.empty((0, 4)),
                     np.empty(0, bool), np.empty(0, bool), np.empty(0, bool), np.empty(0, bool))
 
     def select(self, mask: np.ndarray) -> Rows:
@@ -104,18 +83,14 @@ class Rows:
 
 @dataclass
 class ComparisonState:
-    """One comparison estimator and its running error against the phone."""
+    """One comparison estimator (a sensor combination) and its running error against the
+    phone's own estimate, compared at the phone's time stamps."""
 
     name: str
     sensors: tuple[str, ...]
-    estimator: object
-    angle_to_phone_deg: float = math.nan
-    squared_sum: float = 0.0
-    count: int = 0
-
-    @property
-    def rmse_deg(self) -> float:
-        return math.sqrt(self.squared_sum / self.count) if self.count else math.nan
+    estimator: ekf.Estimator
+    same_instant: SameInstant = field(default_factory=SameInstant)
+    errors: ErrorSums = field(default_factory=ErrorSums)
 
 
 _NAN4 = (math.nan, math.nan, math.nan, math.nan)
@@ -161,33 +136,6 @@ def _layout(t_ms, tag, row_of, row_t, group_last, group_row, group_ori):
         group_ori[groups] = last_ori
         groups += 1
     return rows, groups
-
-
-@_jit
-def _angle_deg(p0, p1, p2, p3, q0, q1, q2, q3):
-    """:func:`angle_deg`, compiled (the same operations, so the same bits)."""
-    dot = abs(p0 * q0 + p1 * q1 + p2 * q2 + p3 * q3)
-    norm = math.sqrt((p0 * p0 + p1 * p1 + p2 * p2 + p3 * p3)
-                     * (q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3))
-    if not norm > 0.0:
-        return math.nan
-    return math.degrees(2.0 * math.acos(min(1.0, dot / norm)))
-
-
-@_jit
-def _accumulate_errors(quat, phone, squared_sum, count, latest):
-    """Per row with a phone quaternion: the angle to it; returns the running (squared_sum,
-    count, latest angle) as :meth:`EstimatorRunner._commit_row` would, row by row."""
-    for k in range(quat.shape[0]):
-        if math.isnan(phone[k, 0]):
-            continue
-        error = _angle_deg(quat[k, 0], quat[k, 1], quat[k, 2], quat[k, 3],
-                           phone[k, 0], phone[k, 1], phone[k, 2], phone[k, 3])
-        latest = error
-        if error == error:
-            squared_sum += error * error
-            count += 1
-    return squared_sum, count, latest
 
 
 class _RowsResult:
@@ -250,9 +198,10 @@ class EstimatorRunner:
     """Feed ordered samples; read the latest estimates; take the rows produced so far.
 
     estimator: a name from ekf.ESTIMATORS; settings: ekf.EKFSettings or None (default preset);
-    sensors: the sensors enabled in the main estimator; comparisons: also run the 7 EKF sensor
-    combinations. collect_plot: keep the raw ACC/GYR/MAG samples with their rejected flags for
-    plotting (:meth:`take_plot_samples`).
+    sensors: the sensors enabled in the main estimator; comparisons: also run the 7 sensor
+    combinations of `comparison_estimator` (default the EKF with the same settings).
+    collect_plot: keep the raw ACC/GYR/MAG samples with their rejected flags for plotting
+    (:meth:`take_plot_samples`).
 
     Samples must come in time order (at equal times GYR, ACC, MAG, as TimeOrderer releases
     them). :meth:`feed_arrays` takes a chunk as arrays and runs each estimator over it in one
@@ -260,17 +209,22 @@ class EstimatorRunner:
     result does not depend on the chunking: it is what feeding the samples one by one with
     update_gyr/acc/mag gives, bit for bit, with one row per distinct time committed when a
     later time arrives (or at :meth:`finish`) from the estimators' state at that moment.
+
+    Against the phone's own estimate (ORI) every estimator is compared at the phone's time
+    stamps (app.engine.compare): the main one's errors per ORI sample come out of
+    :meth:`take_errors`, the comparisons keep running RMSEs.
     """
 
     def __init__(self, estimator: str = "ekf", settings: ekf.EKFSettings | None = None,
                  sensors: Iterable[str] = SENSORS, comparisons: bool = False,
-                 collect_plot: bool = False) -> None:
+                 collect_plot: bool = False, comparison_estimator: str = "ekf") -> None:
         self.estimator_name = estimator
         self.settings = settings if settings is not None else ekf.PRESETS["default"]
         self._mag_correction = magcal.settings_correction(self.settings)
         self._sensors = tuple(s for s in SENSORS if s in tuple(sensors))
         self.main: ekf.Estimator = ekf.make_estimator(estimator, self.settings, self._sensors)
         self.collect_plot = collect_plot
+        self.comparison_estimator = comparison_estimator
         self.comparisons: list[ComparisonState] = []
         if comparisons:
             self.set_comparisons_enabled(True)
@@ -278,6 +232,9 @@ class EstimatorRunner:
         self.latest_t_ms: int | None = None
         self._row_t: int | None = None           # the latest time: its row is still open
         self._row_has_sample = False             # ... and whether it has a sensor sample
+        self._main_same_instant = SameInstant()
+        self._errors: list[ErrorRows] = []
+        self._phone_samples: list[tuple[np.ndarray, np.ndarray]] = []   # (t_ms, quat) ORI
         self._reset_rows()
         self._reset_plot()
 
@@ -299,6 +256,7 @@ class EstimatorRunner:
                                        tuple(s for s in SENSORS if enabled[s]) or SENSORS)
         self.main.set_enabled(**enabled)
         self.estimator_name = name
+        self._main_same_instant.reset()
 
     def set_settings(self, settings: ekf.EKFSettings) -> None:
         """New settings from the next sample on, for the main and comparison estimators."""
@@ -307,28 +265,48 @@ class EstimatorRunner:
         for estimator in [self.main] + [c.estimator for c in self.comparisons]:
             estimator.set_settings(settings)
 
+    def new_session(self) -> None:
+        """A stream whose clock does not continue the previous one (another phone, a reboot,
+        an earlier connection's fake clock): commit the open row, forget every estimator's state
+        and the phone's orientation; nothing of the earlier stream carries over."""
+        self.finish()
+        self.reset()
+        self.phone_quat = None
+
     def reset(self) -> None:
         """Forget the orientation of every estimator; they re-initialise from the next samples."""
         self.main.reset()
+        self._main_same_instant.reset()
         for comparison in self.comparisons:
             comparison.estimator.reset()
-            comparison.squared_sum, comparison.count = 0.0, 0
-            comparison.angle_to_phone_deg = math.nan
+            comparison.same_instant.reset()
+            comparison.errors.clear()
 
-    def align_heading(self) -> bool:
-        """Turn OWN's world about up so its heading matches PHONE's. False without ORI yet."""
+    def align_heading(self) -> float | None:
+        """Turn OWN's world about up so its heading matches PHONE's; returns the angle turned
+        [deg], None without ORI yet."""
         if self.phone_quat is None:
-            return False
+            return None
+        before = self.main.quat
         self.main.align_heading(np.array(self.phone_quat))
-        return True
+        turn = ekf.quaternion.heading_of(ekf.quaternion.multiply(
+            self.main.quat, ekf.quaternion.conjugate(before)))
+        return math.degrees(turn)
 
-    def set_comparisons_enabled(self, enabled: bool) -> None:
+    def set_comparisons_enabled(self, enabled: bool, estimator: str | None = None) -> None:
+        """Run (or stop) the 7 sensor combinations of `estimator` (None: keep the current one);
+        a new estimator starts them afresh."""
+        if estimator is not None and estimator != self.comparison_estimator:
+            if estimator not in ekf.ESTIMATORS:
+                raise ValueError(f"unknown estimator {estimator!r}")
+            self.comparison_estimator = estimator
+            self.comparisons = []
         if not enabled:
             self.comparisons = []
         elif not self.comparisons:
             self.comparisons = [
                 ComparisonState(combination_name(combo), combo,
-                                ekf.make_estimator("ekf", self.settings, combo))
+                                ekf.make_estimator(self.comparison_estimator, self.settings, combo))
                 for combo in COMBINATIONS]
 
     # -- samples ------------------------------------------------------------------------------
@@ -360,18 +338,26 @@ class EstimatorRunner:
             # here, once, for every estimator; the plot samples stay as the phone sent them.
             mag = magcal.correct(mag, *self._mag_correction)
         result = _run_rows(self.main, t_s, gyr, acc, mag)
-        # comparisons are always compiled EKFs
         compared = [c.estimator.run_batch(t_s, gyr, acc, mag).quat if layout.n_rows
                     else np.empty((0, 4)) for c in self.comparisons]
-        self._commit_groups(layout, result, compared, before)
         ori = np.flatnonzero(tag == 3)
         if len(ori):
+            self._add_phone(t_ms[ori], values[ori])
             self.phone_quat = tuple(values[ori[-1]].tolist())
+        self._commit_groups(layout, result, compared, before)
         if self.collect_plot:
             self._collect_plot(layout, result)
         self.latest_t_ms = int(t_ms[-1])
         self._row_t = self.latest_t_ms
         self._row_has_sample = bool(layout.own_sample[-1])
+
+    def _add_phone(self, t_ms: np.ndarray, quat: np.ndarray) -> None:
+        quat = np.asarray(quat, float)
+        self._main_same_instant.add_phone(t_ms, quat)
+        for comparison in self.comparisons:
+            comparison.same_instant.add_phone(t_ms, quat)
+        if self.collect_plot:
+            self._phone_samples.append((np.asarray(t_ms, np.int64), quat))
 
     def _state_before(self) -> tuple:
         status = self.main.flags
@@ -397,16 +383,22 @@ class EstimatorRunner:
         has_ori = group_ori >= 0
         phone = np.where(has_ori[:, None], layout.values[np.where(has_ori, group_ori, 0)],
                          np.array(phone_before))
-        if self.comparisons and not np.isnan(phone[:, 0]).all():
-            for comparison, compared_quat, previous in zip(self.comparisons, compared,
-                                                           compare_before):
-                rows = np.where(has_row[:, None], 0.0 if empty else compared_quat[index],
-                                previous)
-                comparison.squared_sum, comparison.count, comparison.angle_to_phone_deg = \
-                    _accumulate_errors(rows, phone, comparison.squared_sum, comparison.count,
-                                       comparison.angle_to_phone_deg)
-        self._add_rows(layout.t_ms[layout.group_last[:done]], quat, phone, flags,
-                       layout.own_sample[:done])
+        t_rows = layout.t_ms[layout.group_last[:done]]
+        own = layout.own_sample[:done]
+        self._compare(t_rows[own], quat[own],
+                      [np.where(has_row[:, None], 0.0 if empty else q[index], previous)[own]
+                       for q, previous in zip(compared, compare_before)])
+        self._add_rows(t_rows, quat, phone, flags, own)
+
+    def _compare(self, t_ms: np.ndarray, quat: np.ndarray, compared: list[np.ndarray]) -> None:
+        """Committed estimates (sensor times only) against the ORI samples they bracket."""
+        if not len(t_ms):
+            return
+        errors = self._main_same_instant.add_estimates(t_ms, quat)
+        if len(errors):
+            self._errors.append(errors)
+        for comparison, rows in zip(self.comparisons, compared):
+            comparison.errors.add(comparison.same_instant.add_estimates(t_ms, rows))
 
     def _collect_plot(self, layout: _ChunkLayout, result: _RowsResult) -> None:
         rejected = {1: result.acc_rejected, 2: result.mag_rejected}
@@ -435,10 +427,6 @@ class EstimatorRunner:
     def own_quat(self) -> np.ndarray:
         return self.main.quat
 
-    @property
-    def angle_deg(self) -> float:
-        return angle_deg(self.main.quat, self.phone_quat)
-
     # -- rows ---------------------------------------------------------------------------------
 
     def _reset_rows(self) -> None:
@@ -458,14 +446,11 @@ class EstimatorRunner:
         q = self.main.quat
         phone = self.phone_quat
         status = self.main.flags
-        if phone is not None:
-            for comparison in self.comparisons:
-                error = angle_deg(comparison.estimator.quat, phone)
-                comparison.angle_to_phone_deg = error
-                if error == error:
-                    comparison.squared_sum += error * error
-                    comparison.count += 1
-        self._add_rows(np.array([self._row_t], np.int64), q.reshape(1, 4),
+        t = np.array([self._row_t], np.int64)
+        if self._row_has_sample:
+            self._compare(t, q.reshape(1, 4),
+                          [c.estimator.quat.reshape(1, 4) for c in self.comparisons])
+        self._add_rows(t, q.reshape(1, 4),
                        np.array([phone if phone is not None else _NAN4], np.float64),
                        np.array([[status.acc_rejected, status.mag_rejected, status.at_rest]],
                                 bool), np.array([self._row_has_sample]))
@@ -476,13 +461,28 @@ class EstimatorRunner:
         if not self._rows:
             return Rows.empty()
         t_ms, quat, phone, flags, has_sample = self._merged_rows()
-        quat = np.ascontiguousarray(quat, dtype=np.float64)
-        phone = np.ascontiguousarray(phone, dtype=np.float64)
-        rows = Rows(np.asarray(t_ms, dtype=np.int64), quat, phone, angles_deg(quat, phone),
-                    flags[:, 0].copy(), flags[:, 1].copy(), flags[:, 2].copy(),
-                    np.asarray(has_sample, dtype=bool))
+        rows = Rows(np.asarray(t_ms, dtype=np.int64), np.ascontiguousarray(quat, np.float64),
+                    np.ascontiguousarray(phone, np.float64), flags[:, 0].copy(),
+                    flags[:, 1].copy(), flags[:, 2].copy(), np.asarray(has_sample, dtype=bool))
         self._reset_rows()
         return rows
+
+    def take_errors(self) -> ErrorRows:
+        """The main estimator's errors against ORI resolved since the previous call: per ORI
+        sample, total/heading/inclination [deg] with our estimate slerped to its time."""
+        errors, self._errors = self._errors, []
+        if not errors:
+            return ErrorRows.empty()
+        return ErrorRows(np.concatenate([e.t_ms for e in errors]),
+                         np.concatenate([e.error_deg for e in errors]))
+
+    def take_phone_samples(self) -> tuple[np.ndarray, np.ndarray]:
+        """ORI samples fed since the previous call (with collect_plot): t_ms (n,), quat (n, 4)."""
+        samples, self._phone_samples = self._phone_samples, []
+        if not samples:
+            return np.empty(0, np.int64), np.empty((0, 4))
+        return (np.concatenate([t for t, _ in samples]),
+                np.concatenate([q for _, q in samples]))
 
     # -- plot samples ---------------------------------------------------------------------------
 

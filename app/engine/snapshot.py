@@ -22,23 +22,27 @@ import ekf
 class FilterStatus:
     """The main estimator's lights and their reasons: its flags and diagnostics as the estimator
     declares them (ekf.Flags, ekf.Diagnostics; units in their README tables), which sensors are
-    switched in, and the estimator's name."""
+    switched in, the estimator's name and whether it has started (from its first readings)."""
 
     sensors_enabled: dict[str, bool] = field(
         default_factory=lambda: {"gyr": True, "acc": True, "mag": True})
     flags: ekf.Flags = field(default_factory=ekf.Flags)
     diagnostics: ekf.Diagnostics = field(default_factory=ekf.Diagnostics)
     estimator: str = "ekf"
+    initialised: bool = False
 
 
 @dataclass
 class Comparison:
-    """One estimator run side by side on the same stream (task 12, live)."""
+    """One sensor combination run side by side on the same stream (task 12, live), compared with
+    PHONE at PHONE's time stamps: RMSE and latest error of the total angle, heading and
+    inclination [deg], over `samples` ORI samples (NaN before the first)."""
 
-    name: str
+    name: str                     # "gyr+acc+mag", "gyr+acc", ...
     quat: np.ndarray | None
-    angle_to_phone_deg: float = float("nan")
-    rmse_deg: float = float("nan")
+    rmse_deg: tuple[float, float, float] = (float("nan"),) * 3
+    latest_deg: tuple[float, float, float] = (float("nan"),) * 3
+    samples: int = 0
 
 
 @dataclass
@@ -56,13 +60,32 @@ class StreamHealth:
     out_of_order: int = 0
     clock_quirks: list[str] = field(default_factory=list)     # human-readable, e.g. "ACC clock +131072000 ms (aligned)"
     warnings: list[str] = field(default_factory=list)         # rate-limited messages for the status bar
+    damaged_reasons: dict[str, int] = field(default_factory=dict)   # e.g. {"ACC out of range": 2}
+    sessions: int = 0                        # new sessions (a clock that did not continue)
+    reorder_window_ms: int = 100             # the time orderer's window now (adapts to lags)
+    lags_ms: dict[str, int] = field(default_factory=dict)     # learned lag per tag
+    waiting_peers: list[str] = field(default_factory=list)    # connections waiting to stream
+    connections_closed: dict[str, int] = field(default_factory=dict)  # reason -> count
+    allowed: list[str] = field(default_factory=list)          # who may connect (empty: anyone)
+    recording: str | None = None             # "recording into DIR (1.2 MB)" / "recording stopped: ..."
+
+
+def lag_text(health: StreamHealth) -> str:
+    """"reorder window 197 ms (MAG 150 ms behind)": the window and the tags that widen it."""
+    lags = ", ".join(f"{tag} {lag} ms behind" for tag, lag in sorted(health.lags_ms.items())
+                     if lag + lag // 4 + 10 > 100)
+    return f"reorder window {health.reorder_window_ms} ms" + (f" ({lags})" if lags else "")
 
 
 @dataclass
 class PlotChunk:
     """New samples since the previous snapshot (each array may be empty).
 
-    t_* are phone times in seconds (float64). Rejected masks are per sample.
+    t_* are seconds since the session's start (Snapshot.t0_ms on the phone's clock), float64.
+    Rejected masks are per sample. Euler angles [deg] are z-y-x (yaw, pitch, roll:
+    R = Rz(yaw) Ry(pitch) Rx(roll)), wrapped: yaw and roll in [-180, 180], pitch in [-90, 90].
+    OWN's are at our estimate times (t_est), PHONE's at its own sample times (t_ori); the
+    errors of OWN against PHONE at PHONE's times (t_err), our estimate slerped to them.
     """
 
     t_acc: np.ndarray = field(default_factory=lambda: np.empty(0))
@@ -74,9 +97,11 @@ class PlotChunk:
     mag: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
     mag_rejected: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
     t_est: np.ndarray = field(default_factory=lambda: np.empty(0))
-    own_euler_deg: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))    # unwrapped
-    phone_euler_deg: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))  # unwrapped, NaN where no ORI yet
-    angle_deg: np.ndarray = field(default_factory=lambda: np.empty(0))              # angle OWN vs PHONE
+    own_euler_deg: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
+    t_ori: np.ndarray = field(default_factory=lambda: np.empty(0))
+    phone_euler_deg: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
+    t_err: np.ndarray = field(default_factory=lambda: np.empty(0))
+    error_deg: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))  # total, heading, inclination
 
 
 @dataclass(frozen=True)
@@ -103,6 +128,8 @@ class Snapshot:
     phone_quat: np.ndarray | None = None      # (4,) latest ORI
     status: FilterStatus = field(default_factory=FilterStatus)
     comparisons: list[Comparison] = field(default_factory=list)
+    comparison_estimator: str = "ekf"         # the estimator the comparisons run
+    t0_ms: int | None = None                  # the session's start on the phone's clock
     plot: PlotChunk = field(default_factory=PlotChunk)
     health: StreamHealth = field(default_factory=StreamHealth)
     replay: dict[str, Any] | None = None      # {"position_s", "duration_s", "speed", "paused", "loop"} when replaying

@@ -7,6 +7,13 @@ one :class:`~app.engine.snapshot.PlotChunk`. Neither side waits for the other; b
 bounded. Commands (:mod:`app.engine.commands`) go in with :meth:`Engine.send` and are applied
 between two batches of samples, in the order they were sent.
 
+Nothing a client sends reaches a filter unchecked: the parser rejects values outside the
+physical bounds (:class:`~app.stream.protocol.Limits`; counted as damaged by reason), and a
+stream whose clock does not continue the previous one's starts a new session (the orderer says
+where; the estimators start afresh, nothing of an earlier connection carries over). A recording
+that fails (disk full, folder removed, size or free-space limit) stops with a one-line warning
+while the stream and the estimates go on.
+
 A failure while processing a batch never ends the engine silently: it is logged with its
 traceback, published in the snapshots (:class:`~app.engine.snapshot.EngineFailure`, which the
 window shows with a "copy details" button and `serve` prints) and the engine goes on with the
@@ -21,6 +28,7 @@ kernels release the GIL, so the GUI thread keeps running while the engine comput
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import queue
@@ -38,6 +46,7 @@ import numpy as np
 import ekf
 from app.engine.commands import (AlignHeading, ReplayControl, ResetFilter, SetComparisonsEnabled,
                                  SetEstimator, SetSensorEnabled, SetSettings)
+from app.stream.events import CONNECTION_COMMANDS
 from app.engine.estimates import EstimatesWriter
 from app.engine.runner import SENSORS, EstimatorRunner, Rows
 from app.engine.snapshot import (Comparison, EngineFailure, FilterStatus, PlotChunk, Snapshot,
@@ -46,7 +55,7 @@ from app.stream import fastparse, ordering
 from app.stream.events import Chunk, SourceEvent
 from app.stream.fastparse import ParsedArrays
 from app.stream.ordering import OrderedArrays, TimeOrderer
-from app.stream.protocol import FILTER_TAGS
+from app.stream.protocol import DEFAULT_LIMITS, FILTER_TAGS, Limits
 from app.stream.recorder import Recorder
 from app.stream.sources import Source
 
@@ -58,17 +67,6 @@ PUBLISH_IDLE_S = 0.25          # publish health at least this often without data
 WARNING_INTERVAL_S = 5.0       # one warning of a kind per this many seconds
 MAX_FAILURES = 5               # this many failures within FAILURE_WINDOW_S stop the engine
 FAILURE_WINDOW_S = 10.0
-
-
-def _unwrap_continuing(angles_deg: np.ndarray, previous: np.ndarray | None) -> np.ndarray:
-    """Unwrap (N, 3) degree rows along time, continuing from `previous` (3,); NaN rows stay NaN
-    and do not break the continuity of the rows around them."""
-    out = np.array(angles_deg, dtype=np.float64, copy=True)
-    finite = np.isfinite(out).all(axis=1)
-    if not finite.any():
-        return out
-    out[finite] = ekf.quaternion.unwrap_deg(out[finite], previous)
-    return out
 
 
 class _PlotBuffer:
@@ -106,7 +104,8 @@ class Engine:
     combinations too; recorder: an :class:`app.stream.recorder.Recorder` that gets every received
     known-tag line; estimates: an :class:`~app.engine.estimates.EstimatesWriter` that gets every
     estimate row (a recording's estimates.csv); record_rows: keep every estimate row in
-    :attr:`rows_log` (tests/benchmarks: unbounded memory).
+    :attr:`rows_log` (tests/benchmarks: unbounded memory); limits: the physical bounds a sample
+    must respect (others are damaged lines).
     """
 
     def __init__(self, source: Source, settings: ekf.EKFSettings | None = None,
@@ -114,7 +113,8 @@ class Engine:
                  sensors: Iterable[str] = SENSORS, recorder: Recorder | None = None,
                  estimates: EstimatesWriter | None = None, record_rows: bool = False,
                  max_plot_rows: int = 60_000,
-                 orderer_options: dict[str, Any] | None = None) -> None:
+                 orderer_options: dict[str, Any] | None = None,
+                 limits: Limits = DEFAULT_LIMITS) -> None:
         if estimator not in ekf.ESTIMATORS:
             raise ValueError(f"unknown estimator {estimator!r}; choose from "
                              f"{', '.join(ekf.ESTIMATORS)}")
@@ -122,7 +122,9 @@ class Engine:
         self.recorder = recorder
         self.estimates = estimates
         self.record_rows = record_rows
+        self.limits = limits
         self.rows_log: list[Rows] = []
+        self._recording_reported = False
         self._orderer_options = dict(orderer_options or {})
         self._runner = EstimatorRunner(estimator, settings, sensors, comparisons,
                                        collect_plot=True)
@@ -142,8 +144,7 @@ class Engine:
         self._warned_at: dict[str, float] = {}
         self._tag_times: dict[str, deque[int]] = {}
         self._line_rate_marks: deque[tuple[float, int]] = deque()
-        self._previous_own_euler: np.ndarray | None = None
-        self._previous_phone_euler: np.ndarray | None = None
+        self._t0_ms: int | None = None     # the session's start: plots count time from it
         self._last_publish = 0.0
         self._backlog: list[Chunk | SourceEvent] = []   # read but not yet processed
         # (chunk arrival time, orderer sequence after it): a chunk's estimates are out once
@@ -161,6 +162,7 @@ class Engine:
         self.waiting_since: float | None = None
         self.samples_processed = 0
         self._parser_retired = [0, 0, 0, 0, 0]   # counts of parsers replaced by a seek
+        self._reasons_retired: dict[str, int] = {}
         self._order_retired = 0
 
     # -- lifecycle --------------------------------------------------------------------------------
@@ -231,19 +233,16 @@ class Engine:
             return self._copy_latest(PlotChunk())
 
     def _copy_latest(self, plot: PlotChunk) -> Snapshot:
-        latest = self._latest
-        return Snapshot(seq=self._seq, t_ms=latest.t_ms, own_quat=latest.own_quat,
-                        own_cov=latest.own_cov, phone_quat=latest.phone_quat,
-                        status=latest.status, comparisons=latest.comparisons, plot=plot,
-                        health=latest.health, replay=latest.replay, failures=latest.failures)
+        return dataclasses.replace(self._latest, seq=self._seq, plot=plot)
 
     # -- engine thread ----------------------------------------------------------------------------
 
     def _new_parser(self) -> fastparse.FastLineParser:
         if self.recorder is None:
-            return fastparse.FastLineParser()
+            return fastparse.FastLineParser(limits=self.limits)
         return fastparse.FastLineParser(raw_sink=self.recorder.write_line,
-                                        raw_block_sink=self.recorder.write_block)
+                                        raw_block_sink=self.recorder.write_block,
+                                        limits=self.limits)
 
     def _run(self) -> None:
         while not self._stop.is_set():
@@ -295,8 +294,22 @@ class Engine:
             self._publish(now)
         if self.recorder is not None:
             self.recorder.tick()
+            self._check_recording()
         if self.estimates is not None:
             self.estimates.flush()
+
+    def _check_recording(self) -> None:
+        """A recording that stopped (write error, size or free-space limit) is reported once;
+        its estimates.csv stops with it (the session ends there)."""
+        recorder = self.recorder
+        if recorder is None or recorder.error is None or self._recording_reported:
+            return
+        self._recording_reported = True
+        log.error("recording stopped: %s", recorder.error)
+        self._warn("recording", f"recording stopped: {recorder.error}", force=True)
+        if self.estimates is not None:
+            self.estimates.close()
+            self.estimates = None
 
     def _on_failure(self, error: BaseException) -> bool:
         """Log and publish a failure; True when there were too many to go on."""
@@ -341,9 +354,23 @@ class Engine:
             self._seq += 1
 
     def _feed(self, ordered: OrderedArrays) -> None:
-        if len(ordered):
-            self._runner.feed_arrays(ordered.t_ms, ordered.tag, ordered.values)
-            self.samples_processed += len(ordered)
+        if not len(ordered.session_starts):
+            if len(ordered):
+                self._runner.feed_arrays(ordered.t_ms, ordered.tag, ordered.values)
+                self.samples_processed += len(ordered)
+            return
+        # A clock that does not continue the previous stream's: nothing carries over (the
+        # session may start while its first samples are still held: nothing released yet), and
+        # the plots count time from the new session's start.
+        for new, piece in ordered.pieces():
+            if new:
+                self._record_event("session", reason="the clock does not continue")
+                self._runner.finish()
+                self._start_session()
+                self._runner.new_session()
+            self._runner.feed_arrays(ordered.t_ms[piece], ordered.tag[piece],
+                                     ordered.values[piece])
+        self.samples_processed += len(ordered)
 
     def _parsed(self, parsed: ParsedArrays) -> None:
         """Parsed samples (in line order) -> rates, orderer, estimators."""
@@ -367,8 +394,10 @@ class Engine:
 
     def _on_event(self, event: SourceEvent) -> None:
         kind = event.kind
+        if kind in ("connected", "loop", "seek"):
+            self._end_of_stream(partial_line_damaged=kind == "connected")
+            self._start_session()
         if kind == "connected":
-            self._end_of_stream(partial_line_damaged=True)
             self._feed(self._orderer.restart_arrays())
             self._connection_state = "replaying" if self.source.kind != "tcp" else "connected"
             self._peer = event.peer
@@ -379,12 +408,10 @@ class Engine:
             self._warn("disconnected", f"phone disconnected ({event.detail})")
             self._record_event("disconnected", peer=event.peer, reason=event.detail)
         elif kind == "loop":
-            self._end_of_stream(partial_line_damaged=False)
-            self._feed(self._orderer.restart_arrays())
+            self._feed(self._orderer.restart_arrays(continue_time=True))
         elif kind == "seek":
             # Re-run the filter from the start of the log up to the target (the source sends
             # those lines unpaced): the estimate there is exactly what playing would give.
-            self._end_of_stream(partial_line_damaged=False)
             self._runner.take_rows()
             self._runner.take_plot_samples()
             self._runner.reset()
@@ -395,18 +422,29 @@ class Engine:
             # everything the old orderer held was released by _end_of_stream
             self._pending_host_times = deque(((t_host, -1) for t_host, _ in
                                               self._pending_host_times), maxlen=100_000)
-            self._previous_own_euler = self._previous_phone_euler = None
         elif kind == "finished":
             self._end_of_stream(partial_line_damaged=False)
             self._connection_state = "finished"
         elif kind == "error":
             self._warn("error", event.detail, force=True)
+        elif kind == "closed":
+            self._warn("closed", event.detail)
+
+    def _start_session(self) -> None:
+        """A new connection, a replay's loop or seek: what the old session produced goes out
+        (to the next poll) with its own time origin, and the next samples set a new one."""
+        piece = self._take_output()
+        with self._lock:
+            self._plot.add(piece)
+        self._t0_ms = None
 
     def _retire_parser(self) -> None:
         stats = self._parser.stats
         for index, value in enumerate((stats.lines, stats.damaged, stats.unknown,
                                        stats.too_long, stats.good)):
             self._parser_retired[index] += value
+        for reason, count in stats.damaged_reasons.items():
+            self._reasons_retired[reason] = self._reasons_retired.get(reason, 0) + count
         self._parser = self._new_parser()
 
     def _end_of_stream(self, partial_line_damaged: bool) -> None:
@@ -416,7 +454,7 @@ class Engine:
         if partial_line_damaged:
             if parser._pending or parser._discarding:
                 kind = "too_long" if parser._discarding else "damaged"
-                parser._count_bad(kind, "line cut off by the end of the connection")
+                parser._count_bad(kind, "line cut off by the end of the connection", "cut off")
             parser.reset_line()
         else:
             self._parsed(parser.finish_arrays())
@@ -456,13 +494,19 @@ class Engine:
             runner.reset()
             self._record_event("reset")
         elif isinstance(command, AlignHeading):
-            if runner.align_heading():
-                self._record_event("align_heading")
-            else:
+            turned = runner.align_heading()
+            if turned is None:
                 self._warn("align", "align heading: no PHONE orientation (ORI) yet", force=True)
+            else:
+                self._record_event("align_heading", turned_deg=round(turned, 2))
+                self._warn("align", f"heading aligned with PHONE: OWN turned by {turned:+.1f}° "
+                                    "about up", force=True)
         elif isinstance(command, SetComparisonsEnabled):
-            runner.set_comparisons_enabled(command.enabled)
-        elif isinstance(command, ReplayControl):
+            if command.estimator is not None and command.estimator not in ekf.ESTIMATORS:
+                self._warn("command", f"unknown estimator {command.estimator!r}", force=True)
+                return
+            runner.set_comparisons_enabled(command.enabled, command.estimator)
+        elif isinstance(command, (ReplayControl, *CONNECTION_COMMANDS)):
             self.source.control(command)
         else:
             self._warn("command", f"unknown command {command!r}", force=True)
@@ -527,13 +571,15 @@ class Engine:
     def _stats_dict(self) -> dict[str, Any]:
         health = self._latest.health
         return {"lines": health.lines_total, "damaged": health.damaged,
+                "damaged_reasons": dict(health.damaged_reasons),
                 "unknown": health.unknown, "too_long": health.too_long,
                 "out_of_order": health.out_of_order, "clock_quirks": list(health.clock_quirks),
-                "rates_hz": dict(health.rates_hz)}
+                "sessions": health.sessions, "rates_hz": dict(health.rates_hz),
+                "connections_closed": dict(health.connections_closed)}
 
-    def _publish(self, now: float) -> None:
-        """Hand the rows and plot samples since the last publish to their consumers and make a
-        new snapshot the latest."""
+    def _take_output(self) -> PlotChunk:
+        """The rows since the last call to their consumers (rows_log, estimates.csv); the plot
+        samples as a PlotChunk in the current session's time."""
         runner = self._runner
         rows = runner.take_rows()
         if self.record_rows and len(rows):
@@ -544,7 +590,13 @@ class Engine:
                 self._warn("estimates", f"estimates.csv stopped: {self.estimates.error}",
                            force=True)
                 self.estimates = None
-        piece = self._plot_piece(rows, runner.take_plot_samples())
+        return self._plot_piece(rows, runner.take_plot_samples())
+
+    def _publish(self, now: float) -> None:
+        """Hand the rows and plot samples since the last publish to their consumers and make a
+        new snapshot the latest."""
+        runner = self._runner
+        piece = self._take_output()
         main = runner.main
         cov = main.cov
         info = self.source.info()
@@ -554,8 +606,10 @@ class Engine:
             own_cov=None if cov is None else np.array(cov)[:4, :4],
             phone_quat=None if phone is None else np.array(phone),
             status=self._filter_status(),
-            comparisons=[Comparison(c.name, c.estimator.quat, c.angle_to_phone_deg, c.rmse_deg)
+            comparisons=[Comparison(c.name, c.estimator.quat, tuple(c.errors.rmse().tolist()),
+                                    tuple(c.errors.latest.tolist()), c.errors.count)
                          for c in runner.comparisons],
+            comparison_estimator=runner.comparison_estimator, t0_ms=self._t0_ms,
             health=self._health(now, info), replay=info.get("replay"),
             failures=list(self.failures))
         published = time.perf_counter()
@@ -576,29 +630,39 @@ class Engine:
             self.recorder.set_stats(self._stats_dict())
 
     def _plot_piece(self, rows: Rows, plot: dict[str, np.ndarray]) -> PlotChunk:
-        if len(rows):
+        """The plot samples since the last publish, in seconds since the session's start."""
+        runner = self._runner
+        ori_t, ori_q = runner.take_phone_samples()
+        errors = runner.take_errors()
+        rows = rows.select(rows.has_sample)         # OWN at our own estimate times
+        if self._t0_ms is None:
+            firsts = [int(t[0]) for t in (rows.t_ms, plot["t_acc"], plot["t_gyr"],
+                                          plot["t_mag"], ori_t) if len(t)]
+            self._t0_ms = min(firsts) if firsts else None
+        t0 = self._t0_ms or 0
+        count = len(rows)
+        if count or len(ori_q):
             # one call for both series (the per-call overhead dominates at live chunk sizes)
-            euler = np.degrees(ekf.quaternion.to_euler(np.concatenate([rows.quat,
-                                                                       rows.phone_quat])))
-            own_euler = _unwrap_continuing(euler[:len(rows)], self._previous_own_euler)
-            phone_euler = _unwrap_continuing(euler[len(rows):], self._previous_phone_euler)
-            self._previous_own_euler = own_euler[-1]
-            finite = np.isfinite(phone_euler).all(axis=1)
-            if finite.any():
-                self._previous_phone_euler = phone_euler[finite][-1]
+            euler = np.degrees(ekf.quaternion.to_euler(np.concatenate([rows.quat, ori_q])))
         else:
-            own_euler = phone_euler = np.empty((0, 3))
+            euler = np.empty((0, 3))
+
+        def seconds(t_ms: np.ndarray) -> np.ndarray:
+            return (np.asarray(t_ms, np.float64) - t0) / 1000.0
+
         return PlotChunk(
-            t_acc=plot["t_acc"] / 1000.0, acc=plot["acc"], acc_rejected=plot["acc_rejected"],
-            t_gyr=plot["t_gyr"] / 1000.0, gyr=plot["gyr"],
-            t_mag=plot["t_mag"] / 1000.0, mag=plot["mag"], mag_rejected=plot["mag_rejected"],
-            t_est=rows.t_s, own_euler_deg=own_euler, phone_euler_deg=phone_euler,
-            angle_deg=rows.angle_deg)
+            t_acc=seconds(plot["t_acc"]), acc=plot["acc"], acc_rejected=plot["acc_rejected"],
+            t_gyr=seconds(plot["t_gyr"]), gyr=plot["gyr"],
+            t_mag=seconds(plot["t_mag"]), mag=plot["mag"], mag_rejected=plot["mag_rejected"],
+            t_est=seconds(rows.t_ms), own_euler_deg=euler[:count],
+            t_ori=seconds(ori_t), phone_euler_deg=euler[count:],
+            t_err=seconds(errors.t_ms), error_deg=errors.error_deg)
 
     def _filter_status(self) -> FilterStatus:
         main = self._runner.main
         return FilterStatus(sensors_enabled=main.enabled, flags=main.flags,
-                            diagnostics=main.diagnostics, estimator=self._runner.estimator_name)
+                            diagnostics=main.diagnostics, estimator=self._runner.estimator_name,
+                            initialised=main.initialised)
 
     def _health(self, now: float, info: dict[str, Any]) -> StreamHealth:
         parse = self._parser.stats
@@ -607,11 +671,29 @@ class Engine:
         state = info.get("connection_state", "waiting")
         if self.source.kind == "tcp":
             state = self._connection_state if state != "waiting" else "waiting"
+        reasons = dict(self._reasons_retired)
+        for reason, count in parse.damaged_reasons.items():
+            reasons[reason] = reasons.get(reason, 0) + count
+        order = self._orderer.stats
         return StreamHealth(
             connection_state=state, peer=info.get("peer") or self._peer,
             listen_addresses=list(info.get("listen_addresses") or []), port=info.get("port"),
             rates_hz=self._rates(), lines_per_s=round(self._lines_per_s(now, lines_total), 1),
             lines_total=lines_total, damaged=parse.damaged + retired[1],
             unknown=parse.unknown + retired[2], too_long=parse.too_long + retired[3],
-            out_of_order=self._orderer.stats.out_of_order + self._order_retired,
-            clock_quirks=list(self._orderer.stats.clock_quirks), warnings=list(self._warnings))
+            out_of_order=order.out_of_order + self._order_retired,
+            clock_quirks=list(order.clock_quirks), warnings=list(self._warnings),
+            damaged_reasons=reasons, sessions=order.sessions,
+            reorder_window_ms=order.window_ms, lags_ms=dict(order.lags_ms),
+            waiting_peers=list(info.get("waiting_peers") or []),
+            connections_closed=dict(info.get("connections_closed") or {}),
+            allowed=list(info.get("allowed") or []), recording=self._recording_text())
+
+    def _recording_text(self) -> str | None:
+        recorder = self.recorder
+        if recorder is None:
+            return None
+        if recorder.error is not None:
+            return f"recording stopped: {recorder.error}"
+        return (f"recording into {recorder.directory} "
+                f"({recorder.bytes_written / 2**20:.1f} MB)")

@@ -23,7 +23,9 @@ class Chunk:
 class SourceEvent:
     """Something that happened to a source.
 
-    kind: "listening" | "connected" | "disconnected" | "finished" | "loop" | "seek" | "error".
+    kind: "listening" | "connected" | "disconnected" | "finished" | "loop" | "seek" | "error" |
+    "closed" (the TCP server closed a connection that was not the stream: not allowed, nothing
+    valid, ignored, too many waiting; rate-limited, the counts are in the source's info()).
     peer: "ip:port" for connection events; detail: human-readable text.
     """
 
@@ -43,3 +45,29 @@ class ReplayControl:
     loop: bool | None = None
     seek_s: float | None = None   # position from the start of the log, seconds
     step: int | None = None       # advance N lines while paused
+
+
+@dataclass(frozen=True)
+class AcceptConnection:
+    """TCP only: the waiting connection from `peer` ("ip:port"; None: the one waiting longest)
+    takes over the stream now; the current one is closed."""
+
+    peer: str | None = None
+
+
+@dataclass(frozen=True)
+class IgnoreConnection:
+    """TCP only: close the waiting connection from `peer` (None: every waiting one)."""
+
+    peer: str | None = None
+
+
+@dataclass(frozen=True)
+class SetAllowedNetworks:
+    """TCP only: only these addresses or networks ("192.168.1.42", "192.168.1.0/24") may
+    connect; others are closed and counted (connections already there too). Empty: anyone."""
+
+    networks: tuple[str, ...] = ()
+
+
+CONNECTION_COMMANDS = (AcceptConnection, IgnoreConnection, SetAllowedNetworks)

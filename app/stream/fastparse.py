@@ -3,10 +3,14 @@
 :class:`FastLineParser` is a :class:`~app.stream.protocol.LineParser` whose :meth:`feed_arrays`
 scans the received bytes in one nogil numba kernel. The kernel handles the lines that make up
 a live stream -- ``<time>\\tGYR|ACC|MAG\\t<3 numbers>`` and ``<time>\\tORI\\t<4 numbers>`` in
-plain Java float text -- and hands every other line (other tags, 3-value ORI, NaN/Infinity,
-long mantissas, bad lines, lines over MAX_LINE_BYTES, non-ASCII bytes) to the inherited Python
-:meth:`LineParser._line`, in line order, so every sample, count, example message and recorded
-byte is exactly what :class:`LineParser` gives, whatever the chunking.
+plain Java float text, checked against the physical bounds -- and the junk a flood is made of:
+empty lines, lines with control bytes ("binary data"), lines without a TAB ("no tag") or with
+a bad time, and samples out of range are counted in the kernel, without a Python call per line.
+Every other line (other tags, 3-value ORI, NaN/Infinity, long mantissas, other bad lines, lines
+over MAX_LINE_BYTES, non-ASCII bytes) goes to the inherited Python :meth:`LineParser._line`, in
+line order (as do the first damaged lines, for their example messages), so every sample,
+count, example message and recorded byte is exactly what :class:`LineParser` gives, whatever
+the chunking.
 
 Numbers: a mantissa of at most 17 significant digits with an integer value M <= 2^53 and a
 decimal exponent |e| <= 22 is converted as M * 10^e or M / 10^-e: both operands are exact
@@ -24,7 +28,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from app.stream.protocol import FILTER_TAGS, MAX_LINE_BYTES, LineParser, Sample
+from app.stream.protocol import (DEFAULT_LIMITS, FILTER_TAGS, MAX_LINE_BYTES, Limits,
+                                 LineParser, Sample, parse_line, ParseError)
 
 #: Tag codes of the array form (equal to their priority at equal times: GYR < ACC < MAG < ORI).
 TAG_CODES: dict[str, int] = {tag: code for code, tag in enumerate(FILTER_TAGS)}
@@ -33,6 +38,13 @@ TAG_WIDTHS = (3, 3, 3, 4)
 _POW10 = np.array([float(10 ** k) for k in range(23)])   # exact doubles
 _TWO_POW_53 = 2 ** 53
 _MAX_TIME_DIGITS = 18            # fits int64; longer times go to Python (damaged there)
+_MAX_BAD_EXAMPLES = 20           # LineParser keeps this many example messages
+# Kernel kinds of a line: Python parses it / compiled sample / compiled sample with numbers
+# Python converts / empty / damaged (reason code below)
+_PYTHON, _FAST, _FAST_SLOW, _EMPTY, _DAMAGED = 0, 1, 2, 3, 4
+#: Reason codes of the lines the kernel finds damaged.
+KERNEL_REASONS = {1: "binary data", 2: "no tag", 3: "bad time", 4: "GYR out of range",
+                  5: "ACC out of range", 6: "MAG out of range", 7: "ORI out of range"}
 
 _jit = njit(cache=True, nogil=True)
 
@@ -120,24 +132,40 @@ def _number(buf, p, e, pow10):
 
 
 @_jit
-def _parse_line(buf, a, b, max_line_bytes, pow10, out_t, out_tag, out_v, k, slow, n_slow):
-    """Line buf[a:b] (b = index of its LF). Fills row k; returns (kind, n_slow): kind 1 when
-    the line is handled here, 2 when also some numbers need Python's float() (their (row,
-    column, start, end) appended to slow), 0 when Python must parse the whole line."""
+def _in_bounds(v, tag, bounds):
+    """The physical bounds of protocol.check_limits, with the same arithmetic (squared norms
+    added left to right against the same squared bounds)."""
+    if tag < 3:
+        norm2 = (v[0] * v[0] + v[1] * v[1]) + v[2] * v[2]
+        return norm2 <= bounds[tag] and (tag == 0 or norm2 >= bounds[5])
+    for j in range(4):
+        if not -1.0 <= v[j] <= 1.0:
+            return False
+    norm2 = ((v[0] * v[0] + v[1] * v[1]) + v[2] * v[2]) + v[3] * v[3]
+    return bounds[3] <= norm2 <= bounds[4]
+
+
+@_jit
+def _parse_line(buf, a, b, max_line_bytes, pow10, bounds, out_t, out_tag, out_v, k, slow,
+                n_slow):
+    """Line buf[a:b] (b = index of its LF). Fills row k; returns (kind, n_slow, reason): kind
+    _FAST when the line is a sample handled here, _FAST_SLOW when also some numbers need
+    Python's float() (their (row, column, start, end) appended to slow; bounds checked after),
+    _DAMAGED (reason 4 + tag) for a sample out of bounds, _PYTHON when Python must parse it."""
     e = b
     if e > a and buf[e - 1] == 13:       # CRLF
         e -= 1
     if e - a > max_line_bytes:
-        return 0, n_slow
+        return _PYTHON, n_slow, 0
     p = a
     t = 0
     while p < e and 48 <= buf[p] <= 57:
         t = t * 10 + (buf[p] - 48)
         p += 1
         if p - a > _MAX_TIME_DIGITS:
-            return 0, n_slow
+            return _PYTHON, n_slow, 0
     if p == a or p + 5 > e or buf[p] != 9 or buf[p + 4] != 9:
-        return 0, n_slow
+        return _PYTHON, n_slow, 0
     c0 = buf[p + 1]
     c1 = buf[p + 2]
     c2 = buf[p + 3]
@@ -150,60 +178,164 @@ def _parse_line(buf, a, b, max_line_bytes, pow10, out_t, out_tag, out_v, k, slow
     elif c0 == 79 and c1 == 82 and c2 == 73:      # ORI
         tag = 3
     else:
-        return 0, n_slow
+        return _PYTHON, n_slow, 0
     count = 4 if tag == 3 else 3
     p += 5
     first_slow = n_slow
     for j in range(count):
         if j > 0:
             if p >= e or buf[p] != 9:
-                return 0, first_slow
+                return _PYTHON, first_slow, 0
             p += 1
         field_start = p
         value, p, exact = _number(buf, p, e, pow10)
         if p < 0:
-            return 0, first_slow
+            return _PYTHON, first_slow, 0
         out_v[k, j] = value
         if not exact:
+            if n_slow >= slow.shape[0]:
+                return _PYTHON, first_slow, 0
             slow[n_slow, 0] = k
             slow[n_slow, 1] = j
             slow[n_slow, 2] = field_start
             slow[n_slow, 3] = p
             n_slow += 1
     if p != e:
-        return 0, first_slow
+        return _PYTHON, first_slow, 0
     if count == 3:
         out_v[k, 3] = np.nan
-    elif n_slow == first_slow and out_v[k, 0] < 0.0:   # q and -q: keep w >= 0 (parse_line)
-        for j in range(4):
-            out_v[k, j] = -out_v[k, j]
+    if n_slow == first_slow:
+        if not _in_bounds(out_v[k], tag, bounds):
+            return _DAMAGED, first_slow, 4 + tag
+        if count == 4 and out_v[k, 0] < 0.0:   # q and -q: keep w >= 0 (parse_line)
+            for j in range(4):
+                out_v[k, j] = -out_v[k, j]
     out_t[k] = t
     out_tag[k] = tag
-    return (1 if n_slow == first_slow else 2), n_slow
+    return (_FAST if n_slow == first_slow else _FAST_SLOW), n_slow, 0
 
 
 @_jit
-def _scan(buf, max_line_bytes, pow10, out_t, out_tag, out_v, out_kind, out_start, out_end,
-          slow):
-    """Every LF-terminated line of buf: its span and, when handled here, its sample.
-    Returns (lines, numbers left to Python in slow)."""
+def _classify(buf, a, b, max_line_bytes):
+    """A line the sample path did not take: (kind, reason) as parse_line would judge it, for
+    the cases decided by ASCII bytes alone -- _EMPTY (whitespace only), _DAMAGED for a control
+    byte (1), no TAB (2) or a bad time (3) -- else _PYTHON."""
+    e = b
+    if e > a and buf[e - 1] == 13:       # the CR of a CRLF (LineParser._line)
+        e -= 1
+    if e - a > max_line_bytes:
+        return _PYTHON, 0                # too long: Python counts it
+    if e > a and buf[e - 1] == 13:       # parse_line strips one more CR
+        e -= 1
+    blank = True
+    high = False
+    tab = -1
+    for p in range(a, e):
+        c = buf[p]
+        if c < 9 or 14 <= c <= 27 or c == 127:
+            return _DAMAGED, 1           # control byte: never whitespace, whatever else
+        if c >= 128:
+            high = True                  # UTF-8 (or not): Python decides
+        elif not (c == 9 or c == 11 or c == 12 or c == 13 or 28 <= c <= 32):
+            blank = False
+        if c == 9 and tab < 0:
+            tab = p
+    if high:
+        return _PYTHON, 0
+    if blank:
+        return _EMPTY, 0
+    if tab < 0:
+        return _DAMAGED, 2
+    if tab == a or tab - a > _MAX_TIME_DIGITS:
+        return _DAMAGED, 3
+    for p in range(a, tab):
+        if not 48 <= buf[p] <= 57:
+            return _DAMAGED, 3
+    return _PYTHON, 0
+
+
+@_jit
+def _scan(buf, max_line_bytes, pow10, bounds, out_t, out_tag, out_v, out_kind, out_reason,
+          out_start, out_end, out_line, slow):
+    """Every LF-terminated line of buf. Empty lines are only counted; every other line gets a
+    row: its span, its index among all lines (out_line), its kind and, when handled here, its
+    sample. Returns (rows, numbers left to Python in slow, empty lines, lines)."""
     n = 0
     n_slow = 0
+    n_empty = 0
+    ordinal = 0
     line_start = 0
     size = buf.shape[0]
-    capacity = out_t.shape[0]
-    p = 0
-    while p < size and n < capacity:
-        if buf[p] == 10:
-            out_start[n] = line_start
-            out_end[n] = p
-            kind, n_slow = _parse_line(buf, line_start, p, max_line_bytes, pow10, out_t,
-                                       out_tag, out_v, n, slow, n_slow)
-            out_kind[n] = kind
-            n += 1
-            line_start = p + 1
-        p += 1
-    return n, n_slow
+    for p in range(size):
+        if buf[p] != 10:
+            continue
+        if p == line_start:
+            n_empty += 1
+        else:
+            kind, n_slow, reason = _parse_line(buf, line_start, p, max_line_bytes, pow10,
+                                               bounds, out_t, out_tag, out_v, n, slow, n_slow)
+            if kind == _PYTHON:
+                kind, reason = _classify(buf, line_start, p, max_line_bytes)
+            if kind == _EMPTY:
+                n_empty += 1
+            else:
+                out_kind[n] = kind
+                out_reason[n] = reason
+                out_start[n] = line_start
+                out_end[n] = p
+                out_line[n] = ordinal
+                n += 1
+        ordinal += 1
+        line_start = p + 1
+    return n, n_slow, n_empty, ordinal
+
+
+@_jit
+def _first_good(buf, max_line_bytes, pow10, bounds, candidates):
+    """True when buf holds a complete line the sample path parses within bounds; else False,
+    with the spans of up to len(candidates) lines only Python can judge in candidates."""
+    out_t = np.empty(1, np.int64)
+    out_tag = np.empty(1, np.int64)
+    out_v = np.empty((1, 4))
+    slow = np.empty((4, 4), np.int64)
+    n_candidates = 0
+    line_start = 0
+    for p in range(buf.shape[0]):
+        if buf[p] != 10:
+            continue
+        if p > line_start:
+            kind, _, _ = _parse_line(buf, line_start, p, max_line_bytes, pow10, bounds,
+                                     out_t, out_tag, out_v, 0, slow, 0)
+            if kind == _FAST:
+                return True, 0
+            if kind == _FAST_SLOW or (kind == _PYTHON and _classify(
+                    buf, line_start, p, max_line_bytes)[0] == _PYTHON):
+                if n_candidates < candidates.shape[0]:
+                    candidates[n_candidates, 0] = line_start
+                    candidates[n_candidates, 1] = p
+                    n_candidates += 1
+        line_start = p + 1
+    return False, n_candidates
+
+
+def has_good_line(data: bytes, limits: Limits = DEFAULT_LIMITS, max_candidates: int = 8) -> bool:
+    """Does `data` hold at least one complete line that parses to a sample within `limits`?
+    The TCP server's test for "this connection streams valid lines": compiled, stops at the
+    first good line; at most `max_candidates` lines the kernel cannot judge go to parse_line."""
+    if b"\n" not in data:
+        return False
+    candidates = np.empty((max_candidates, 2), np.int64)
+    found, count = _first_good(np.frombuffer(data, np.uint8), MAX_LINE_BYTES, _POW10,
+                               np.array(limits.squared), candidates)
+    if found:
+        return True
+    for start, end in candidates[:count].tolist():
+        try:
+            parse_line(data[start:end].decode("utf-8", "replace"), limits)
+        except ParseError:
+            continue
+        return True
+    return False
 
 
 @dataclass
@@ -262,9 +394,11 @@ class FastLineParser(LineParser):
 
     def __init__(self, raw_sink: Callable[[bytes], None] | None = None,
                  max_line_bytes: int = MAX_LINE_BYTES,
-                 raw_block_sink: Callable[[bytes, int], None] | None = None) -> None:
-        super().__init__(raw_sink, max_line_bytes)
+                 raw_block_sink: Callable[[bytes, int], None] | None = None,
+                 limits: Limits = DEFAULT_LIMITS) -> None:
+        super().__init__(raw_sink, max_line_bytes, limits)
         self.raw_block_sink = raw_block_sink
+        self._bounds = np.array(limits.squared)
 
     def feed(self, data: bytes) -> list[Sample]:
         return self.feed_arrays(data).to_samples()
@@ -304,78 +438,150 @@ class FastLineParser(LineParser):
     # -- internals -------------------------------------------------------------------------
 
     def _lines(self, buffer: bytes, count: int) -> ParsedArrays:
-        array = np.frombuffer(buffer, dtype=np.uint8)
+        """The `count` complete lines of buffer: one kernel call, then Python for the lines
+        it leaves (see the module docstring) and bulk counts for the rest."""
         t_ms = np.empty(count, np.int64)
         tag = np.empty(count, np.int64)
         values = np.empty((count, 4))
-        kind = np.empty(count, np.int64)
+        kind = np.empty(count, np.int8)
+        reason = np.empty(count, np.int8)
         starts = np.empty(count, np.int64)
         ends = np.empty(count, np.int64)
-        slow_numbers = np.empty((4 * count, 4), np.int64)
-        n, n_slow = _scan(array, self.max_line_bytes, _POW10, t_ms, tag, values, kind, starts,
-                          ends, slow_numbers)
-        assert n == count
+        line = np.empty(count, np.int64)
+        # a sample line has at least 12 bytes for its at most 4 numbers
+        slow_numbers = np.empty((min(4 * count, len(buffer) // 3 + 4), 4), np.int64)
+        n, n_slow, n_empty, lines = _scan(np.frombuffer(buffer, dtype=np.uint8),
+                                          self.max_line_bytes, _POW10, self._bounds, t_ms, tag,
+                                          values, kind, reason, starts, ends, line,
+                                          slow_numbers)
+        assert lines == count
         if n_slow:
-            # Valid, finite numbers beyond the exact fast path: Python's own conversion.
-            rows, columns, first, last = slow_numbers[:n_slow].T.tolist()
-            values[rows, columns] = [float(buffer[a:b]) for a, b in zip(first, last)]
-            ori = np.unique(np.asarray(rows)[tag[rows] == 3])
-            flip = ori[values[ori, 0] < 0.0]
-            values[flip] = -values[flip]          # q and -q: keep w >= 0 (parse_line)
-        fast = kind != 0
-        slow = np.flatnonzero(~fast)
-        if len(slow) == 0:
-            self._account_fast(buffer, tag, starts, ends, 0, count)
-            return ParsedArrays(t_ms, tag, values, np.arange(count, dtype=np.int64))
-        keep = fast.copy()
-        other: list[tuple[int, Sample]] = []
-        previous = 0
-        for index in slow.tolist():
-            self._account_fast(buffer, tag, starts, ends, previous, index)
-            out: list[Sample] = []
-            self._line(buffer[starts[index]:ends[index]], True, out)
-            if out:
-                sample = out[0]
-                code = TAG_CODES.get(sample.tag)
-                if code is None:
-                    other.append((index, sample))
-                else:
-                    t_ms[index] = sample.t_ms
-                    tag[index] = code
-                    values[index] = np.nan
-                    values[index, :len(sample.values)] = sample.values
-                    keep[index] = True
-            previous = index + 1
-        self._account_fast(buffer, tag, starts, ends, previous, count)
-        lines = np.flatnonzero(keep)
-        return ParsedArrays(t_ms[lines], tag[lines], values[lines], lines, other)
+            self._convert_slow(buffer, slow_numbers[:n_slow], tag, values, kind, reason)
+        stats = self.stats
+        base = stats.lines
+        keep = (kind[:n] == _FAST) | (kind[:n] == _FAST_SLOW)
+        fast = np.flatnonzero(keep)
+        good = keep.copy()          # every line that gave a sample: the recorded ones
+        fast_ori = np.flatnonzero(keep & (tag[:n] == 3))
+        first_ori = int(fast_ori[0]) if len(fast_ori) else n
+        other = self._python_lines(buffer, kind[:n], reason[:n], starts, ends, line, keep,
+                                   good, t_ms, tag, values, base, first_ori)
+        if len(fast_ori):
+            self._ori4_seen = True
+        stats.lines = base + count
+        stats.empty += n_empty
+        self._count_fast(tag[fast])
+        recorded = np.flatnonzero(good)
+        self._record(buffer, starts[recorded], ends[recorded])
+        rows = np.flatnonzero(keep)
+        if len(rows) == count and not other:
+            return ParsedArrays(t_ms, tag, values, line)
+        return ParsedArrays(t_ms[rows], tag[rows], values[rows], line[rows], other)
 
-    def _account_fast(self, buffer: bytes, tag: np.ndarray, starts: np.ndarray,
-                      ends: np.ndarray, first: int, stop: int) -> None:
-        """Counters and recording for the fast lines first..stop-1 (consecutive)."""
-        count = stop - first
-        if count <= 0:
+    def _convert_slow(self, buffer: bytes, slow: np.ndarray, tag: np.ndarray,
+                      values: np.ndarray, kind: np.ndarray, reason: np.ndarray) -> None:
+        """Valid, finite numbers beyond the exact fast path (1e160 among them): Python's own
+        conversion, then the bounds (a row outside them is damaged, "<TAG> out of range": the
+        line is well formed, so that is what parse_line finds too)."""
+        rows, columns, first, last = slow.T.tolist()
+        values[rows, columns] = [float(buffer[a:b]) for a, b in zip(first, last)]
+        rows = np.unique(np.asarray(rows))
+        v = values[rows]
+        codes = tag[rows]
+        gyr2, acc2, mag2, low2, high2, floor2 = self.limits.squared
+        with np.errstate(invalid="ignore", over="ignore"):    # inf is out of range: fine
+            norm3 = (v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]) + v[:, 2] * v[:, 2]
+            norm4 = norm3 + v[:, 3] * v[:, 3]
+            ori_ok = (np.abs(v) <= 1.0).all(axis=1) & (low2 <= norm4) & (norm4 <= high2)
+        vector_ok = (norm3 <= np.array([gyr2, acc2, mag2, 0.0])[codes]) \
+            & ((codes == 0) | (norm3 >= floor2))
+        ok = np.where(codes == 3, ori_ok, vector_ok)
+        kind[rows[~ok]] = _DAMAGED
+        reason[rows[~ok]] = 4 + codes[~ok]
+        ori = rows[ok & (codes == 3)]
+        flip = ori[values[ori, 0] < 0.0]
+        values[flip] = -values[flip]          # q and -q: keep w >= 0 (parse_line)
+
+    def _python_lines(self, buffer: bytes, kind: np.ndarray, reason: np.ndarray,
+                      starts: np.ndarray, ends: np.ndarray, line: np.ndarray, keep: np.ndarray,
+                      good: np.ndarray, t_ms: np.ndarray, tag: np.ndarray, values: np.ndarray,
+                      base: int, first_ori: int) -> list[tuple[int, Sample]]:
+        """The lines Python parses, in line order, numbered as LineParser numbers them; the
+        damaged lines the kernel found are counted by reason (the first ones through Python,
+        for their example messages). Returns the other-tag samples with their line index."""
+        stats = self.stats
+        python_rows = np.flatnonzero(kind == _PYTHON)
+        damaged_rows = np.flatnonzero(kind == _DAMAGED)
+        wanted = max(0, _MAX_BAD_EXAMPLES - len(stats.bad_examples))
+        visit = np.union1d(python_rows, damaged_rows[:wanted]) if wanted else python_rows
+        other: list[tuple[int, Sample]] = []
+        for index in visit.tolist():
+            stats.lines = base + int(line[index])
+            if index > first_ori:
+                self._ori4_seen = True   # a 4-value ORI line came before (compiled)
+            if kind[index] == _DAMAGED and len(stats.bad_examples) >= _MAX_BAD_EXAMPLES:
+                self._count_bad("damaged", "", KERNEL_REASONS[int(reason[index])])
+                continue
+            out: list[Sample] = []
+            if not self._line(buffer[starts[index]:ends[index]], True, out, record=False):
+                continue
+            sample = out[0]
+            good[index] = True
+            code = TAG_CODES.get(sample.tag)
+            if code is None:
+                other.append((int(line[index]), sample))
+                continue
+            t_ms[index] = sample.t_ms
+            tag[index] = code
+            values[index] = np.nan
+            values[index, :len(sample.values)] = sample.values
+            keep[index] = True
+        bulk = damaged_rows[wanted:]
+        if len(bulk):
+            stats.damaged += len(bulk)
+            reasons = stats.damaged_reasons
+            for code, number in enumerate(np.bincount(reason[bulk]).tolist()):
+                if number:
+                    name = KERNEL_REASONS[code]
+                    reasons[name] = reasons.get(name, 0) + number
+        return other
+
+    def _count_fast(self, tags: np.ndarray) -> None:
+        if not len(tags):
             return
         stats = self.stats
-        stats.lines += count
-        stats.good += count
+        stats.good += len(tags)
         per_tag = stats.per_tag
-        counts = np.bincount(tag[first:stop], minlength=4).tolist()
+        counts = np.bincount(tags, minlength=4).tolist()
         present = [code for code in range(4) if counts[code]]
         if any(FILTER_TAGS[code] not in per_tag for code in present):
             # A tag seen for the first time: keep per_tag in first-seen order, like LineParser.
-            present.sort(key=lambda code: int(np.argmax(tag[first:stop] == code)))
+            present.sort(key=lambda code: int(np.argmax(tags == code)))
         for code in present:
             name = FILTER_TAGS[code]
             per_tag[name] = per_tag.get(name, 0) + counts[code]
-        if self.raw_block_sink is not None:
-            self.raw_block_sink(buffer[starts[first]:ends[stop - 1] + 1], count)
-        elif self.raw_sink is not None:
-            sink = self.raw_sink
-            for start, end in zip(starts[first:stop].tolist(), ends[first:stop].tolist()):
-                sink(buffer[start:end + 1])
+
+    def _record(self, buffer: bytes, starts: np.ndarray, ends: np.ndarray) -> None:
+        """The good lines (spans in line order, LF included) to the sinks: runs of adjacent
+        lines as one block each."""
+        if not len(starts) or (self.raw_block_sink is None and self.raw_sink is None):
+            return
+        stops = ends + 1
+        if self.raw_block_sink is None:
+            for start, stop in zip(starts.tolist(), stops.tolist()):
+                self.raw_sink(buffer[start:stop])
+            return
+        breaks = np.flatnonzero(starts[1:] != stops[:-1]) + 1
+        if not len(breaks):
+            data = buffer[int(starts[0]):int(stops[-1])]
+        else:
+            first = starts[np.concatenate(([0], breaks))].tolist()
+            last = stops[np.concatenate((breaks - 1, [len(stops) - 1]))].tolist()
+            data = b"".join(buffer[a:b] for a, b in zip(first, last))
+        self.raw_block_sink(data, len(starts))
 
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) the kernel before the first chunk arrives."""
     FastLineParser().feed_arrays(b"1\tGYR\t1.0\t-2.5E-3\t0\n2\tORI\t-1.0\t0.0\t0.0\t0.0\n")
+    has_good_line(b"x\n1\tGYR\t1.0\t-2.5E-3\t0\n")       # the TCP server's test

@@ -14,6 +14,33 @@ class LogError(Exception):
     """A file that cannot be used as a log: missing, unreadable, empty, binary, no samples."""
 
 
+BINARY_PROBE_BYTES = 1 << 16
+BINARY_SHARE = 1 / 3
+
+
+def binary_share(data: bytes) -> float:
+    """The share of the characters in the first 64 KiB of `data` that are not text: control
+    bytes (other than TAB, CR, LF) and bytes that are not UTF-8."""
+    probe = data[:BINARY_PROBE_BYTES].decode("utf-8", "replace")
+    if not probe:
+        return 0.0
+    text = probe.translate(_TEXT_CONTROLS)
+    return (len(probe) - len(text) + text.count("\ufffd")) / len(probe)
+
+
+# the control characters a text log never holds (TAB, LF, CR and FF/VT stay), deleted to count
+_TEXT_CONTROLS = {code: None for code in [*range(0, 9), *range(14, 32), 127]}
+
+
+def check_text(path: Path, data: bytes) -> None:
+    """LogError when a file is mostly binary (more than a third of its first 64 KiB is not
+    text). A log with NUL bytes or other junk in places is read: those lines are damaged."""
+    share = binary_share(data)
+    if share > BINARY_SHARE:
+        raise LogError(f"{path}: binary data ({share:.0%} of the first 64 KiB is not text), "
+                       "not a text log")
+
+
 def open_log_bytes(path: str | Path):
     """Open a .txt or .txt.gz log for binary reading; LogError when it cannot be."""
     path = Path(path)
@@ -51,8 +78,7 @@ def read_lines(path: str | Path) -> list[bytes]:
             raise LogError(f"{path}: cannot read ({error})") from None
     if not data:
         raise LogError(f"{path}: empty file")
-    if b"\x00" in data[:8192]:
-        raise LogError(f"{path}: binary data (NUL bytes at the start), not a text log")
+    check_text(path, data)
     return split_lines(data)
 
 

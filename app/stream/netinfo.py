@@ -1,7 +1,8 @@
 """The PC's own LAN IPv4 addresses, so the user knows what to type into the phone's app.
 
-Only local interface queries: the host name's addresses and, where available, ``ip -4 -o addr``.
-No packet is sent anywhere.
+Only local interface queries: ``ip -4 -o addr`` where it exists (Linux), the address the system
+would send from (a UDP socket "connected" to a private address: no packet is sent; Windows and
+macOS) and the host name's addresses.
 """
 
 from __future__ import annotations
@@ -45,13 +46,26 @@ def _from_ip_command() -> list[str]:
     return parse_ip_addr_output(done.stdout)
 
 
+def _from_route() -> list[str]:
+    """The address of the interface the system routes LAN traffic through (connect() on a UDP
+    socket picks it without sending anything)."""
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        probe.connect(("10.255.255.255", 1))
+        return [probe.getsockname()[0]]
+    except OSError:
+        return []
+    finally:
+        probe.close()
+
+
 def lan_ipv4_addresses() -> list[str]:
     """LAN IPv4 addresses of this machine, private ones first, loopback last.
 
     Always returns at least one address ("127.0.0.1" when nothing else is found).
     """
     found: list[str] = []
-    for address in _from_ip_command() + _from_hostname():
+    for address in _from_ip_command() + _from_route() + _from_hostname():
         try:
             parsed = ipaddress.IPv4Address(address)
         except ValueError:

@@ -8,246 +8,63 @@ Real phones write each sensor when its batch arrives, so lines are not in global
 through untouched (RSSWIFI/GPS may carry epoch ms and never reach a filter's dt).
 
 - Clock alignment, per segment: the first filter tag seen is the reference clock. A tag whose
-  first sample is more than ``align_threshold_ms`` away from the reference's latest time gets
-  a constant offset that aligns it (snapped to whole seconds when within window_ms / 2 of
-  them), reported in ``stats.clock_quirks``. At the start of a segment releases wait at least
-  ``startup_hold_ms``, until two tags are there and no new tag has shown up for ``window_ms``
-  (at most 4 x startup_hold_ms), so a sensor starting a little late keeps its first samples;
-  the hold ends at once when all four filter tags are there (none can start late any more).
+  first sample is more than ``align_threshold_ms`` (250 ms) away from the reference's latest
+  time sits on another clock, whatever the size of the offset: it gets a constant offset that
+  aligns it (snapped to whole seconds when within window_ms / 2 of them), reported in
+  ``stats.clock_quirks`` (a tag that fits the clock of a tag already aligned takes that
+  offset: tags sharing a clock share it exactly). Closer than that it is a tag arriving late,
+  which the adaptive window below absorbs. At the start of a segment releases wait at least ``startup_hold_ms``,
+  until two tags are there and no new tag has shown up for ``window_ms`` (at most 4 x
+  startup_hold_ms), so a sensor starting a little late keeps its first samples; the hold ends
+  at once when all four filter tags are there (none can start late any more).
 - Reordering: a k-way merge with a watermark. A sample at aligned time t is released once
-  every *active* tag has reached t (a tag lagging the newest time by more than ``window_ms``
-  is inactive: it stopped or is late), or when more than ``max_pending`` samples wait.
-  Released samples are sorted by (t, GYR < ACC < MAG < ORI).
-- A sample older than the last released time, or a tag going back in its own time (by at
-  most ``gap_ms``), is dropped and counted in ``stats.out_of_order``.
-- A jump of a tag's own clock by more than ``gap_ms`` (forward: a pause; backward: a reboot or
-  another phone) or a :meth:`restart` call (reconnect) starts a new segment: pending samples
-  are released, alignment is learned again. Output times never go backwards: a segment that
-  would start before the last released time is shifted to start ``restart_gap_ms`` after it,
-  so a filter sees dt > 1 s, restarts its time base and keeps its orientation.
+  every *active* tag has reached t (a tag lagging the newest time by more than the window is
+  inactive: it stopped or is late), or when more than ``max_pending`` samples wait. Released
+  samples are sorted by (t, GYR < ACC < MAG < ORI).
+- The window adapts: each tag's lag (how far behind the newest time its samples arrive, the
+  largest seen over the last 5-10 s of phone time, lags over ``max_window_ms`` ignored) is
+  learned, and the window is ``lag + lag/4 + 10 ms``, at least ``window_ms`` (100 ms) and at
+  most ``max_window_ms`` (500 ms). A tag that arrives 95 or 300 ms behind the others is waited
+  for, not dropped. ``stats.window_ms`` and ``stats.lags_ms`` show them.
+- A sample older than the last released time, or a tag going back in its own time, is dropped
+  and counted in ``stats.out_of_order``; so is a block written late (its tag going back by
+  more than ``gap_ms`` but at most ``late_horizon_ms``): it is never played as a new segment.
+  Only when such late samples go on for more than ``gap_ms`` of their own time has the clock
+  really gone back (a reboot), and a new segment starts.
+- A jump of a tag's own clock by more than ``gap_ms`` (forward: a pause; backward beyond the
+  horizon: a reboot or another phone) or a :meth:`restart` call (reconnect) starts a new
+  segment: pending samples are released, alignment is learned again (within one stream the
+  reference tag keeps its offset). A segment whose clock continues the previous one's (later
+  than the last released time, by at most ``session_gap_ms``) continues its time axis: the
+  filters keep their orientation. One that starts before the last released time (another
+  phone, a reboot, an earlier connection's fake clock) or much later starts a new *session*:
+  its times are its own, never shifted by an earlier stream's, and the consumer re-initialises
+  its filters there (``stats.sessions``; ``session_starts`` of :class:`OrderedArrays`).
+  ``restart(continue_time=True)`` (a replay that loops) instead shifts the new segment to
+  start ``restart_gap_ms`` after the last released time, so a filter sees dt > 1 s, restarts
+  its time base and keeps its orientation.
 
 The output depends only on the sequence of samples pushed, never on wall time or chunking.
 """
 
 from __future__ import annotations
 
-import heapq
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
 
+from app.stream.ordering_reference import (_MAX_QUIRKS, LAG_BUCKET_MS, OrderStats,
+                                           ReferenceTimeOrderer, _append_bounded,
+                                           effective_window)
 from app.stream.protocol import FILTER_TAGS, TAG_PRIORITY, Sample
-
-_MAX_QUIRKS = 20
-
-
-@dataclass
-class OrderStats:
-    """Counters of a :class:`TimeOrderer`."""
-
-    pushed: int = 0                 # filter-tag samples pushed
-    released: int = 0
-    out_of_order: int = 0           # dropped: older than released, or a tag going back in time
-    forced: int = 0                 # released early because the buffer bound was reached
-    restarts: int = 0               # segments started after the first
-    restart_times_ms: list[int] = field(default_factory=list)   # aligned start of the last 100
-    clock_quirks: list[str] = field(default_factory=list)
-    offsets_ms: dict[str, int] = field(default_factory=dict)    # current tag -> aligned offset
-
-    def copy(self) -> OrderStats:
-        return OrderStats(self.pushed, self.released, self.out_of_order, self.forced,
-                          self.restarts, list(self.restart_times_ms), list(self.clock_quirks),
-                          dict(self.offsets_ms))
-
-
-class ReferenceTimeOrderer:
-    """Streaming reorder + clock alignment of filter-tag samples (see the module docstring),
-    in plain Python: the executable specification of :class:`TimeOrderer` (tests compare them).
-
-    push(sample) -> the samples released by it (aligned t_ms), flush() at end of stream.
-    """
-
-    def __init__(self, window_ms: int = 100, gap_ms: int = 2000,
-                 align_threshold_ms: int = 10_000, max_pending: int = 20_000,
-                 restart_gap_ms: int = 1500, startup_hold_ms: int = 250) -> None:
-        self.window_ms = int(window_ms)
-        self.gap_ms = int(gap_ms)
-        self.align_threshold_ms = int(align_threshold_ms)
-        self.max_pending = int(max_pending)
-        self.restart_gap_ms = int(restart_gap_ms)
-        self.startup_hold_ms = int(startup_hold_ms)
-        self.stats = OrderStats()
-        self._heap: list[tuple[int, int, int, Sample]] = []
-        self._sequence = 0
-        self.last_released_ms: int | None = None
-        self._new_segment(first=True)
-
-    # -- public ------------------------------------------------------------------------------
-
-    def push(self, sample: Sample) -> list[Sample]:
-        """Take one sample (any tag); return what it releases, in release order."""
-        if sample.tag not in TAG_PRIORITY:
-            return [sample]
-        out: list[Sample] = []
-        self._push(sample, out)
-        return out
-
-    def push_many(self, samples: Iterable[Sample]) -> list[Sample]:
-        out: list[Sample] = []
-        for sample in samples:
-            if sample.tag in TAG_PRIORITY:
-                self._push(sample, out)
-            else:
-                out.append(sample)
-        return out
-
-    def flush(self) -> list[Sample]:
-        """Release everything pending (end of stream). The segment stays open."""
-        out: list[Sample] = []
-        self._release_all(out)
-        return out
-
-    def restart(self) -> list[Sample]:
-        """Reconnect: release what is pending and learn the clocks again for what follows."""
-        out = self.flush()
-        self._new_segment(first=False)
-        return out
-
-    @property
-    def pending(self) -> int:
-        return len(self._heap)
-
-    # -- internals -----------------------------------------------------------------------------
-
-    def _new_segment(self, first: bool) -> None:
-        self._offsets: dict[str, int] = {}
-        self._last: dict[str, int] = {}          # tag -> latest aligned time in this segment
-        self._reference: str | None = None
-        self._segment_start: int | None = None
-        self._warm = False           # hold releases for startup_hold_ms: lets every tag show up
-        self._newest: int | None = None
-        self._last_new_tag_ms = 0
-        self.stats.offsets_ms = self._offsets
-        if not first:
-            self.stats.restarts += 1
-
-    def _quirk(self, text: str) -> None:
-        quirks = self.stats.clock_quirks
-        if text not in quirks:
-            quirks.append(text)
-            del quirks[:-_MAX_QUIRKS]
-
-    def _learn_offset(self, sample: Sample) -> int:
-        raw = sample.t_ms
-        if self._reference is None:
-            self._reference = sample.tag
-            shift = 0
-            if self.last_released_ms is not None and raw <= self.last_released_ms:
-                shift = self.last_released_ms + self.restart_gap_ms - raw
-            if self.stats.restarts or self.last_released_ms is not None:
-                times = self.stats.restart_times_ms
-                times.append(raw + shift)
-                del times[:-100]
-            self._segment_start = raw + shift
-            return shift
-        reference_latest = self._last[self._reference]
-        reference_offset = self._offsets[self._reference]
-        if abs(raw + reference_offset - reference_latest) > self.align_threshold_ms:
-            offset = reference_latest - raw
-            # The estimate is off by the batching delay (~10 ms); the known quirk is a whole
-            # number of seconds (131,072 s), so snap to one when this close to it.
-            whole_seconds = round((offset - reference_offset) / 1000) * 1000 + reference_offset
-            if abs(offset - whole_seconds) <= self.window_ms // 2:
-                offset = whole_seconds
-            difference = -(offset - reference_offset)
-            self._quirk(f"{sample.tag} clock {difference:+d} ms vs {self._reference} (aligned)")
-            return offset
-        return reference_offset
-
-    def _push(self, sample: Sample, out: list[Sample]) -> None:
-        stats = self.stats
-        stats.pushed += 1
-        tag = sample.tag
-        offset = self._offsets.get(tag)
-        if offset is not None:
-            t = sample.t_ms + offset
-            last = self._last[tag]
-            if t > last + self.gap_ms or t < last - self.gap_ms:
-                # A pause, a reboot or another phone: a new time base, same orientation.
-                self._release_all(out)
-                self._new_segment(first=False)
-                offset = None
-            elif t < last:
-                stats.out_of_order += 1
-                return
-        if offset is None:
-            offset = self._learn_offset(sample)
-            self._offsets[tag] = offset
-            t = sample.t_ms + offset
-            self._last_new_tag_ms = t
-        if self.last_released_ms is not None and t < self.last_released_ms:
-            stats.out_of_order += 1
-            # The tag still moves on: later samples are compared with this one.
-            self._last[tag] = t
-            return
-        self._last[tag] = t
-        if self._newest is None or t > self._newest:
-            self._newest = t
-        if offset:
-            sample = sample._replace(t_ms=t)
-        self._sequence += 1
-        heapq.heappush(self._heap, (t, TAG_PRIORITY[tag], self._sequence, sample))
-        if not self._warm:
-            # Hold until two tags are there and no new tag has shown up for window_ms (a sensor
-            # starting late keeps its first samples): at least startup_hold_ms, at most
-            # 4 x startup_hold_ms.
-            since_start = self._newest - self._segment_start
-            # All four filter tags there: none can start late any more, stop holding.
-            if len(self._last) < len(FILTER_TAGS) and len(self._heap) <= self.max_pending \
-                    and since_start < 4 * self.startup_hold_ms \
-                    and (since_start < self.startup_hold_ms or len(self._last) < 2
-                         or self._newest - self._last_new_tag_ms < self.window_ms):
-                return
-            self._warm = True
-        self._release(out)
-
-    def _release(self, out: list[Sample]) -> None:
-        heap = self._heap
-        threshold = self._newest - self.window_ms
-        watermark = None
-        for last in self._last.values():
-            if last >= threshold and (watermark is None or last < watermark):
-                watermark = last
-        released = 0
-        while heap and heap[0][0] <= watermark:
-            out.append(heapq.heappop(heap)[3])
-            released += 1
-        while len(heap) > self.max_pending:
-            out.append(heapq.heappop(heap)[3])
-            released += 1
-            self.stats.forced += 1
-        if released:
-            self.last_released_ms = out[-1].t_ms
-            self.stats.released += released
-
-    def _release_all(self, out: list[Sample]) -> None:
-        heap = self._heap
-        if not heap:
-            return
-        self.stats.released += len(heap)
-        while heap:
-            out.append(heapq.heappop(heap)[3])
-        self.last_released_ms = out[-1].t_ms
-
-
 
 
 # =============================================================================================
 # The compiled orderer: the same algorithm on arrays, in one nogil numba call per chunk.
 
-# int64 state layout
+# int64 state layout: scalars, then blocks of 4 (one per tag code)
 _NEWEST = 0
 _HAS_NEWEST = 1
 _LAST_RELEASED = 2
@@ -265,11 +82,21 @@ _RESTARTS = 13
 _HEAP_N = 14
 _SEGMENT_ID = 15            # +1 per new segment (the Python side rebuilds its offsets dict)
 _RESUME = 16                # 1: the next sample was counted and its offset just learned
-_OFFSET = 17                # (4) per tag code
-_HAS_OFFSET = 21
-_LAST = 25
-_HAS_LAST = 29
-_STATE_SIZE = 33
+_LAG_BUCKET = 17
+_HAS_LAG_BUCKET = 18
+_OFFSET = 19                # (4) per tag code
+_HAS_OFFSET = 23
+_LAST = 27
+_HAS_LAST = 31
+_LATE = 35                  # first sample of the tag's late block
+_HAS_LATE = 39
+_LAG_CURRENT = 43
+_LAG_PREVIOUS = 47
+_PREVIOUS_OFFSET = 51       # the offset of the previous segment of this stream
+_HAS_PREVIOUS_OFFSET = 55
+_STATE_SIZE = 59
+# parameters (int64 array)
+_P_WINDOW, _P_GAP, _P_MAX_PENDING, _P_HOLD, _P_MAX_WINDOW, _P_HORIZON = range(6)
 # heap key columns (lexicographic order; seq is unique, so the order is total)
 _K_T, _K_PRIORITY, _K_SEQ, _K_PAYLOAD = 0, 1, 2, 3
 
@@ -351,25 +178,51 @@ def _release_all(st, keys, values, out_keys, out_values, n_out):
 
 
 @_jit
-def _new_segment(st):
+def _new_segment(st, keep_offsets):
     for tag in range(4):
-        st[_OFFSET + tag] = 0
-        st[_HAS_OFFSET + tag] = 0
-        st[_LAST + tag] = 0
-        st[_HAS_LAST + tag] = 0
+        st[_PREVIOUS_OFFSET + tag] = st[_OFFSET + tag]
+        st[_HAS_PREVIOUS_OFFSET + tag] = st[_HAS_OFFSET + tag] if keep_offsets else 0
+        for block in (_OFFSET, _HAS_OFFSET, _LAST, _HAS_LAST, _LATE, _HAS_LATE, _LAG_CURRENT,
+                      _LAG_PREVIOUS):
+            st[block + tag] = 0
     st[_REFERENCE] = -1
     st[_SEGMENT_START] = 0
     st[_WARM] = 0
     st[_HAS_NEWEST] = 0
     st[_NEWEST] = 0
     st[_LAST_NEW_TAG] = 0
+    st[_HAS_LAG_BUCKET] = 0
+    st[_LAG_BUCKET] = 0
     st[_SEGMENT_ID] += 1
     st[_RESTARTS] += 1
 
 
 @_jit
-def _release(st, keys, values, window_ms, max_pending, out_keys, out_values, n_out):
-    threshold = st[_NEWEST] - window_ms
+def _window(st, params):
+    lag = 0
+    for tag in range(4):
+        lag = max(lag, st[_LAG_CURRENT + tag], st[_LAG_PREVIOUS + tag])
+    window = params[_P_WINDOW]
+    if lag == 0:
+        return window
+    return min(params[_P_MAX_WINDOW], max(window, lag + lag // 4 + 10))
+
+
+@_jit
+def _rotate_lags(st):
+    bucket = st[_NEWEST] // LAG_BUCKET_MS
+    if st[_HAS_LAG_BUCKET] == 0 or bucket != st[_LAG_BUCKET]:
+        consecutive = st[_HAS_LAG_BUCKET] == 1 and bucket == st[_LAG_BUCKET] + 1
+        for tag in range(4):
+            st[_LAG_PREVIOUS + tag] = st[_LAG_CURRENT + tag] if consecutive else 0
+            st[_LAG_CURRENT + tag] = 0
+        st[_LAG_BUCKET] = bucket
+        st[_HAS_LAG_BUCKET] = 1
+
+
+@_jit
+def _release(st, keys, values, params, out_keys, out_values, n_out):
+    threshold = st[_NEWEST] - _window(st, params)
     watermark = 0
     found = False
     for tag in range(4):
@@ -382,7 +235,7 @@ def _release(st, keys, values, window_ms, max_pending, out_keys, out_values, n_o
     while st[_HEAP_N] > 0 and keys[0, _K_T] <= watermark:
         _heap_pop(st, keys, values, out_keys, out_values, n_out)
         n_out += 1
-    while st[_HEAP_N] > max_pending:
+    while st[_HEAP_N] > params[_P_MAX_PENDING]:
         _heap_pop(st, keys, values, out_keys, out_values, n_out)
         n_out += 1
         st[_FORCED] += 1
@@ -394,8 +247,50 @@ def _release(st, keys, values, window_ms, max_pending, out_keys, out_values, n_o
 
 
 @_jit
-def _push_run(st, keys, values, t_in, tag_in, v_in, payload_in, start, window_ms, gap_ms,
-              max_pending, startup_hold_ms, out_keys, out_values, n_out):
+def _own_clock(st, tag, t, params):
+    """ReferenceTimeOrderer._own_clock: 0 ok, 1 drop, 2 new segment."""
+    last = st[_LAST + tag]
+    gap = params[_P_GAP]
+    if t < last - gap:
+        if last - t > params[_P_HORIZON]:
+            return 2
+        if st[_HAS_LATE + tag] == 0:
+            st[_LATE + tag] = t
+            st[_HAS_LATE + tag] = 1
+            return 1
+        return 1 if t - st[_LATE + tag] <= gap else 2
+    if t > last + gap:
+        return 2
+    if t < last:
+        return 1
+    st[_HAS_LATE + tag] = 0
+    return 0
+
+
+@_jit
+def _holding(st, params):
+    since_start = st[_NEWEST] - st[_SEGMENT_START]
+    tags = 0
+    for other in range(4):
+        tags += st[_HAS_LAST + other]
+    hold = params[_P_HOLD]
+    return (tags < 4 and st[_HEAP_N] <= params[_P_MAX_PENDING] and since_start < 4 * hold and (
+        since_start < hold or tags < 2 or st[_NEWEST] - st[_LAST_NEW_TAG] < params[_P_WINDOW]))
+
+
+@_jit
+def _lags_behind_newcomer(st, tag, t, max_window):
+    """A tag showing up ahead of the others: they are this far behind it."""
+    for other in range(4):
+        if other != tag and st[_HAS_LAST + other]:
+            behind = t - st[_LAST + other]
+            if 0 < behind <= max_window and behind > st[_LAG_CURRENT + other]:
+                st[_LAG_CURRENT + other] = behind
+
+
+@_jit
+def _push_run(st, keys, values, t_in, tag_in, v_in, payload_in, start, params, out_keys,
+              out_values, n_out):
     """ReferenceTimeOrderer._push for samples start.. until one needs its clock offset learned
     (done in Python). Returns (entries in out, index of that sample or len(t_in))."""
     n = t_in.shape[0]
@@ -403,7 +298,8 @@ def _push_run(st, keys, values, t_in, tag_in, v_in, payload_in, start, window_ms
     while i < n:
         tag = tag_in[i]
         raw = t_in[i]
-        if st[_RESUME] == 1:
+        first_of_tag = st[_RESUME] == 1
+        if first_of_tag:
             st[_RESUME] = 0
             t = raw + st[_OFFSET + tag]
             st[_LAST_NEW_TAG] = t
@@ -412,16 +308,20 @@ def _push_run(st, keys, values, t_in, tag_in, v_in, payload_in, start, window_ms
             if st[_HAS_OFFSET + tag] == 0:
                 return n_out, i
             t = raw + st[_OFFSET + tag]
-            last = st[_LAST + tag]
-            if t > last + gap_ms or t < last - gap_ms:
-                # A pause, a reboot or another phone: a new time base, same orientation.
-                n_out = _release_all(st, keys, values, out_keys, out_values, n_out)
-                _new_segment(st)
-                return n_out, i
-            if t < last:
+            verdict = _own_clock(st, tag, t, params)
+            if verdict == 1:
                 st[_OUT_OF_ORDER] += 1
                 i += 1
                 continue
+            if verdict == 2:
+                # A pause, a reboot or another phone: a new time base.
+                n_out = _release_all(st, keys, values, out_keys, out_values, n_out)
+                _new_segment(st, 1)
+                return n_out, i
+        if st[_HAS_NEWEST]:
+            lateness = st[_NEWEST] - t
+            if 0 < lateness <= params[_P_MAX_WINDOW] and lateness > st[_LAG_CURRENT + tag]:
+                st[_LAG_CURRENT + tag] = lateness
         if st[_HAS_LAST_RELEASED] and t < st[_LAST_RELEASED]:
             st[_OUT_OF_ORDER] += 1
             st[_LAST + tag] = t           # the tag still moves on
@@ -433,21 +333,17 @@ def _push_run(st, keys, values, t_in, tag_in, v_in, payload_in, start, window_ms
         if st[_HAS_NEWEST] == 0 or t > st[_NEWEST]:
             st[_NEWEST] = t
             st[_HAS_NEWEST] = 1
+            _rotate_lags(st)
+            if first_of_tag:
+                _lags_behind_newcomer(st, tag, t, params[_P_MAX_WINDOW])
         st[_SEQUENCE] += 1
         _heap_push(st, keys, values, t, tag, st[_SEQUENCE], payload_in[i], v_in[i])
         i += 1
         if st[_WARM] == 0:
-            since_start = st[_NEWEST] - st[_SEGMENT_START]
-            tags = 0
-            for other in range(4):
-                tags += st[_HAS_LAST + other]
-            # all four filter tags there: none can start late any more, stop holding
-            if tags < 4 and st[_HEAP_N] <= max_pending and since_start < 4 * startup_hold_ms and (
-                    since_start < startup_hold_ms or tags < 2
-                    or st[_NEWEST] - st[_LAST_NEW_TAG] < window_ms):
+            if _holding(st, params):
                 continue
             st[_WARM] = 1
-        n_out = _release(st, keys, values, window_ms, max_pending, out_keys, out_values, n_out)
+        n_out = _release(st, keys, values, params, out_keys, out_values, n_out)
     return n_out, n
 
 
@@ -468,21 +364,32 @@ def _oldest_pending_sequence(st, keys):
 @dataclass
 class OrderedArrays:
     """Released samples in release order: t_ms (n,) aligned phone ms; tag (n,) codes (GYR 0,
-    ACC 1, MAG 2, ORI 3); values (n, 4); seq (n,) push sequence; payload (n,) the caller's id."""
+    ACC 1, MAG 2, ORI 3); values (n, 4); seq (n,) push sequence; payload (n,) the caller's id;
+    session_starts: indices where a new session begins (the consumer re-initialises there)."""
 
     t_ms: np.ndarray
     tag: np.ndarray
     values: np.ndarray
     seq: np.ndarray
     payload: np.ndarray
+    session_starts: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
 
     def __len__(self) -> int:
         return len(self.t_ms)
 
     @staticmethod
-    def from_keys(keys: np.ndarray, values: np.ndarray, n: int) -> OrderedArrays:
+    def from_keys(keys: np.ndarray, values: np.ndarray, n: int,
+                  session_starts: list[int] | None = None) -> OrderedArrays:
         return OrderedArrays(keys[:n, _K_T].copy(), keys[:n, _K_PRIORITY].copy(), values[:n].copy(),
-                             keys[:n, _K_SEQ].copy(), keys[:n, _K_PAYLOAD].copy())
+                             keys[:n, _K_SEQ].copy(), keys[:n, _K_PAYLOAD].copy(),
+                             np.asarray(session_starts or [], np.int64))
+
+    def pieces(self) -> list[tuple[bool, slice]]:
+        """(a new session starts here, the slice of its samples), in order."""
+        cuts = [int(c) for c in self.session_starts]
+        bounds = [0] + cuts + [len(self)]
+        return [(k > 0, slice(bounds[k], bounds[k + 1])) for k in range(len(bounds) - 1)
+                if k > 0 or bounds[1] > 0]
 
 
 class TimeOrderer:
@@ -496,19 +403,28 @@ class TimeOrderer:
     """
 
     def __init__(self, window_ms: int = 100, gap_ms: int = 2000,
-                 align_threshold_ms: int = 10_000, max_pending: int = 20_000,
-                 restart_gap_ms: int = 1500, startup_hold_ms: int = 250) -> None:
+                 align_threshold_ms: int = 250, max_pending: int = 20_000,
+                 restart_gap_ms: int = 1500, startup_hold_ms: int = 250,
+                 max_window_ms: int = 500, late_horizon_ms: int = 10_000,
+                 session_gap_ms: int = 600_000) -> None:
         self.window_ms = int(window_ms)
         self.gap_ms = int(gap_ms)
         self.align_threshold_ms = int(align_threshold_ms)
         self.max_pending = int(max_pending)
         self.restart_gap_ms = int(restart_gap_ms)
         self.startup_hold_ms = int(startup_hold_ms)
-        self.stats = OrderStats()
+        self.max_window_ms = max(int(max_window_ms), self.window_ms)
+        self.late_horizon_ms = int(late_horizon_ms)
+        self.session_gap_ms = int(session_gap_ms)
+        self._params = np.array([self.window_ms, self.gap_ms, self.max_pending,
+                                 self.startup_hold_ms, self.max_window_ms,
+                                 self.late_horizon_ms], np.int64)
+        self.stats = OrderStats(window_ms=self.window_ms)
         self._state = np.zeros(_STATE_SIZE, np.int64)
         self._state[_REFERENCE] = -1
         self._segment_id = 0
         self._offsets: dict[str, int] = {}
+        self._continue_time = False
         self.stats.offsets_ms = self._offsets
         capacity = self.max_pending + 2
         self._keys = np.zeros((capacity, 4), np.int64)
@@ -532,18 +448,18 @@ class TimeOrderer:
         out_keys = np.empty((n + int(state[_HEAP_N]), 4), np.int64)
         out_values = np.empty((len(out_keys), 4))
         n_out, index = 0, 0
+        session_starts: list[int] = []
         while True:
             n_out, index = _push_run(state, self._keys, self._values, t_ms, tag, values,
-                                     payload, index, self.window_ms, self.gap_ms,
-                                     self.max_pending, self.startup_hold_ms, out_keys,
-                                     out_values, n_out)
+                                     payload, index, self._params, out_keys, out_values, n_out)
             if index >= n:
                 break
             self._sync_segment()
-            self._learn_offset(int(tag[index]), int(t_ms[index]))
+            if self._learn_offset(int(tag[index]), int(t_ms[index])):
+                session_starts.append(n_out)
             state[_RESUME] = 1
         self._sync()
-        return OrderedArrays.from_keys(out_keys, out_values, n_out)
+        return OrderedArrays.from_keys(out_keys, out_values, n_out, session_starts)
 
     def flush_arrays(self) -> OrderedArrays:
         """Release everything pending (end of stream). The segment stays open."""
@@ -555,10 +471,12 @@ class TimeOrderer:
         self._sync()
         return OrderedArrays.from_keys(out_keys, out_values, n_out)
 
-    def restart_arrays(self) -> OrderedArrays:
-        """Reconnect: release what is pending and learn the clocks again for what follows."""
+    def restart_arrays(self, continue_time: bool = False) -> OrderedArrays:
+        """Reconnect: release what is pending and learn the clocks again for what follows
+        (continue_time: see :meth:`ReferenceTimeOrderer.restart`)."""
         out = self.flush_arrays()
-        _new_segment(self._state)
+        _new_segment(self._state, 0)
+        self._continue_time = bool(continue_time)
         self._sync()
         return out
 
@@ -600,9 +518,9 @@ class TimeOrderer:
         """Release everything pending (end of stream). The segment stays open."""
         return self._to_samples(self.flush_arrays())
 
-    def restart(self) -> list[Sample]:
+    def restart(self, continue_time: bool = False) -> list[Sample]:
         """Reconnect: release what is pending and learn the clocks again for what follows."""
-        return self._to_samples(self.restart_arrays())
+        return self._to_samples(self.restart_arrays(continue_time))
 
     @property
     def pending(self) -> int:
@@ -659,6 +577,10 @@ class TimeOrderer:
         stats.out_of_order = int(state[_OUT_OF_ORDER])
         stats.forced = int(state[_FORCED])
         stats.restarts = int(state[_RESTARTS])
+        lags = [max(int(state[_LAG_CURRENT + c]), int(state[_LAG_PREVIOUS + c]))
+                for c in range(4)]
+        stats.lags_ms = {FILTER_TAGS[c]: lag for c, lag in enumerate(lags) if lag > 0}
+        stats.window_ms = effective_window(max(lags), self.window_ms, self.max_window_ms)
 
     def _quirk(self, text: str) -> None:
         quirks = self.stats.clock_quirks
@@ -666,39 +588,62 @@ class TimeOrderer:
             quirks.append(text)
             del quirks[:-_MAX_QUIRKS]
 
-    def _learn_offset(self, tag: int, raw: int) -> None:
-        """ReferenceTimeOrderer._learn_offset on the packed state."""
+    def _start_segment_clock(self, tag: int, raw: int) -> tuple[int, bool]:
+        """ReferenceTimeOrderer._start_segment_clock on the packed state: (offset, whether a
+        new session starts)."""
+        state = self._state
+        state[_REFERENCE] = tag
+        base = int(state[_PREVIOUS_OFFSET + tag]) if state[_HAS_PREVIOUS_OFFSET + tag] else 0
+        t = raw + base
+        shift = 0
+        new_session = False
+        last = self.last_released_ms
+        if last is not None:
+            if self._continue_time:
+                if t <= last:
+                    shift = last + self.restart_gap_ms - t
+            elif t <= last or t - last > self.session_gap_ms:
+                state[_HAS_LAST_RELEASED] = 0
+                self.stats.sessions += 1
+                _append_bounded(self.stats.session_starts, int(state[_RELEASED]))
+                new_session = True
+        self._continue_time = False
+        if state[_RESTARTS] or last is not None:
+            _append_bounded(self.stats.restart_times_ms, t + shift)
+        state[_SEGMENT_START] = t + shift
+        return base + shift, new_session
+
+    def _learn_offset(self, tag: int, raw: int) -> bool:
+        """ReferenceTimeOrderer._learn_offset on the packed state; True when a new session
+        starts with this sample."""
         state = self._state
         name = FILTER_TAGS[tag]
+        new_session = False
         if state[_REFERENCE] < 0:
-            state[_REFERENCE] = tag
-            shift = 0
-            last_released = self.last_released_ms
-            if last_released is not None and raw <= last_released:
-                shift = last_released + self.restart_gap_ms - raw
-            if state[_RESTARTS] or last_released is not None:
-                times = self.stats.restart_times_ms
-                times.append(raw + shift)
-                del times[:-100]
-            state[_SEGMENT_START] = raw + shift
-            offset = shift
+            offset, new_session = self._start_segment_clock(tag, raw)
         else:
             reference = int(state[_REFERENCE])
             reference_latest = int(state[_LAST + reference])
             reference_offset = int(state[_OFFSET + reference])
             offset = reference_offset
             if abs(raw + reference_offset - reference_latest) > self.align_threshold_ms:
-                offset = reference_latest - raw
-                whole_seconds = round((offset - reference_offset) / 1000) * 1000 \
-                    + reference_offset
-                if abs(offset - whole_seconds) <= self.window_ms // 2:
-                    offset = whole_seconds
+                offset = next((int(state[_OFFSET + other]) for other in range(4)
+                               if state[_HAS_OFFSET + other] and abs(
+                                   raw + int(state[_OFFSET + other]) - reference_latest)
+                               <= self.align_threshold_ms), None)
+                if offset is None:
+                    offset = reference_latest - raw
+                    whole_seconds = round((offset - reference_offset) / 1000) * 1000 \
+                        + reference_offset
+                    if abs(offset - whole_seconds) <= self.window_ms // 2:
+                        offset = whole_seconds
                 difference = -(offset - reference_offset)
                 self._quirk(f"{name} clock {difference:+d} ms vs "
                             f"{FILTER_TAGS[reference]} (aligned)")
         state[_OFFSET + tag] = offset
         state[_HAS_OFFSET + tag] = 1
         self._offsets[name] = offset
+        return new_session
 
 
 def warm_up() -> None:
@@ -709,4 +654,5 @@ def warm_up() -> None:
     _ = orderer.oldest_pending_sequence
 
 
-__all__ = ["TimeOrderer", "ReferenceTimeOrderer", "OrderStats", "OrderedArrays", "FILTER_TAGS"]
+__all__ = ["TimeOrderer", "ReferenceTimeOrderer", "OrderStats", "OrderedArrays", "FILTER_TAGS",
+           "effective_window"]

@@ -6,14 +6,22 @@ on TAB only (Wi-Fi names contain spaces). Numbers are Java float text (``3.20434
 ``-0.0``). Times are integer milliseconds on the phone's clock.
 
 Bad lines are never fatal: :func:`parse_line` raises :class:`ParseError` with a ``kind``
-("damaged", "unknown_tag", "empty", "too_long") and :class:`LineParser` counts them.
+("damaged", "unknown_tag", "empty", "too_long") and :class:`LineParser` counts them; a damaged
+line also has a ``reason`` (:data:`DAMAGE_REASONS`), counted per reason.
+
+Plausibility: every sensor value is checked against physical bounds (:class:`Limits`, far
+beyond any phone: |a| <= 2,000 m/s^2, |w| <= 100 rad/s, |m| <= 10,000 uT, ORI a unit
+quaternion). A sample outside them is a damaged line ("ACC out of range", ...), so a finite but
+absurd value (1e160) never reaches a filter.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -34,6 +42,51 @@ MAX_LINE_BYTES = 4096          # longer lines are discarded (bounded memory what
 PARSE_ERROR_KINDS = ("damaged", "unknown_tag", "empty", "too_long")
 MAX_TIME_DIGITS = 18   # a time stamp with more digits is damaged (it would not fit int64)
 
+#: Why a line is damaged (ParseStats.damaged_reasons counts each). "binary data": a control byte
+#: (NUL, ...) in the line; "cut off": the connection ended in the middle of the line.
+DAMAGE_REASONS = ("binary data", "no tag", "bad time", "bad tag", "value count", "bad number",
+                  "GYR out of range", "ACC out of range", "MAG out of range", "ORI out of range",
+                  "RAWGYR out of range", "RAWMAG out of range", "cut off")
+# Control characters that never occur in a text line (TAB, CR, LF and the other whitespace
+# are not among them): one of them makes the line "binary data".
+_CONTROL = re.compile("[\x00-\x08\x0e-\x1b\x7f]")
+#: A 3-value ORI is a valid vector part only when its norm is at most 1 (+ float rounding).
+ORI3_MAX_NORM = 1.0 + 1e-6
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Physical bounds a sample must respect, far beyond any phone (a phone's accelerometer
+    saturates near 160 m/s^2, its gyroscope near 35 rad/s; the Earth's field is 25-65 uT).
+
+    acc [m/s^2], gyr [rad/s], mag [uT]: bounds on the vector's norm (RAWGYR/RAWMAG: on each of
+    their two vectors); floor: ACC and MAG need a norm of at least this (a zero vector has no
+    direction and is no reading of a real sensor, far below any phone's resolution);
+    ori_tolerance: a 4-value ORI must have every component in [-1, 1] and a norm within
+    1 +- ori_tolerance (a 3-value ORI a vector part of norm <= 1).
+    """
+
+    acc: float = 2000.0
+    gyr: float = 100.0
+    mag: float = 10000.0
+    ori_tolerance: float = 0.01
+    floor: float = 1e-6
+
+    @cached_property
+    def squared(self) -> tuple[float, float, float, float, float, float]:
+        """(gyr^2, acc^2, mag^2, lowest and highest squared ORI norm, floor^2): what both
+        parsers compare the squared norms with (the same doubles, so they agree to the bit)."""
+        return (self.gyr * self.gyr, self.acc * self.acc, self.mag * self.mag,
+                (1.0 - self.ori_tolerance) ** 2, (1.0 + self.ori_tolerance) ** 2,
+                self.floor * self.floor)
+
+    def text(self) -> str:
+        return (f"acc={self.acc:g},gyr={self.gyr:g},mag={self.mag:g},"
+                f"ori={self.ori_tolerance:g},floor={self.floor:g}")
+
+
+DEFAULT_LIMITS = Limits()
+
 
 class Sample(NamedTuple):
     """One parsed line.
@@ -50,12 +103,18 @@ class Sample(NamedTuple):
 
 
 class ParseError(ValueError):
-    """A line that is not a usable sample. ``kind`` is one of :data:`PARSE_ERROR_KINDS`."""
+    """A line that is not a usable sample. ``kind`` is one of :data:`PARSE_ERROR_KINDS`;
+    ``reason`` (damaged lines only) one of :data:`DAMAGE_REASONS`."""
 
-    def __init__(self, kind: str, message: str) -> None:
+    def __init__(self, kind: str, message: str, reason: str | None = None) -> None:
         super().__init__(message)
         self.kind = kind
         self.message = message
+        self.reason = reason
+
+
+def _damaged(reason: str, message: str) -> ParseError:
+    return ParseError("damaged", message, reason)
 
 
 def _is_tag_word(tag: str) -> bool:
@@ -74,16 +133,52 @@ def _ori_values(values: tuple[float, ...]) -> tuple[float, float, float, float]:
     return (w, x, y, z)
 
 
+def _squared_norm(values: tuple[float, ...]) -> float:
+    # Left to right, as the compiled parser adds them: the same double in both.
+    total = 0.0
+    for value in values:
+        total = total + value * value
+    return total
+
+
+def check_limits(tag: str, values: tuple[float, ...], limits: Limits = DEFAULT_LIMITS) -> None:
+    """ParseError("damaged", reason "<TAG> out of range") when a value is outside the physical
+    bounds (values as written on the line, before the ORI w >= 0 flip)."""
+    gyr2, acc2, mag2, ori_low2, ori_high2, floor2 = limits.squared
+    bound = {"GYR": gyr2, "ACC": acc2, "MAG": mag2, "RAWGYR": gyr2, "RAWMAG": mag2}.get(tag)
+    if bound is not None:
+        vectors = (values,) if len(values) == 3 else (values[:3], values[3:])
+        unit = {"GYR": "rad/s", "ACC": "m/s^2", "MAG": "uT"}.get(tag[-3:], "")
+        if not all(_squared_norm(vector) <= bound for vector in vectors):
+            raise _damaged(f"{tag} out of range",
+                           f"{tag} beyond the physical bound |v| <= {math.sqrt(bound):g} {unit}")
+        if tag in ("ACC", "MAG") and not _squared_norm(values) >= floor2:
+            raise _damaged(f"{tag} out of range", f"{tag} is a zero vector (|v| < "
+                           f"{math.sqrt(floor2):g} {unit}): no reading of a real sensor")
+        return
+    if tag == "ORI":
+        norm2 = _squared_norm(values)
+        if len(values) == 3:
+            if norm2 <= ORI3_MAX_NORM * ORI3_MAX_NORM:
+                return
+            raise _damaged("ORI out of range", "ORI with 3 values is not a vector part "
+                           "(norm > 1)")
+        if all(-1.0 <= value <= 1.0 for value in values) and ori_low2 <= norm2 <= ori_high2:
+            return
+        raise _damaged("ORI out of range", "ORI is not a unit quaternion")
+
+
 def _preview(line: str, limit: int = 80) -> str:
     return repr(line if len(line) <= limit else line[:limit] + "...")
 
 
-def parse_line(line: str) -> Sample:
+def parse_line(line: str, limits: Limits = DEFAULT_LIMITS) -> Sample:
     """Parse one line (without or with its LF/CRLF terminator) into a :class:`Sample`.
 
     Raises ParseError("empty") for a blank line, ("unknown_tag") for a well-formed line with a
-    tag this program does not know, ("damaged") for a bad time, a wrong value count for a known
-    tag, or a value that is not a finite number.
+    tag this program does not know, ("damaged", reason) for a control byte, a bad time, a
+    wrong value count for a known tag, a value that is not a finite number or one outside the
+    physical bounds of `limits`.
     """
     if line.endswith("\n"):
         line = line[:-1]
@@ -91,13 +186,15 @@ def parse_line(line: str) -> Sample:
         line = line[:-1]
     if not line.strip():
         raise ParseError("empty", "empty line")
+    if _CONTROL.search(line):
+        raise _damaged("binary data", f"binary data (control bytes) in {_preview(line)}")
     fields = line.split("\t")
     if len(fields) < 2:
-        raise ParseError("damaged", f"no TAB-separated tag in {_preview(line)}")
+        raise _damaged("no tag", f"no TAB-separated tag in {_preview(line)}")
     time_text, tag = fields[0], fields[1]
     if not (time_text.isascii() and time_text.isdigit()) or len(time_text) > MAX_TIME_DIGITS:
         # More than 18 digits does not fit the int64 times downstream (epoch ms has 13).
-        raise ParseError("damaged", f"bad time {_preview(time_text)}")
+        raise _damaged("bad time", f"bad time {_preview(time_text)}")
     t_ms = int(time_text)
     count = NUMERIC_TAG_COUNTS.get(tag)
     if count is None:
@@ -105,17 +202,19 @@ def parse_line(line: str) -> Sample:
         if text_count is None:
             if _is_tag_word(tag):
                 raise ParseError("unknown_tag", f"unknown tag {_preview(tag)}")
-            raise ParseError("damaged", f"bad tag {_preview(tag)}")
+            raise _damaged("bad tag", f"bad tag {_preview(tag)}")
         if len(fields) - 2 != text_count:
-            raise ParseError("damaged", f"{tag} needs {text_count} fields, got {len(fields) - 2}")
+            raise _damaged("value count",
+                           f"{tag} needs {text_count} fields, got {len(fields) - 2}")
         return Sample(t_ms, tag, (), tuple(fields[2:]))
     number_count = len(fields) - 2
     if number_count != count and not (tag == "ORI" and number_count == 3):
-        raise ParseError("damaged", f"{tag} needs {count} values, got {number_count}")
+        raise _damaged("value count", f"{tag} needs {count} values, got {number_count}")
     try:
         values = tuple(_to_float(text) for text in fields[2:])
     except ValueError as error:
-        raise ParseError("damaged", f"{tag}: {error}") from None
+        raise _damaged("bad number", f"{tag}: {error}") from None
+    check_limits(tag, values, limits)
     if tag == "ORI":
         values = _ori_values(values)
     return Sample(t_ms, tag, values)
@@ -184,16 +283,22 @@ class ParseStats:
     first_bad_line_number: int | None = None
     first_bad_message: str | None = None
     bad_examples: list[tuple[int, str, str]] = field(default_factory=list)  # (line number, kind, msg)
+    damaged_reasons: dict[str, int] = field(default_factory=dict)   # reason -> damaged lines
 
     def copy(self) -> ParseStats:
         return ParseStats(self.lines, self.good, self.damaged, self.unknown, self.too_long,
                           self.empty, self.bytes, dict(self.per_tag), dict(self.unknown_tags),
                           self.first_bad_line_number, self.first_bad_message,
-                          list(self.bad_examples))
+                          list(self.bad_examples), dict(self.damaged_reasons))
+
+
+def reasons_text(reasons: dict[str, int]) -> str:
+    """"2 bad number, 1 ACC out of range": the damaged lines by reason, most frequent first."""
+    ordered = sorted(reasons.items(), key=lambda item: (-item[1], item[0]))
+    return ", ".join(f"{count} {reason}" for reason, count in ordered)
 
 
 _MAX_BAD_EXAMPLES = 20
-
 
 
 class LineParser:
@@ -201,25 +306,32 @@ class LineParser:
 
     Lines split across reads are reassembled; LF or CRLF; invalid UTF-8 is tolerated (a line it
     breaks is counted as damaged); a line longer than MAX_LINE_BYTES is discarded without
-    buffering more than that (counted as too_long).
+    buffering more than that (counted as too_long). Values outside `limits` are damaged.
 
     raw_sink, when given, is called with the verbatim bytes (terminator included; LF added when
-    :meth:`finish` flushes a line without one) of every line whose tag is known, good or
-    damaged: a recording of them replays to the same samples and the same damage counts.
+    :meth:`finish` flushes a line without one) of every line that parses to a sample, and only
+    those: a recording holds no damaged line (a NUL byte makes a line damaged, never a file our
+    tools refuse) and replays to the same samples.
     """
 
     def __init__(self, raw_sink: Callable[[bytes], None] | None = None,
-                 max_line_bytes: int = MAX_LINE_BYTES) -> None:
+                 max_line_bytes: int = MAX_LINE_BYTES, limits: Limits = DEFAULT_LIMITS) -> None:
         self.stats = ParseStats()
         self.raw_sink = raw_sink
         self.max_line_bytes = max_line_bytes
+        self.limits = limits
         self._pending = b""
         self._discarding = False
+        # A stream of 4-value ORI lines never sends a 3-value one: that is a torn line (its
+        # vector part would always pass the norm check).
+        self._ori4_seen = False
 
     def reset_line(self) -> None:
-        """Drop a partial line (the connection it came from is gone). Not counted."""
+        """Drop a partial line (the connection it came from is gone). Not counted. The next
+        stream may come from another app version: 3-value ORI lines are fine again."""
         self._pending = b""
         self._discarding = False
+        self._ori4_seen = False
 
     def feed(self, data: bytes) -> list[Sample]:
         """Parse the complete lines in pending + data; keep the unfinished tail (bounded)."""
@@ -260,11 +372,13 @@ class LineParser:
 
     # -- internals -------------------------------------------------------------------------
 
-    def _count_bad(self, kind: str, message: str) -> None:
+    def _count_bad(self, kind: str, message: str, reason: str | None = None) -> None:
         stats = self.stats
         stats.lines += 1
         if kind == "damaged":
             stats.damaged += 1
+            reason = reason or "other"
+            stats.damaged_reasons[reason] = stats.damaged_reasons.get(reason, 0) + 1
         elif kind == "unknown_tag":
             stats.unknown += 1
         elif kind == "too_long":
@@ -279,32 +393,40 @@ class LineParser:
         if len(stats.bad_examples) < _MAX_BAD_EXAMPLES:
             stats.bad_examples.append((stats.lines, kind, message))
 
-    def _line(self, raw: bytes, had_newline: bool, out: list[Sample]) -> None:
+    def _line(self, raw: bytes, had_newline: bool, out: list[Sample],
+              record: bool = True) -> bool:
+        """One line; True when it gave a sample (appended to `out`, and recorded when
+        `record`)."""
         # raw excludes the LF (a CR of a CRLF stays); the sink gets raw + LF either way, so a
         # final line without newline still ends a recording cleanly.
         content = raw[:-1] if raw.endswith(b"\r") else raw
         if len(content) > self.max_line_bytes:
             self._count_bad("too_long", f"line of {len(content)} bytes discarded")
-            return
+            return False
         text = content.decode("utf-8", "replace")
         try:
-            sample = parse_line(text)
+            sample = parse_line(text, self.limits)
         except ParseError as error:
-            self._count_bad(error.kind, error.message)
+            self._count_bad(error.kind, error.message, error.reason)
             if error.kind == "unknown_tag":
                 tag = text.split("\t", 2)[1]
                 names = self.stats.unknown_tags
                 if tag in names or len(names) < 32:
                     names[tag] = names.get(tag, 0) + 1
-            elif error.kind == "damaged" and self.raw_sink is not None:
-                fields = text.split("\t", 2)
-                if len(fields) >= 2 and fields[1] in KNOWN_TAGS:
-                    self.raw_sink(raw + b"\n")
-            return
+            return False
+        if sample.tag == "ORI":
+            if text.count("\t") == 4:                   # 3 values
+                if self._ori4_seen:
+                    self._count_bad("damaged", "ORI with 3 values in a stream of 4-value ORI "
+                                    "lines (a torn line)", "value count")
+                    return False
+            else:
+                self._ori4_seen = True
         stats = self.stats
         stats.lines += 1
         stats.good += 1
         stats.per_tag[sample.tag] = stats.per_tag.get(sample.tag, 0) + 1
-        if self.raw_sink is not None:
+        if record and self.raw_sink is not None:
             self.raw_sink(raw + b"\n")
         out.append(sample)
+        return True

@@ -16,10 +16,10 @@ from typing import Any
 
 from ekf.simulate import simulate
 
-from app.stream.events import Chunk, SourceEvent
+from app.stream.events import CONNECTION_COMMANDS, Chunk, SourceEvent
 from app.stream.lines import LogError, pacing_times, read_lines
 from app.stream.netinfo import lan_ipv4_addresses
-from app.stream.protocol import Sample, format_line
+from app.stream.protocol import DEFAULT_LIMITS, Limits, Sample, format_line
 from app.stream.tcp_server import DEFAULT_PORT, TcpServer
 
 _MAX_LINES_PER_CHUNK = 4096
@@ -46,22 +46,27 @@ class Source:
         raise NotImplementedError
 
     def control(self, command: Any) -> None:
-        """Apply a ReplayControl (replays only; other sources ignore it)."""
+        """Apply a ReplayControl (replays) or a connection command (TCP); others ignore it."""
 
     def info(self) -> dict[str, Any]:
-        """Health fields: connection_state, peer, port, listen_addresses, replay (dict or None)."""
+        """Health fields: connection_state, peer, port, listen_addresses, replay (dict or None);
+        TCP also waiting_peers, connections_closed, allowed."""
         return {"connection_state": "waiting", "peer": None, "port": None,
                 "listen_addresses": [], "replay": None}
 
 
 class TcpSource(Source):
-    """The phone over TCP (see :class:`~app.stream.tcp_server.TcpServer`)."""
+    """The phone over TCP (see :class:`~app.stream.tcp_server.TcpServer` for the connection
+    policy: one stream, newcomers wait, `allow`, junk closed)."""
 
     kind = "tcp"
 
     def __init__(self, host: str = "0.0.0.0", port: int = DEFAULT_PORT,
-                 max_queued: int = 256) -> None:
-        self.server = TcpServer(host, port, max_queued=max_queued)
+                 max_queued: int = 256, allow=(), takeover_after_s: float = 3.0,
+                 limits: Limits = DEFAULT_LIMITS, **server_options: Any) -> None:
+        self.server = TcpServer(host, port, max_queued=max_queued, allow=allow,
+                                takeover_after_s=takeover_after_s, limits=limits,
+                                **server_options)
         self._addresses: list[str] = []
 
     def start(self) -> None:
@@ -81,11 +86,16 @@ class TcpSource(Source):
     def read(self, timeout: float = 0.05) -> list[Chunk | SourceEvent]:
         return self.server.get(timeout)
 
+    def control(self, command: Any) -> None:
+        if isinstance(command, CONNECTION_COMMANDS):
+            self.server.control(command)
+
     def info(self) -> dict[str, Any]:
         state = self.server.state
         return {"connection_state": "waiting" if state == "stopped" else state,
                 "peer": self.server.peer, "port": self.server.port,
-                "listen_addresses": list(self._addresses), "replay": None}
+                "listen_addresses": list(self._addresses), "replay": None,
+                **self.server.info()}
 
 
 class LineReplaySource(Source):
@@ -223,7 +233,8 @@ class LineReplaySource(Source):
         return {"connection_state": state, "peer": self.name, "port": None,
                 "listen_addresses": [],
                 "replay": {"position_s": self.position_s, "duration_s": self.duration_s,
-                           "speed": self.speed, "paused": self.paused, "loop": self.loop}}
+                           "speed": self.speed, "paused": self.paused, "loop": self.loop,
+                           "finished": self._finished, "name": self.name}}
 
 
 class LogFileSource(LineReplaySource):
@@ -291,7 +302,9 @@ class DemoOrPhoneSource(Source):
         return incoming + self.demo.read(timeout)
 
     def control(self, command: Any) -> None:
-        if not self.phone_active:
+        if isinstance(command, CONNECTION_COMMANDS):
+            self.phone.control(command)
+        elif not self.phone_active:
             self.demo.control(command)
 
     def info(self) -> dict[str, Any]:
@@ -299,6 +312,7 @@ class DemoOrPhoneSource(Source):
             return self.phone.info()
         info = dict(self.demo.info())
         phone = self.phone.info()
-        info["port"] = phone["port"]
-        info["listen_addresses"] = phone["listen_addresses"]
+        for key in ("port", "listen_addresses", "waiting_peers", "connections_closed",
+                    "allowed"):
+            info[key] = phone.get(key)
         return info

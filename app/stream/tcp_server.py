@@ -1,24 +1,54 @@
 """The TCP server the phone connects to (the PC is the server; see ../shared/PROTOCOL.md).
 
-A background thread (plain ``threading`` + ``selectors``, no Qt) accepts one phone at a time:
-a new connection wins and the old one is closed (a phone that stopped and started again may
-leave a half-open socket). Received bytes and connection events go into a bounded queue that
-the engine drains with :meth:`TcpServer.get`. When the queue is full the thread stops reading,
-so TCP flow control slows the phone down instead of memory growing or data being lost.
+It listens on every interface (the phone needs that), so whatever any machine on the LAN sends
+is input. A background thread (plain ``threading`` + ``selectors``, no Qt) keeps the phone's
+stream whatever else connects:
+
+- **One stream.** The first connection streams. While it streams valid lines, a new connection
+  *waits* (queued, not closed; up to ``max_waiting``; its first ``PROBE_BYTES`` are read and
+  held). A waiting connection that has sent a valid line takes over only when the current one
+  has been silent (no valid line) for ``takeover_after_s``, has closed, sent nothing valid
+  since it connected (after a short grace), or when the user accepts it
+  (:class:`~app.stream.events.AcceptConnection`; :class:`~app.stream.events.IgnoreConnection`
+  closes it). The consumer sees "connected" / "disconnected" for the stream only.
+- **Who may connect**: ``allow`` (addresses or networks, :class:`SetAllowedNetworks` changes
+  it); others are closed at once and counted.
+- **Junk is closed**: a connection that sends nothing valid within ``junk_bytes`` bytes or
+  ``junk_after_s`` seconds is closed and counted (a newline flood costs its first 64 KiB).
+- **Bounded buffers, per connection**: the stream's chunks wait for the consumer in a queue of
+  at most ``max_buffered_bytes``; when it is full the server stops reading that socket (TCP
+  flow control slows the phone, nothing is lost). A waiting connection holds at most
+  ``PROBE_BYTES``. No other connection can fill what the phone's data goes through, and
+  accepting never waits for the consumer (listen backlog 128).
+
+Counts of the connections closed, by reason, and the waiting peers are in :meth:`info`; a
+"closed" or "waiting" event (at most one a second per kind) tells the consumer something
+happened.
 """
 
 from __future__ import annotations
 
-import queue
+import collections
+import ipaddress
 import selectors
 import socket
 import threading
 import time
+from dataclasses import dataclass, field
+from typing import Any
 
-from app.stream.events import Chunk, SourceEvent
+from app.stream.events import (AcceptConnection, Chunk, IgnoreConnection, SetAllowedNetworks,
+                               SourceEvent)
+from app.stream.fastparse import has_good_line
+from app.stream.protocol import DEFAULT_LIMITS, MAX_LINE_BYTES, Limits
 
 DEFAULT_PORT = 3400
 RECV_BYTES = 65536
+PROBE_BYTES = 65536          # what a waiting connection may send before the server stops reading
+LISTEN_BACKLOG = 128
+HOUSEKEEPING_S = 0.1
+NEVER_VALID_GRACE_S = 0.5    # a stream that never sent a valid line yields after this long
+NOTE_INTERVAL_S = 1.0
 
 
 def _peer_text(address) -> str:
@@ -28,27 +58,66 @@ def _peer_text(address) -> str:
         return str(address)
 
 
-class TcpServer:
-    """Listen on host:port in a background thread; one client at a time, newest wins.
+def parse_networks(texts) -> list[ipaddress.IPv4Network | ipaddress.IPv6Network]:
+    """"192.168.1.42", "192.168.1.0/24" -> networks; ValueError for a bad one."""
+    return [ipaddress.ip_network(str(text).strip(), strict=False) for text in texts
+            if str(text).strip()]
 
-    port 0 picks a free port (read :attr:`port` after :meth:`start`). ``max_queued`` bounds the
-    chunks waiting for the consumer (at most max_queued x RECV_BYTES bytes).
+
+@dataclass(eq=False)
+class _Connection:
+    number: int
+    sock: socket.socket
+    peer: str
+    address: str
+    since: float                      # monotonic
+    received: int = 0
+    valid: bool = False               # has sent a line that parses
+    last_valid: float = 0.0           # monotonic time of the latest chunk holding one
+    tail: bytes = b""                 # the unfinished line at the end of what arrived
+    held: list[bytes] = field(default_factory=list)   # a waiting connection's first bytes
+    held_bytes: int = 0
+    reading: bool = True              # registered with the selector
+
+
+class TcpServer:
+    """Listen on host:port in a background thread; one stream at a time (see the module
+    docstring for the policy).
+
+    port 0 picks a free port (read :attr:`port` after :meth:`start`). ``max_queued`` x
+    RECV_BYTES bounds the bytes waiting for the consumer.
     """
 
     def __init__(self, host: str = "0.0.0.0", port: int = DEFAULT_PORT,
-                 max_queued: int = 256) -> None:
+                 max_queued: int = 256, allow=(), takeover_after_s: float = 3.0,
+                 junk_bytes: int = 65536, junk_after_s: float = 10.0, max_waiting: int = 8,
+                 limits: Limits = DEFAULT_LIMITS) -> None:
         self.host = host
         self.requested_port = port
         self.port: int | None = None
         self.state = "stopped"           # "waiting" | "connected" | "disconnected" | "stopped"
         self.peer: str | None = None
-        self.connections = 0             # connections accepted so far
-        self.bytes_received = 0
-        self._queue: queue.Queue = queue.Queue(maxsize=max_queued)
+        self.connections = 0             # connections accepted so far (allowed ones)
+        self.bytes_received = 0          # bytes of the stream (the connection that streams)
+        self.max_buffered_bytes = max(1, int(max_queued)) * RECV_BYTES
+        self.takeover_after_s = float(takeover_after_s)
+        self.junk_bytes = int(junk_bytes)
+        self.junk_after_s = float(junk_after_s)
+        self.max_waiting = int(max_waiting)
+        self.limits = limits
+        self._allowed = parse_networks(allow)
+        self._cond = threading.Condition()
+        self._items: collections.deque = collections.deque()   # Chunk | SourceEvent
+        self._items_bytes = 0
+        self._commands: collections.deque = collections.deque()
+        self._closed_counts: dict[str, int] = {}
+        self._waiting_peers: list[str] = []
+        self._note_times: dict[str, float] = {}
+        self._active: _Connection | None = None
+        self._waiting: list[_Connection] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._listener: socket.socket | None = None
-        self._client: socket.socket | None = None
         self._selector: selectors.BaseSelector | None = None
         self._wake_reader: socket.socket | None = None
         self._wake_writer: socket.socket | None = None
@@ -63,7 +132,7 @@ class TcpServer:
         try:
             listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             listener.bind((self.host, self.requested_port))
-            listener.listen(4)
+            listener.listen(LISTEN_BACKLOG)
             listener.setblocking(False)
         except OSError:
             listener.close()
@@ -72,6 +141,7 @@ class TcpServer:
         self.port = listener.getsockname()[1]
         self._wake_reader, self._wake_writer = socket.socketpair()
         self._wake_reader.setblocking(False)
+        self._wake_writer.setblocking(False)
         self._selector = selectors.DefaultSelector()
         self._selector.register(listener, selectors.EVENT_READ, "listen")
         self._selector.register(self._wake_reader, selectors.EVENT_READ, "wake")
@@ -84,21 +154,19 @@ class TcpServer:
     def stop(self) -> None:
         """Close every socket and join the thread. Idempotent."""
         self._stop.set()
-        if self._wake_writer is not None:
-            try:
-                self._wake_writer.send(b"x")
-            except OSError:
-                pass
+        self._wake()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
             self._thread = None
-        for sock in (self._client, self._listener, self._wake_reader, self._wake_writer):
+        for connection in [self._active] + self._waiting:
+            if connection is not None:
+                _close(connection.sock)
+        self._active = None
+        self._waiting = []
+        for sock in (self._listener, self._wake_reader, self._wake_writer):
             if sock is not None:
-                try:
-                    sock.close()
-                except OSError:
-                    pass
-        self._client = self._listener = self._wake_reader = self._wake_writer = None
+                _close(sock)
+        self._listener = self._wake_reader = self._wake_writer = None
         if self._selector is not None:
             self._selector.close()
             self._selector = None
@@ -120,106 +188,295 @@ class TcpServer:
     def get(self, timeout: float = 0.05, max_items: int = 256) -> list[Chunk | SourceEvent]:
         """Wait up to `timeout` s for the first item, then drain without waiting."""
         items: list[Chunk | SourceEvent] = []
-        try:
-            items.append(self._queue.get(timeout=timeout) if timeout > 0
-                         else self._queue.get_nowait())
-            while len(items) < max_items:
-                items.append(self._queue.get_nowait())
-        except queue.Empty:
-            pass
+        with self._cond:
+            if not self._items and timeout > 0:
+                self._cond.wait(timeout)
+            while self._items and len(items) < max_items:
+                item = self._items.popleft()
+                if isinstance(item, Chunk):
+                    self._items_bytes -= len(item.data)
+                items.append(item)
+            resume = self._items_bytes <= self.max_buffered_bytes // 2
+        active = self._active
+        if resume and active is not None and not active.reading:
+            self._wake()            # the server thread reads the stream's socket again
         return items
+
+    def control(self, command: Any) -> None:
+        """AcceptConnection / IgnoreConnection / SetAllowedNetworks (applied by the server
+        thread, in order). A bad address in SetAllowedNetworks changes nothing: an "error"
+        event says why (app.engine.config.allowed_networks checks the user's text first)."""
+        if isinstance(command, SetAllowedNetworks):
+            try:
+                parse_networks(command.networks)
+            except ValueError as error:
+                self._put(SourceEvent("error", detail=f"allowed addresses unchanged: {error}",
+                                      t_host=time.perf_counter()))
+                return
+        self._commands.append(command)
+        self._wake()
+
+    def info(self) -> dict[str, Any]:
+        """waiting_peers, connections_closed (reason -> count), allowed (texts)."""
+        with self._cond:
+            return {"waiting_peers": list(self._waiting_peers),
+                    "connections_closed": dict(self._closed_counts),
+                    "allowed": [str(network) for network in self._allowed]}
 
     # -- server thread ----------------------------------------------------------------------------
 
-    def _put(self, item) -> bool:
-        # Block (TCP back-pressure) rather than drop; give up only when stopping.
-        while not self._stop.is_set():
+    def _wake(self) -> None:
+        writer = self._wake_writer
+        if writer is not None:
             try:
-                self._queue.put(item, timeout=0.1)
-                return True
-            except queue.Full:
-                continue
-        return False
+                writer.send(b"x")
+            except OSError:          # full (a wake-up is pending anyway) or closed
+                pass
 
-    def _close_client(self, reason: str) -> None:
-        client = self._client
-        if client is None:
-            return
-        self._client = None
+    def _put(self, item) -> None:
+        with self._cond:
+            self._items.append(item)
+            if isinstance(item, Chunk):
+                self._items_bytes += len(item.data)
+            self._cond.notify_all()
+
+    def _note(self, kind: str, detail: str, peer: str | None = None) -> None:
+        """A "closed"/"waiting" event, at most one a second per kind."""
+        now = time.monotonic()
+        if now - self._note_times.get(kind, -1e9) >= NOTE_INTERVAL_S:
+            self._note_times[kind] = now
+            self._put(SourceEvent(kind, 0, peer, detail, time.perf_counter()))
+
+    def _count_closed(self, reason: str, peer: str) -> None:
+        with self._cond:
+            count = self._closed_counts[reason] = self._closed_counts.get(reason, 0) + 1
+        self._note("closed", f"closed the connection from {peer}: {reason} ({count} so far)",
+                   peer)
+
+    def _publish_waiting(self) -> None:
+        with self._cond:
+            self._waiting_peers = [connection.peer for connection in self._waiting]
+
+    def _allowed_address(self, address: str) -> bool:
+        if not self._allowed:
+            return True
         try:
-            self._selector.unregister(client)
-        except (KeyError, ValueError):
-            pass
-        try:
-            client.close()
-        except OSError:
-            pass
-        self.state = "disconnected"
-        self._put(SourceEvent("disconnected", self.connections, self.peer, reason,
-                              time.perf_counter()))
+            ip = ipaddress.ip_address(address)
+        except ValueError:
+            return False
+        return any(ip in network for network in self._allowed)
 
     def _accept(self) -> None:
-        try:
-            client, address = self._listener.accept()
-        except (BlockingIOError, InterruptedError):
-            return
-        except OSError as error:
-            self._put(SourceEvent("error", detail=f"accept failed: {error}",
-                                  t_host=time.perf_counter()))
-            return
-        if self._client is not None:
-            self._close_client("replaced by a new connection")
-        client.setblocking(False)
-        try:
-            client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        except OSError:
-            pass
-        self._client = client
-        self.connections += 1
-        self.peer = _peer_text(address)
-        self.state = "connected"
-        self._selector.register(client, selectors.EVENT_READ, "client")
-        self._put(SourceEvent("connected", self.connections, self.peer, "",
-                              time.perf_counter()))
+        for _ in range(64):                         # drain the backlog
+            try:
+                sock, address = self._listener.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as error:
+                self._put(SourceEvent("error", detail=f"accept failed: {error}",
+                                      t_host=time.perf_counter()))
+                return
+            peer = _peer_text(address)
+            if not self._allowed_address(str(address[0])):
+                _close(sock)
+                self._count_closed("not allowed", peer)
+                continue
+            if self._active is not None and len(self._waiting) >= self.max_waiting:
+                _close(sock)
+                self._count_closed("too many waiting", peer)
+                continue
+            sock.setblocking(False)
+            try:
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            except OSError:
+                pass
+            self.connections += 1
+            connection = _Connection(self.connections, sock, peer, str(address[0]),
+                                     time.monotonic())
+            self._selector.register(sock, selectors.EVENT_READ, connection)
+            if self._active is None:
+                self._activate(connection, "")
+            else:
+                self._waiting.append(connection)
+                self._publish_waiting()
+                self._note("waiting", f"a new device at {connection.address} wants to stream "
+                                      "(waiting)", peer)
 
-    def _receive(self) -> None:
-        client = self._client
+    def _receive(self, connection: _Connection) -> None:
+        active = connection is self._active
+        limit = RECV_BYTES if active else PROBE_BYTES - connection.held_bytes
+        if limit <= 0:
+            self._pause(connection)
+            return
         try:
-            data = client.recv(RECV_BYTES)
+            data = connection.sock.recv(limit)
         except (BlockingIOError, InterruptedError):
             return
         except OSError as error:
-            self._close_client(f"connection error: {error}")
+            self._drop(connection, f"connection error: {error}")
             return
         if not data:
-            self._close_client("closed by the phone")
+            self._drop(connection, "closed by the phone" if active else "closed while waiting")
             return
-        self.bytes_received += len(data)
-        self._put(Chunk(self.connections, data, time.perf_counter()))
+        connection.received += len(data)
+        self._check_valid(connection, data)
+        if active:
+            self.bytes_received += len(data)
+            self._put(Chunk(connection.number, data, time.perf_counter()))
+            if self._items_bytes >= self.max_buffered_bytes:
+                self._pause(connection)
+        else:
+            connection.held.append(data)
+            connection.held_bytes += len(data)
+            if connection.held_bytes >= PROBE_BYTES:
+                self._pause(connection)
+        if not connection.valid and connection.received >= self.junk_bytes:
+            self._drop(connection, f"sent nothing valid in its first {self.junk_bytes} bytes",
+                       "nothing valid")
 
-    def _run(self) -> None:
-        try:
-            while not self._stop.is_set():
-                for key, _ in self._selector.select(timeout=0.5):
-                    if self._stop.is_set():
-                        break
-                    if key.data == "listen":
-                        self._accept()
-                    elif key.data == "client":
-                        if key.fileobj is self._client:
-                            self._receive()
-                    else:
-                        try:
-                            self._wake_reader.recv(64)
-                        except OSError:
-                            pass
-        except Exception as error:   # never die silently: report, the consumer shows it
-            self._put(SourceEvent("error", detail=f"server thread failed: {error!r}",
-                                  t_host=time.perf_counter()))
-        finally:
-            if self._client is not None:
+    def _check_valid(self, connection: _Connection, data: bytes) -> None:
+        probe = connection.tail + data if connection.tail else data
+        if has_good_line(probe, self.limits):
+            connection.valid = True
+            connection.last_valid = time.monotonic()
+        newline = probe.rfind(b"\n")
+        tail = probe[newline + 1:] if newline >= 0 else probe
+        connection.tail = tail if len(tail) <= MAX_LINE_BYTES else b""
+
+    def _pause(self, connection: _Connection) -> None:
+        if connection.reading:
+            self._selector.unregister(connection.sock)
+            connection.reading = False
+
+    def _resume(self, connection: _Connection) -> None:
+        if not connection.reading:
+            self._selector.register(connection.sock, selectors.EVENT_READ, connection)
+            connection.reading = True
+
+    def _activate(self, connection: _Connection, detail: str) -> None:
+        if connection in self._waiting:
+            self._waiting.remove(connection)
+        self._active = connection
+        self.peer = connection.peer
+        self.state = "connected"
+        now = time.perf_counter()
+        self._put(SourceEvent("connected", connection.number, connection.peer, detail, now))
+        for data in connection.held:
+            self.bytes_received += len(data)
+            self._put(Chunk(connection.number, data, now))
+        connection.held = []
+        connection.held_bytes = 0
+        self._resume(connection)
+        self._publish_waiting()
+
+    def _drop(self, connection: _Connection, reason: str, counted_as: str | None = None,
+              promote: bool = True) -> None:
+        """Close a connection; when it was the stream, say so and let a waiting one take
+        over (promote)."""
+        self._pause(connection)
+        _close(connection.sock)
+        if connection is self._active:
+            self._active = None
+            self.state = "disconnected"
+            self._put(SourceEvent("disconnected", connection.number, connection.peer, reason,
+                                  time.perf_counter()))
+            if promote:
+                self._promote("the previous stream ended")
+        elif connection in self._waiting:
+            self._waiting.remove(connection)
+        if counted_as is not None:
+            self._count_closed(counted_as, connection.peer)
+        self._publish_waiting()
+
+    def _promote(self, detail: str) -> None:
+        if self._active is None and self._waiting:
+            chosen = next((c for c in self._waiting if c.valid), self._waiting[0])
+            self._activate(chosen, f"took over: {detail}")
+
+    def _housekeeping(self) -> None:
+        now = time.monotonic()
+        for connection in [self._active] + list(self._waiting):
+            if connection is not None and not connection.valid \
+                    and now - connection.since >= self.junk_after_s:
+                self._drop(connection, f"sent nothing valid in {self.junk_after_s:g} s",
+                           "nothing valid")
+        active = self._active
+        if active is None:
+            self._promote("the previous stream ended")
+            return
+        candidate = next((c for c in self._waiting if c.valid), None)
+        if candidate is None:
+            return
+        if not active.valid and now - active.since >= NEVER_VALID_GRACE_S:
+            why = "it sent nothing valid"
+        elif active.valid and now - active.last_valid >= self.takeover_after_s:
+            why = f"it sent nothing valid for {self.takeover_after_s:g} s"
+        else:
+            return
+        self._drop(active, f"replaced by {candidate.peer}: {why}", "replaced", promote=False)
+        self._activate(candidate, f"took over from {active.peer}: {why}")
+
+    def _apply(self, command: Any) -> None:
+        if isinstance(command, AcceptConnection):
+            chosen = next((c for c in self._waiting
+                           if command.peer is None or c.peer == command.peer), None)
+            if chosen is None:
+                return
+            self._waiting.remove(chosen)
+            if self._active is not None:
+                self._drop(self._active, f"replaced by {chosen.peer}: accepted by the user",
+                           "replaced", promote=False)
+            self._activate(chosen, "accepted by the user")
+        elif isinstance(command, IgnoreConnection):
+            for connection in list(self._waiting):
+                if command.peer is None or connection.peer == command.peer:
+                    self._drop(connection, "ignored by the user", "ignored")
+        elif isinstance(command, SetAllowedNetworks):
+            networks = parse_networks(command.networks)
+            with self._cond:
+                self._allowed = networks
+            for connection in list(self._waiting) + [self._active]:
+                if connection is not None and not self._allowed_address(connection.address):
+                    self._drop(connection, "not in the allowed addresses", "not allowed")
+
+    def _step(self) -> None:
+        for key, _ in self._selector.select(timeout=HOUSEKEEPING_S):
+            if self._stop.is_set():
+                return
+            if key.data == "listen":
+                self._accept()
+            elif key.data == "wake":
                 try:
-                    self._client.close()
+                    self._wake_reader.recv(4096)
                 except OSError:
                     pass
-                self._client = None
+            elif key.data is self._active or key.data in self._waiting:
+                self._receive(key.data)
+        while self._commands:
+            self._apply(self._commands.popleft())
+        active = self._active
+        if active is not None and not active.reading \
+                and self._items_bytes <= self.max_buffered_bytes // 2:
+            self._resume(active)
+        self._housekeeping()
+
+    def _run(self) -> None:
+        failures = 0
+        while not self._stop.is_set():
+            try:
+                self._step()
+                failures = 0
+            except Exception as error:   # never die silently: report, the consumer shows it
+                failures += 1
+                self._put(SourceEvent("error", detail=f"server thread failed: {error!r}",
+                                      t_host=time.perf_counter()))
+                if failures >= 20:
+                    return
+                time.sleep(0.05)
+
+
+def _close(sock: socket.socket) -> None:
+    try:
+        sock.close()
+    except OSError:
+        pass

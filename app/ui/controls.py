@@ -1,8 +1,9 @@
-"""Sensor switches, estimator choice, filter actions and the live comparison table.
+"""Sensor switches, estimator choice and filter actions (FilterPanel), and the table of sensor
+combinations run side by side (ComparisonPanel).
 
 Every control only forwards intent: it calls `send(command)` with a command from
-app/snapshot.py. What the filter actually does comes back in the next snapshot and is shown
-from there (the checkboxes follow the engine's status unless the user just clicked them).
+app.engine.commands. What the filter actually does comes back in the next snapshot and is shown
+from there (the switches follow the engine's status unless the user just clicked them).
 """
 
 from __future__ import annotations
@@ -24,22 +25,47 @@ ESTIMATOR_CHOICES = (
     ("gyro", "Gyroscope only"),
     ("accmag", "Accelerometer + magnetometer"),
 )
+ESTIMATOR_LABELS = dict(ESTIMATOR_CHOICES)
 SENSOR_LABELS = (("gyr", "Gyroscope"), ("acc", "Accelerometer"), ("mag", "Magnetometer"))
 # How long a click wins over the engine's echo of the old state (the command is applied
 # between two batches of samples, so a snapshot in flight may still show the old value).
 USER_PRIORITY_S = 1.0
+MIN_COMPARED = 50           # fewer ORI samples than this: the row shows "—"
 
 
-class ControlsPanel(QtWidgets.QWidget):
-    """Switches and actions. Signals: uncertainty_toggled(bool) for the 3D view."""
+class _FollowsEngine:
+    """Remembers the user's recent clicks so the engine's echo does not undo them."""
+
+    def __init__(self) -> None:
+        self._last_user_change: dict[str, float] = {}
+
+    def _user_changed(self, key: str) -> None:
+        self._last_user_change[key] = time.monotonic()
+
+    def _user_recently_changed(self, key: str) -> bool:
+        return time.monotonic() - self._last_user_change.get(key, -math.inf) < USER_PRIORITY_S
+
+
+def _estimator_combo() -> QtWidgets.QComboBox:
+    combo = QtWidgets.QComboBox()
+    for name, label in ESTIMATOR_CHOICES:
+        combo.addItem(label, name)
+    return combo
+
+
+class FilterPanel(QtWidgets.QWidget, _FollowsEngine):
+    """Switches and actions. Signals: uncertainty_toggled(bool) for the 3D view,
+    sensor_toggled(str, bool) and estimator_changed(str) for the menus."""
 
     uncertainty_toggled = QtCore.Signal(bool)
+    sensor_toggled = QtCore.Signal(str, bool)
+    estimator_changed = QtCore.Signal(str)
 
     def __init__(self, send: Callable[[object], None],
                  parent: QtWidgets.QWidget | None = None) -> None:
-        super().__init__(parent)
+        QtWidgets.QWidget.__init__(self, parent)
+        _FollowsEngine.__init__(self)
         self._send = send
-        self._last_user_change: dict[str, float] = {}
         layout = QtWidgets.QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
 
@@ -55,11 +81,9 @@ class ControlsPanel(QtWidgets.QWidget):
             self.sensor_checkboxes[sensor] = checkbox
         layout.addWidget(sensors_box)
 
-        filter_box = QtWidgets.QGroupBox("Estimator")
+        filter_box = QtWidgets.QGroupBox("Estimator (OWN)")
         filter_layout = QtWidgets.QGridLayout(filter_box)
-        self.estimator_combo = QtWidgets.QComboBox()
-        for name, label in ESTIMATOR_CHOICES:
-            self.estimator_combo.addItem(label, name)
+        self.estimator_combo = _estimator_combo()
         self.estimator_combo.currentIndexChanged.connect(self._on_estimator_changed)
         self.reset_button = QtWidgets.QPushButton("Reset filter")
         self.reset_button.setToolTip("Start the estimate again from the next samples (Ctrl+R)")
@@ -79,41 +103,28 @@ class ControlsPanel(QtWidgets.QWidget):
         filter_layout.addWidget(self.uncertainty_checkbox, 2, 0, 1, 2)
         layout.addWidget(filter_box)
 
-        comparison_box = QtWidgets.QGroupBox("Sensor combinations (side by side)")
-        comparison_layout = QtWidgets.QVBoxLayout(comparison_box)
-        self.comparisons_checkbox = QtWidgets.QCheckBox("Run every combination")
-        self.comparisons_checkbox.setChecked(True)
-        self.comparisons_checkbox.toggled.connect(
-            lambda checked: self._send(SetComparisonsEnabled(bool(checked))))
-        self.comparison_table = QtWidgets.QTableWidget(0, 3)
-        self.comparison_table.setHorizontalHeaderLabels(["Sensors", "∠ to PHONE (°)", "RMSE (°)"])
-        self.comparison_table.verticalHeader().setVisible(False)
-        self.comparison_table.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
-        self.comparison_table.setSelectionMode(
-            QtWidgets.QAbstractItemView.SelectionMode.NoSelection)
-        header = self.comparison_table.horizontalHeader()
-        header.setSectionResizeMode(0, QtWidgets.QHeaderView.ResizeMode.Stretch)
-        for column in (1, 2):
-            header.setSectionResizeMode(column, QtWidgets.QHeaderView.ResizeMode.ResizeToContents)
-        self.comparison_table.setMinimumHeight(120)
-        comparison_layout.addWidget(self.comparisons_checkbox)
-        comparison_layout.addWidget(self.comparison_table)
-        layout.addWidget(comparison_box, 1)
-
     # ---- user intent -> commands ----------------------------------------------------------
 
     def _on_sensor_toggled(self, sensor: str, checked: bool) -> None:
-        self._last_user_change[sensor] = time.monotonic()
+        self._user_changed(sensor)
         self._send(SetSensorEnabled(sensor, bool(checked)))
+        self.sensor_toggled.emit(sensor, bool(checked))
 
     def _on_estimator_changed(self, index: int) -> None:
-        self._last_user_change["estimator"] = time.monotonic()
-        self._send(SetEstimator(self.estimator_combo.itemData(index)))
+        self._user_changed("estimator")
+        name = self.estimator_combo.itemData(index)
+        self._send(SetEstimator(name))
+        self.estimator_changed.emit(name)
 
     def toggle_sensor(self, sensor: str) -> None:
-        """Flip one sensor switch (keyboard shortcut)."""
+        """Flip one sensor switch (keyboard shortcut, menu)."""
         checkbox = self.sensor_checkboxes[sensor]
         checkbox.setChecked(not checkbox.isChecked())
+
+    def set_sensor(self, sensor: str, enabled: bool) -> None:
+        checkbox = self.sensor_checkboxes[sensor]
+        if checkbox.isChecked() != bool(enabled):
+            checkbox.setChecked(bool(enabled))
 
     def estimator(self) -> str:
         return self.estimator_combo.currentData()
@@ -125,9 +136,6 @@ class ControlsPanel(QtWidgets.QWidget):
 
     # ---- engine state -> widgets ----------------------------------------------------------
 
-    def _user_recently_changed(self, key: str) -> bool:
-        return time.monotonic() - self._last_user_change.get(key, -math.inf) < USER_PRIORITY_S
-
     def update_status(self, status: FilterStatus) -> None:
         """Follow the engine's view of the switches without sending commands back."""
         for sensor, checkbox in self.sensor_checkboxes.items():
@@ -137,20 +145,92 @@ class ControlsPanel(QtWidgets.QWidget):
                 checkbox.blockSignals(True)
                 checkbox.setChecked(enabled)
                 checkbox.blockSignals(False)
+                self.sensor_toggled.emit(sensor, bool(enabled))
         if status.estimator != self.estimator() and not self._user_recently_changed("estimator"):
             index = self.estimator_combo.findData(status.estimator)
             if index >= 0:
                 self.estimator_combo.blockSignals(True)
                 self.estimator_combo.setCurrentIndex(index)
                 self.estimator_combo.blockSignals(False)
+                self.estimator_changed.emit(status.estimator)
 
-    def update_comparisons(self, comparisons: list[Comparison]) -> None:
-        table = self.comparison_table
+
+class ComparisonPanel(QtWidgets.QWidget, _FollowsEngine):
+    """The 7 sensor combinations of a chosen estimator, run side by side (task 12): the RMSE of
+    the total angle, heading and inclination against PHONE, compared at PHONE's time stamps."""
+
+    COLUMNS = ("Sensors", "total (°)", "heading (°)", "inclination (°)")
+
+    def __init__(self, send: Callable[[object], None],
+                 parent: QtWidgets.QWidget | None = None) -> None:
+        QtWidgets.QWidget.__init__(self, parent)
+        _FollowsEngine.__init__(self)
+        self._send = send
+        layout = QtWidgets.QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        top = QtWidgets.QHBoxLayout()
+        self.comparisons_checkbox = QtWidgets.QCheckBox("Run")
+        self.comparisons_checkbox.setChecked(True)
+        self.comparisons_checkbox.setToolTip("Run every sensor combination of the chosen "
+                                             "estimator beside OWN")
+        self.comparisons_checkbox.toggled.connect(self._on_changed)
+        self.estimator_combo = _estimator_combo()
+        self.estimator_combo.setToolTip("The estimator the combinations run")
+        self.estimator_combo.currentIndexChanged.connect(self._on_changed)
+        top.addWidget(self.comparisons_checkbox)
+        top.addWidget(self.estimator_combo, 1)
+        layout.addLayout(top)
+        self.caption = QtWidgets.QLabel()
+        self.caption.setWordWrap(True)
+        self.caption.setStyleSheet("color: #555;")
+        layout.addWidget(self.caption)
+        self.table = QtWidgets.QTableWidget(0, len(self.COLUMNS))
+        self.table.setObjectName("comparison_table")
+        self.table.setHorizontalHeaderLabels(self.COLUMNS)
+        self.table.horizontalHeaderItem(0).setToolTip("which sensors this filter uses")
+        for column, text in ((1, "the whole rotation"), (2, "about up (what the magnetometer "
+                                                              "gives)"),
+                             (3, "the tilt (what the accelerometer gives)")):
+            self.table.horizontalHeaderItem(column).setToolTip(f"RMSE against PHONE: {text}")
+        self.table.verticalHeader().setVisible(False)
+        self.table.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.table.setSelectionMode(QtWidgets.QAbstractItemView.SelectionMode.NoSelection)
+        header = self.table.horizontalHeader()
+        header.setSectionResizeMode(0, QtWidgets.QHeaderView.ResizeMode.Stretch)
+        for column in range(1, len(self.COLUMNS)):
+            header.setSectionResizeMode(column, QtWidgets.QHeaderView.ResizeMode.ResizeToContents)
+        self.table.verticalHeader().setDefaultSectionSize(22)
+        self.table.setMinimumHeight(7 * 22 + 28)
+        layout.addWidget(self.table, 1)
+        self._update_caption(self.estimator())
+
+    def estimator(self) -> str:
+        return self.estimator_combo.currentData()
+
+    def _on_changed(self, *args) -> None:
+        self._user_changed("comparisons")
+        self._send(SetComparisonsEnabled(self.comparisons_checkbox.isChecked(), self.estimator()))
+        self._update_caption(self.estimator())
+
+    def _update_caption(self, estimator: str) -> None:
+        self.caption.setText(f"{ESTIMATOR_LABELS.get(estimator, estimator)} with each sensor "
+                             "combination: RMSE against PHONE, at PHONE's time stamps")
+
+    def update_comparisons(self, comparisons: list[Comparison], estimator: str) -> None:
+        if estimator != self.estimator() and not self._user_recently_changed("comparisons"):
+            index = self.estimator_combo.findData(estimator)
+            if index >= 0:
+                self.estimator_combo.blockSignals(True)
+                self.estimator_combo.setCurrentIndex(index)
+                self.estimator_combo.blockSignals(False)
+                self._update_caption(estimator)
+        table = self.table
         if table.rowCount() != len(comparisons):
             table.setRowCount(len(comparisons))
         for row, comparison in enumerate(comparisons):
-            texts = (comparison.name.replace("+", " + "),
-                     _degrees(comparison.angle_to_phone_deg), _degrees(comparison.rmse_deg))
+            enough = comparison.samples >= MIN_COMPARED
+            texts = [comparison.name] + [
+                _degrees(value) if enough else "—" for value in comparison.rmse_deg]
             for column, text in enumerate(texts):
                 item = table.item(row, column)
                 if item is None:
@@ -162,12 +242,12 @@ class ControlsPanel(QtWidgets.QWidget):
                 if item.text() != text:
                     item.setText(text)
 
-    def comparison_rows(self) -> list[tuple[str, str, str]]:
-        """The table's text, row by row (for tests and the status bar)."""
-        table = self.comparison_table
-        return [tuple(table.item(row, column).text() for column in range(3))
+    def rows(self) -> list[tuple[str, ...]]:
+        """The table's text, row by row (for tests)."""
+        table = self.table
+        return [tuple(table.item(row, column).text() for column in range(table.columnCount()))
                 for row in range(table.rowCount())]
 
 
 def _degrees(value: float) -> str:
-    return "–" if value is None or not math.isfinite(value) else f"{value:.1f}"
+    return "—" if value is None or not math.isfinite(value) else f"{value:.1f}"

@@ -1,8 +1,11 @@
-"""The course kit's three lights, three-state: Acc disturbed, Mag disturbed, Standstill.
+"""The course kit's three lights: Acc, Mag and Standstill, with words and colours that agree.
 
-States: "off" (the sensor behind the light is switched out of the filter), "ok", and
-"disturbed" (for Standstill: "moving" / "still"). The tooltip gives the numbers behind the
-decision, straight from FilterStatus.
+* grey "off": the sensor is switched out of the filter, or no data has arrived for it yet;
+* green "OK": the latest reading passed its gates;
+* red (accelerometer) / amber (magnetometer) "disturbed": a gate fired; the tooltip names the
+  gate (norm, NIS; strength, dip, settling, NIS) with the numbers behind it;
+* Standstill: blue "still" / grey "moving" (neither good nor bad), grey "off" without gyro and
+  accelerometer.
 """
 
 from __future__ import annotations
@@ -11,27 +14,37 @@ import math
 
 from PySide6 import QtCore, QtGui, QtWidgets
 
+from ekf import outputs
 from app.engine.snapshot import FilterStatus
 
 STATE_COLORS = {
-    "off": QtGui.QColor(95, 98, 105),
+    "off": QtGui.QColor(150, 152, 158),
+    "no data": QtGui.QColor(150, 152, 158),
     "ok": QtGui.QColor(40, 170, 70),
-    "disturbed": QtGui.QColor(225, 55, 45),
-    "moving": QtGui.QColor(40, 110, 60),
-    "still": QtGui.QColor(60, 150, 255),
+    "acc disturbed": QtGui.QColor(225, 55, 45),
+    "mag disturbed": QtGui.QColor(240, 160, 20),
+    "moving": QtGui.QColor(150, 152, 158),
+    "still": QtGui.QColor(60, 140, 245),
 }
+CAPTIONS = {"off": "off", "no data": "no data", "ok": "OK", "acc disturbed": "disturbed",
+            "mag disturbed": "disturbed", "moving": "moving", "still": "still"}
 
 
 class Light(QtWidgets.QWidget):
-    """A round lamp with a caption; `state` is one of STATE_COLORS."""
+    """A round lamp with a caption "<name> <state>"; `state` is one of STATE_COLORS."""
 
-    def __init__(self, caption: str, parent: QtWidgets.QWidget | None = None) -> None:
+    def __init__(self, name: str, parent: QtWidgets.QWidget | None = None) -> None:
         super().__init__(parent)
-        self.caption = caption
-        self.state = "off"
-        self.setMinimumSize(96, 58)
+        self.name = name
+        self.state = "no data"
+        self.setMinimumSize(84, 66)
         self.setSizePolicy(QtWidgets.QSizePolicy.Policy.Preferred,
                            QtWidgets.QSizePolicy.Policy.Fixed)
+        self.setToolTip(f"{name}: no data yet")
+
+    @property
+    def caption(self) -> str:
+        return f"{self.name} {CAPTIONS[self.state]}"
 
     def set_state(self, state: str, reason: str) -> None:
         if state not in STATE_COLORS:
@@ -39,25 +52,27 @@ class Light(QtWidgets.QWidget):
         if state != self.state:
             self.state = state
             self.update()
-        tooltip = f"{self.caption}: {state}\n{reason}"
+        tooltip = f"{self.caption}\n{reason}"
         if tooltip != self.toolTip():
             self.setToolTip(tooltip)
 
     def paintEvent(self, event: QtGui.QPaintEvent) -> None:  # noqa: N802 (Qt name)
         painter = QtGui.QPainter(self)
         painter.setRenderHint(QtGui.QPainter.RenderHint.Antialiasing)
-        diameter = 26
+        diameter = 24
         x = (self.width() - diameter) / 2
         color = STATE_COLORS[self.state]
         gradient = QtGui.QRadialGradient(x + diameter * 0.35, 4 + diameter * 0.35, diameter * 0.7)
-        gradient.setColorAt(0.0, color.lighter(160))
+        gradient.setColorAt(0.0, color.lighter(150))
         gradient.setColorAt(1.0, color)
         painter.setBrush(QtGui.QBrush(gradient))
-        painter.setPen(QtGui.QPen(color.darker(160), 1.5))
+        painter.setPen(QtGui.QPen(color.darker(150), 1.5))
         painter.drawEllipse(QtCore.QRectF(x, 4, diameter, diameter))
         painter.setPen(self.palette().color(QtGui.QPalette.ColorRole.WindowText))
-        painter.drawText(QtCore.QRectF(0, 4 + diameter + 2, self.width(), 20),
-                         QtCore.Qt.AlignmentFlag.AlignHCenter, self.caption)
+        # two lines (the name, then its state), so a narrow dock never cuts the state off
+        painter.drawText(QtCore.QRectF(0, 4 + diameter + 1, self.width(), 36),
+                         QtCore.Qt.AlignmentFlag.AlignHCenter,
+                         f"{self.name}\n{CAPTIONS[self.state]}")
         painter.end()
 
 
@@ -65,44 +80,73 @@ def _fmt(value: float, digits: int = 2) -> str:
     return "?" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
 
 
-def light_states(status: FilterStatus) -> dict[str, tuple[str, str]]:
-    """(state, reason) for the lights "acc", "mag" and "standstill" from one FilterStatus."""
+def _acc_light(status: FilterStatus, has_data: bool) -> tuple[str, str]:
+    d = status.diagnostics
+    if not status.sensors_enabled.get("acc", True):
+        return "off", "accelerometer switched off"
+    if not has_data or not math.isfinite(d.acc_norm):
+        return "no data", "no accelerometer reading yet"
+    numbers = (f"‖a‖ = {_fmt(d.acc_norm)} m/s², expected g = {_fmt(d.g)} m/s², "
+               f"norm gate ±{_fmt(d.acc_gate)} m/s² (|‖a‖ − g| = {_fmt(abs(d.acc_norm - d.g))})")
+    if not status.flags.acc_rejected:
+        return "ok", numbers
+    if d.acc_rejected_by == outputs.ACC_NIS_GATE:
+        return "acc disturbed", f"NIS gate fired: NIS = {_fmt(d.acc_nis)}\n{numbers}"
+    return "acc disturbed", f"norm gate fired: |‖a‖ − g| > gate\n{numbers}"
+
+
+def _mag_light(status: FilterStatus, has_data: bool) -> tuple[str, str]:
+    d = status.diagnostics
+    if not status.sensors_enabled.get("mag", True):
+        return "off", "magnetometer switched off"
+    if not has_data or not math.isfinite(d.mag_norm):
+        return "no data", "no magnetometer reading yet"
+    strength = (f"‖m‖ = {_fmt(d.mag_norm, 1)} µT, expected L = {_fmt(d.mag_expected, 1)} µT, "
+                f"strength gate ±{_fmt(d.mag_gate, 1)} µT")
+    dip = (f"dip {_fmt(d.mag_dip_deg, 1)}° (reference {_fmt(d.mag_reference_dip_deg, 1)}°)"
+           if math.isfinite(d.mag_dip_deg) else "")
+    numbers = strength + (f"\n{dip}" if dip else "")
+    if not status.flags.mag_rejected:
+        return "ok", numbers
+    reason = {outputs.MAG_STRENGTH_GATE: "strength gate fired: |‖m‖ − L| > gate",
+              outputs.MAG_DIP_GATE: "dip gate fired: the field's angle to up is off",
+              outputs.MAG_SETTLING: "settling: readings pass the gates again, but not yet for "
+                                    "long enough",
+              outputs.MAG_NIS_GATE: f"NIS gate fired: NIS = {_fmt(d.mag_nis)}",
+              }.get(d.mag_rejected_by, "rejected")
+    return "mag disturbed", f"{reason}\n{numbers}"
+
+
+def light_states(status: FilterStatus, has_data: bool = True) -> dict[str, tuple[str, str]]:
+    """(state, reason) for the lights "acc", "mag" and "standstill" from one FilterStatus;
+    has_data: the stream has delivered samples (else every light is grey "no data")."""
     enabled = status.sensors_enabled
-    acc_reason = (f"‖a‖ = {_fmt(status.diagnostics.acc_norm)} m/s², g = {_fmt(status.diagnostics.g)}, "
-                  f"gate {_fmt(status.diagnostics.acc_gate)}")
-    if not enabled.get("acc", True):
-        acc = ("off", "accelerometer switched off")
-    else:
-        acc = ("disturbed" if status.flags.acc_rejected else "ok", acc_reason)
-    mag_reason = (f"‖m‖ = {_fmt(status.diagnostics.mag_norm, 1)} µT, expected {_fmt(status.diagnostics.mag_expected, 1)}, "
-                  f"gate {_fmt(status.diagnostics.mag_gate, 1)}")
-    if not enabled.get("mag", True):
-        mag = ("off", "magnetometer switched off")
-    else:
-        mag = ("disturbed" if status.flags.mag_rejected else "ok", mag_reason)
     if not enabled.get("gyr", True) and not enabled.get("acc", True):
         standstill = ("off", "rest detection needs the gyroscope or the accelerometer")
+    elif not has_data:
+        standstill = ("no data", "no samples yet")
     elif status.flags.at_rest:
-        standstill = ("still", "the phone is at rest (gyro bias is being learned)")
+        standstill = ("still", "the phone is at rest (the gyroscope bias is being learned)")
     else:
         standstill = ("moving", "the phone is moving")
-    return {"acc": acc, "mag": mag, "standstill": standstill}
+    return {"acc": _acc_light(status, has_data), "mag": _mag_light(status, has_data),
+            "standstill": standstill}
 
 
 class LightsPanel(QtWidgets.QWidget):
-    """Three lights in a row: Acc disturbed, Mag disturbed, Standstill."""
+    """Three lights in a row: Acc, Mag, Standstill."""
 
     def __init__(self, parent: QtWidgets.QWidget | None = None) -> None:
         super().__init__(parent)
         layout = QtWidgets.QHBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
-        self.lights = {"acc": Light("Acc disturbed"), "mag": Light("Mag disturbed"),
+        self.lights = {"acc": Light("Acc"), "mag": Light("Mag"),
                        "standstill": Light("Standstill")}
         for light in self.lights.values():
             layout.addWidget(light)
 
-    def update_status(self, status: FilterStatus) -> None:
-        for name, (state, reason) in light_states(status).items():
+    def update_status(self, status: FilterStatus, has_data: bool = True) -> None:
+        for name, (state, reason) in light_states(status, has_data).items():
             self.lights[name].set_state(state, reason)
 
     def states(self) -> dict[str, str]:

@@ -34,11 +34,13 @@ class WindowOptions:
     settings: str | None = None
     screenshot: str | None = None
     exit_after: float | None = None
+    size: tuple[int, int] | None = None
 
 
 def build_engine(options: WindowOptions) -> Engine:
     """An (unstarted) engine for the options; ConfigError for a bad path or setting."""
-    return Engine(make_source(options.source), settings=load_settings(options.settings))
+    return Engine(make_source(options.source), settings=load_settings(options.settings),
+                  limits=options.source.limits)
 
 
 def check_display() -> None:
@@ -119,8 +121,12 @@ def run_gui(options: WindowOptions) -> int:
     window = None
     try:
         window = MainWindow(engine, settings=settings, log_path=log_path)
-        if options.screenshot:
+        if options.size is not None:
+            window.resize(*options.size)
+            window.arrange_default_layout()
+        elif options.screenshot:
             window.resize(1600, 1000)
+            window.arrange_default_layout()
         window.show()
         return _run_event_loop(app, window, options)
     finally:

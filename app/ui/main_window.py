@@ -1,15 +1,21 @@
-"""The main window: OWN and PHONE in 3D, lights and switches, connection panel, live plots.
+"""The main window: workspaces in tabs (Live: OWN and PHONE in 3D above three tabs of plots, and
+the transport bar), docks for the filter's lights and switches, the sensor-combination table
+and the connection, menus that show their state.
 
 The window owns no filter state. A QTimer at display rate takes the engine's latest
 snapshot with `engine.poll()` (non-blocking) and hands its parts to the widgets; the widgets
 send user intent back with `engine.send(command)`. The engine runs on its own thread, so
 the frame rate does not depend on the sample rate and the filter never waits for drawing.
 
-Per frame only what moves is drawn: the two 3D views (each rendered once, only when its pose
+Per frame only what moves is drawn: the 3D views (each rendered once, only when its pose
 changed), the lights and the plots. Tables, counters and the status bar are text that nobody
 reads at 60 Hz: they follow the latest snapshot at PANEL_INTERVAL_S, and only labels whose
 text changed are touched. The frame rate shown (and measured by benchmarks/gui_fps.py) counts
 frames actually painted, not timer ticks.
+
+Layout, geometry and view options persist (QSettings); named layouts can be saved and restored
+(View → Layouts); the sensor switches and the estimator start at their defaults unless the user
+chose View → "Remember my set-up". The first start is sized to the screen it opens on.
 """
 
 from __future__ import annotations
@@ -27,11 +33,13 @@ from PySide6 import QtCore, QtGui, QtWidgets
 from app import __version__
 from app.engine.snapshot import Snapshot
 from app.ui.connection import ConnectionPanel, connection_text
-from app.ui.controls import ControlsPanel
+from app.ui.controls import ESTIMATOR_CHOICES, SENSOR_LABELS, ComparisonPanel, FilterPanel
 from app.ui.failures import FailureDialog
+from app.ui.layouts import LayoutStore
 from app.ui.lights import LightsPanel
 from app.ui.phone_view import PhoneView, software_gl
 from app.ui.plots import PlotPanel
+from app.ui.transport import TransportBar
 
 ORGANIZATION = "OrientationLab"
 APPLICATION = "OrientationLab"
@@ -40,7 +48,9 @@ FRAME_INTERVAL_MS = 16          # ~60 Hz display rate (hardware OpenGL or no 3D)
 # the motion smooth (>= 30 fps) at two thirds of the cost.
 SOFTWARE_GL_FRAME_INTERVAL_MS = 25
 PANEL_INTERVAL_S = 0.2          # tables, counters, status bar: 5 updates per second
-SETTINGS_VERSION = 1
+SETTINGS_VERSION = 2
+DEFAULT_SIZE = (1600, 1000)     # the first start: this, or 92 % of a smaller screen
+NO_ORI_AFTER_MS = 2000          # samples but no ORI for this long: "no ORI in this stream"
 
 
 class EngineLike(Protocol):
@@ -65,6 +75,16 @@ def _to_bool(value: Any, default: bool) -> bool:
     return bool(value)
 
 
+def phone_no_data_text(snapshot: Snapshot) -> str:
+    """Why PHONE has nothing to show: "" when it has an orientation."""
+    if snapshot.phone_quat is not None:
+        return ""
+    if (snapshot.t_ms is not None and snapshot.t0_ms is not None
+            and snapshot.t_ms - snapshot.t0_ms >= NO_ORI_AFTER_MS):
+        return "no ORI in this stream\n(the phone sends no orientation of its own)"
+    return "waiting for data"
+
+
 class MainWindow(QtWidgets.QMainWindow):
     """The application window around one engine.
 
@@ -84,9 +104,9 @@ class MainWindow(QtWidgets.QMainWindow):
                  log_path: Path | None = None) -> None:
         super().__init__()
         self.engine = engine
+        self.settings = settings if settings is not None else default_settings()
         self.failure_dialog = FailureDialog(self, log_path)
         self._failures_shown = 0
-        self.settings = settings if settings is not None else default_settings()
         self.last_snapshot: Snapshot | None = None
         self.ticks = 0                      # display ticks (timer callbacks)
         self.frames_painted = 0             # ticks whose changes reached the screen
@@ -97,51 +117,28 @@ class MainWindow(QtWidgets.QMainWindow):
         self._painted_tick = -1
         self._panel_snapshot: Snapshot | None = None   # not yet shown in the slow panels
         self._panels_shown_at = -math.inf
+        self._linking_cameras = False
 
         self.setWindowTitle("Orientation Lab")
         self.setObjectName("main_window")
         self.setDockOptions(QtWidgets.QMainWindow.DockOption.AnimatedDocks
-                            | QtWidgets.QMainWindow.DockOption.AllowNestedDocks)
-
-        # Centre: the two phones side by side above the plots.
-        self.own_view = PhoneView("OWN", use_gl=use_gl)
-        self.phone_view = PhoneView("PHONE", use_gl=use_gl)
-        self.plots = PlotPanel()
-        self.views_splitter = QtWidgets.QSplitter(QtCore.Qt.Orientation.Horizontal)
-        self.views_splitter.setObjectName("views_splitter")
-        self.views_splitter.addWidget(self.own_view)
-        self.views_splitter.addWidget(self.phone_view)
-        self.central_splitter = QtWidgets.QSplitter(QtCore.Qt.Orientation.Vertical)
-        self.central_splitter.setObjectName("central_splitter")
-        self.central_splitter.addWidget(self.views_splitter)
-        self.central_splitter.addWidget(self.plots)
-        self.central_splitter.setStretchFactor(0, 4)
-        self.central_splitter.setStretchFactor(1, 5)
-        self.central_splitter.setSizes([420, 520])     # until a saved layout says otherwise
-        self.setCentralWidget(self.central_splitter)
-
-        # Side: lights and switches, then the connection panel, in docks.
-        self.lights = LightsPanel()
-        self.controls = ControlsPanel(self.send)
-        self.connection = ConnectionPanel(self.send)
-        filter_widget = QtWidgets.QWidget()
-        filter_layout = QtWidgets.QVBoxLayout(filter_widget)
-        filter_layout.setContentsMargins(4, 4, 4, 4)
-        filter_layout.addWidget(self.lights)
-        filter_layout.addWidget(self.controls, 1)
-        self.filter_dock = self._add_dock("Filter", "filter_dock", filter_widget)
-        self.connection_dock = self._add_dock("Connection", "connection_dock", self.connection)
-        self.controls.uncertainty_toggled.connect(self.own_view.set_uncertainty_visible)
-
+                            | QtWidgets.QMainWindow.DockOption.AllowNestedDocks
+                            | QtWidgets.QMainWindow.DockOption.AllowTabbedDocks)
+        self._build_live_workspace(use_gl)
+        self.workspaces = QtWidgets.QTabWidget()
+        self.workspaces.setObjectName("workspaces")
+        self.workspaces.setDocumentMode(True)
+        self.add_workspace(self.live_workspace, "Live / Replay")
+        self.setCentralWidget(self.workspaces)
+        self._build_docks()
         self._build_status_bar()
         self._build_actions()
-        self.resize(1500, 950)
+        self.layouts = LayoutStore(self.settings)
         self.restore_settings()
 
         self._frame_filter = _PaintCounter(self._on_paint)
         for widget in self._drawn_widgets():
             widget.installEventFilter(self._frame_filter)
-
         if frame_interval_ms is None:
             frame_interval_ms = (SOFTWARE_GL_FRAME_INTERVAL_MS
                                  if self.own_view.gl_view is not None and software_gl()
@@ -154,6 +151,38 @@ class MainWindow(QtWidgets.QMainWindow):
 
     # ---- construction ---------------------------------------------------------------------
 
+    def _build_live_workspace(self, use_gl: bool | None) -> None:
+        self.own_view = PhoneView("OWN", use_gl=use_gl)
+        self.phone_view = PhoneView("PHONE", use_gl=use_gl)
+        self.plots = PlotPanel()
+        self.transport = TransportBar(self.send)
+        self.views_splitter = QtWidgets.QSplitter(QtCore.Qt.Orientation.Horizontal)
+        self.views_splitter.setObjectName("views_splitter")
+        self.views_splitter.addWidget(self.own_view)
+        self.views_splitter.addWidget(self.phone_view)
+        self.central_splitter = QtWidgets.QSplitter(QtCore.Qt.Orientation.Vertical)
+        self.central_splitter.setObjectName("central_splitter")
+        self.central_splitter.setChildrenCollapsible(False)
+        self.central_splitter.addWidget(self.views_splitter)
+        self.central_splitter.addWidget(self.plots)
+        self.central_splitter.setStretchFactor(0, 4)
+        self.central_splitter.setStretchFactor(1, 6)
+        self.live_workspace = QtWidgets.QWidget()
+        self.live_workspace.setObjectName("live_workspace")
+        box = QtWidgets.QVBoxLayout(self.live_workspace)
+        box.setContentsMargins(0, 0, 0, 0)
+        box.setSpacing(2)
+        box.addWidget(self.central_splitter, 1)
+        box.addWidget(self.transport)        # outside the splitter: always visible
+        for view in (self.own_view, self.phone_view):
+            view.camera_changed.connect(lambda v=view: self._on_camera_changed(v))
+
+    def add_workspace(self, widget: QtWidgets.QWidget, title: str) -> int:
+        """A workspace tab (Live / Replay; later calibration, tuning, consistency)."""
+        index = self.workspaces.addTab(widget, title)
+        self.workspaces.tabBar().setVisible(self.workspaces.count() > 1)
+        return index
+
     def _add_dock(self, title: str, name: str, widget: QtWidgets.QWidget) -> QtWidgets.QDockWidget:
         dock = QtWidgets.QDockWidget(title, self)
         dock.setObjectName(name)
@@ -164,9 +193,47 @@ class MainWindow(QtWidgets.QMainWindow):
         scroll.setFrameShape(QtWidgets.QFrame.Shape.NoFrame)
         scroll.setWidget(widget)
         dock.setWidget(scroll)
-        dock.setMinimumWidth(340)
+        dock.setMinimumWidth(330)
         self.addDockWidget(QtCore.Qt.DockWidgetArea.RightDockWidgetArea, dock)
         return dock
+
+    def _build_docks(self) -> None:
+        self.lights = LightsPanel()
+        self.controls = FilterPanel(self.send)
+        self.comparison = ComparisonPanel(self.send)
+        self.connection = ConnectionPanel(self.send)
+        filter_widget = QtWidgets.QWidget()
+        filter_layout = QtWidgets.QVBoxLayout(filter_widget)
+        filter_layout.setContentsMargins(4, 4, 4, 4)
+        filter_layout.addWidget(self.lights)
+        filter_layout.addWidget(self.controls)
+        filter_layout.addStretch(1)
+        self.filter_dock = self._add_dock("Filter", "filter_dock", filter_widget)
+        self.comparison_dock = self._add_dock("Sensor combinations", "comparison_dock",
+                                              self.comparison)
+        self.connection_dock = self._add_dock("Connection", "connection_dock", self.connection)
+        self.controls.uncertainty_toggled.connect(self.own_view.set_uncertainty_visible)
+        self.controls.sensor_toggled.connect(self._on_sensor_toggled)
+        self.controls.estimator_changed.connect(self._on_estimator_changed)
+
+    def arrange_default_layout(self) -> None:
+        """The docks on the right: Filter above, the table and the connection below, tabbed
+        together on screens too short to stack all three; the views above the plots."""
+        for dock in (self.filter_dock, self.comparison_dock, self.connection_dock):
+            dock.setFloating(False)
+            dock.show()
+            self.addDockWidget(QtCore.Qt.DockWidgetArea.RightDockWidgetArea, dock)
+        height = self.height()
+        if height < 950:
+            self.tabifyDockWidget(self.comparison_dock, self.connection_dock)
+            self.comparison_dock.raise_()
+        else:
+            self.splitDockWidget(self.comparison_dock, self.connection_dock,
+                                 QtCore.Qt.Orientation.Vertical)
+        self.resizeDocks([self.filter_dock], [max(340, int(self.width() * 0.24))],
+                         QtCore.Qt.Orientation.Horizontal)
+        self.central_splitter.setSizes([int(height * 0.36), int(height * 0.64)])
+        self.views_splitter.setSizes([1, 1])
 
     def _build_status_bar(self) -> None:
         bar = self.statusBar()
@@ -177,14 +244,16 @@ class MainWindow(QtWidgets.QMainWindow):
         for label in (self.state_status, self.time_status, self.rates_status, self.fps_status):
             bar.addPermanentWidget(label)
 
-    def _action(self, menu: QtWidgets.QMenu, text: str, shortcut: str | QtGui.QKeySequence | None,
-                slot, checkable: bool = False) -> QtGui.QAction:
+    def _action(self, menu: QtWidgets.QMenu, text: str, shortcut: str | None, slot,
+                checkable: bool = False, checked: bool = False) -> QtGui.QAction:
         action = QtGui.QAction(text, self)
         if shortcut is not None:
             action.setShortcut(QtGui.QKeySequence(shortcut))
             # Window-wide, so the shortcut works whichever panel has focus.
             action.setShortcutContext(QtCore.Qt.ShortcutContext.WindowShortcut)
         action.setCheckable(checkable)
+        if checkable:
+            action.setChecked(checked)
         action.triggered.connect(slot)
         menu.addAction(action)
         self.addAction(action)
@@ -192,28 +261,57 @@ class MainWindow(QtWidgets.QMainWindow):
 
     def _build_actions(self) -> None:
         menus = self.menuBar()
-        file_menu = menus.addMenu("&File")
-        self.quit_action = self._action(file_menu, "&Quit", "Ctrl+Q", self.close)
-        view_menu = menus.addMenu("&View")
-        self.pause_action = self._action(view_menu, "&Pause / follow (replay: play / pause)",
-                                         "Space", self.toggle_pause)
-        self.clear_action = self._action(view_menu, "&Clear plots", "Ctrl+L", self.plots.clear)
-        self._action(view_menu, "Reset 3D &views", None, self.reset_cameras)
-        view_menu.addSeparator()
-        view_menu.addAction(self.filter_dock.toggleViewAction())
-        view_menu.addAction(self.connection_dock.toggleViewAction())
-        filter_menu = menus.addMenu("F&ilter")
-        self.reset_action = self._action(filter_menu, "&Reset filter", "Ctrl+R",
-                                         self.controls.reset_button.click)
-        self.align_action = self._action(filter_menu, "&Align heading with PHONE", "Ctrl+H",
-                                         self.controls.align_button.click)
-        filter_menu.addSeparator()
-        for number, (sensor, label) in enumerate((("gyr", "gyroscope"), ("acc", "accelerometer"),
-                                                  ("mag", "magnetometer")), start=1):
-            self._action(filter_menu, f"Toggle {label}", f"Ctrl+{number}",
-                         lambda checked=False, s=sensor: self.controls.toggle_sensor(s))
+        self.file_menu = menus.addMenu("&File")
+        self.quit_action = self._action(self.file_menu, "&Quit", "Ctrl+Q", self.close)
+        self._build_view_menu(menus.addMenu("&View"))
+        self._build_filter_menu(menus.addMenu("F&ilter"))
         help_menu = menus.addMenu("&Help")
         self.about_action = self._action(help_menu, "&About", "F1", self.show_about)
+
+    def _build_view_menu(self, menu: QtWidgets.QMenu) -> None:
+        self.view_menu = menu
+        self.pause_action = self._action(menu, "&Pause / follow (replay: play / pause)", "Space",
+                                         self.toggle_pause)
+        self.clear_action = self._action(menu, "&Clear plots", "Ctrl+L", self.plots.clear)
+        self.unwrap_action = self._action(menu, "&Unwrap Euler angles", None,
+                                          self.plots.set_unwrapped, checkable=True)
+        self.plots.unwrap_checkbox.toggled.connect(self.unwrap_action.setChecked)
+        menu.addSeparator()
+        self.link_cameras_action = self._action(menu, "&Link 3D cameras", None,
+                                                self.set_cameras_linked, checkable=True)
+        self._action(menu, "Reset 3D &views", None, self.reset_cameras)
+        menu.addSeparator()
+        self.layouts_menu = menu.addMenu("&Layouts")
+        self.layouts_menu.aboutToShow.connect(self._fill_layouts_menu)
+        self._action(menu, "&Reset to defaults", None, self.reset_to_defaults)
+        self.remember_action = self._action(menu, "Re&member my set-up (sensors, estimator)",
+                                            None, self._on_remember_toggled, checkable=True)
+        menu.addSeparator()
+        for dock in (self.filter_dock, self.comparison_dock, self.connection_dock):
+            menu.addAction(dock.toggleViewAction())
+
+    def _build_filter_menu(self, menu: QtWidgets.QMenu) -> None:
+        self.reset_action = self._action(menu, "&Reset filter", "Ctrl+R",
+                                         self._reset_filter)
+        self.align_action = self._action(menu, "&Align heading with PHONE", "Ctrl+H",
+                                         self._align_heading)
+        menu.addSeparator()
+        self.sensor_actions: dict[str, QtGui.QAction] = {}
+        for number, (sensor, label) in enumerate(SENSOR_LABELS, start=1):
+            self.sensor_actions[sensor] = self._action(
+                menu, label, f"Ctrl+{number}",
+                lambda checked, s=sensor: self.controls.set_sensor(s, checked),
+                checkable=True, checked=True)
+        menu.addSeparator()
+        estimator_menu = menu.addMenu("&Estimator (OWN)")
+        self.estimator_group = QtGui.QActionGroup(self)
+        self.estimator_actions: dict[str, QtGui.QAction] = {}
+        for name, label in ESTIMATOR_CHOICES:
+            action = self._action(estimator_menu, label, None,
+                                  lambda checked, n=name: self.controls.set_estimator(n),
+                                  checkable=True, checked=name == "ekf")
+            self.estimator_group.addAction(action)
+            self.estimator_actions[name] = action
 
     # ---- engine --------------------------------------------------------------------------
 
@@ -236,13 +334,23 @@ class MainWindow(QtWidgets.QMainWindow):
         their own pace (refresh_panels)."""
         self.last_snapshot = snapshot
         self.snapshots_received += 1
-        self.own_view.set_orientation(snapshot.own_quat, snapshot.own_cov)
+        has_data = bool(snapshot.status.initialised)
+        if has_data:
+            self.own_view.set_orientation(snapshot.own_quat, snapshot.own_cov)
+        else:
+            self.own_view.set_no_data("waiting for data")
+            self.own_view.set_orientation(None)
+        phone_text = phone_no_data_text(snapshot)
+        if phone_text:
+            self.phone_view.set_no_data(phone_text)
         self.phone_view.set_orientation(snapshot.phone_quat)
-        self.lights.update_status(snapshot.status)
+        self.lights.update_status(snapshot.status, has_data)
         self.controls.update_status(snapshot.status)
         self.plots.append(snapshot.plot)
         self.plots.set_status(snapshot.status)
-        self.connection.update_replay(snapshot.replay)
+        self.plots.set_time_origin(snapshot.t0_ms)
+        replay = snapshot.replay
+        self.transport.update_replay(replay, "" if replay else connection_text(snapshot.health))
         self._panel_snapshot = snapshot
         if snapshot.failures and snapshot.failures[-1].number > self._failures_shown:
             latest = snapshot.failures[-1]
@@ -259,15 +367,19 @@ class MainWindow(QtWidgets.QMainWindow):
         _set_text(self.fps_status, f"{self.frames_per_second():.0f} fps")
         if snapshot is None:
             return
-        self.controls.update_comparisons(snapshot.comparisons)
+        self.comparison.update_comparisons(snapshot.comparisons, snapshot.comparison_estimator)
         self.connection.update_health(snapshot.health)
         self._update_status_bar(snapshot)
 
     def _update_status_bar(self, snapshot: Snapshot) -> None:
         health = snapshot.health
         _set_text(self.state_status, connection_text(health))
-        _set_text(self.time_status, "t = –" if snapshot.t_ms is None
-                  else f"t = {snapshot.t_ms / 1000.0:.2f} s")
+        if snapshot.t_ms is None or snapshot.t0_ms is None:
+            _set_text(self.time_status, "t = –")
+        else:
+            _set_text(self.time_status, f"t = {(snapshot.t_ms - snapshot.t0_ms) / 1000.0:.1f} s")
+            self.time_status.setToolTip(f"time since the session's start; the phone's clock: "
+                                        f"{snapshot.t_ms / 1000.0:.3f} s")
         _set_text(self.rates_status, "  ".join(f"{tag} {rate:.0f} Hz"
                                                for tag, rate in sorted(health.rates_hz.items())
                                                if tag in ("ACC", "GYR", "MAG", "ORI") and rate > 0))
@@ -279,7 +391,7 @@ class MainWindow(QtWidgets.QMainWindow):
 
     def _drawn_widgets(self) -> list[QtWidgets.QWidget]:
         """The widgets that change every frame: their paint events are the frames."""
-        widgets = [self.plots.graphics.viewport()]
+        widgets = [group.graphics.viewport() for group in self.plots.groups.values()]
         for view in (self.own_view, self.phone_view):
             widgets.append(view.gl_view if view.gl_view is not None else view.placeholder)
         return widgets
@@ -307,10 +419,53 @@ class MainWindow(QtWidgets.QMainWindow):
 
     def toggle_pause(self) -> None:
         """Space: play/pause a replay; otherwise pause/follow the plots."""
-        if self.connection.replaying:
-            self.connection.toggle_replay_paused()
+        if self.transport.replaying:
+            self.transport.toggle_paused()
         else:
             self.plots.toggle_paused()
+            self.statusBar().showMessage("plots paused: drag to look back, Space or Follow "
+                                         "to follow again" if self.plots.paused
+                                         else "plots follow the newest samples", 4000)
+
+    def _reset_filter(self) -> None:
+        self.controls.reset_button.click()
+        self.statusBar().showMessage("filter reset: it starts again from the next samples", 4000)
+
+    def _align_heading(self) -> None:
+        self.controls.align_button.click()
+        self.statusBar().showMessage("aligning OWN's heading with PHONE's…", 4000)
+
+    def _on_sensor_toggled(self, sensor: str, enabled: bool) -> None:
+        action = self.sensor_actions[sensor]
+        if action.isChecked() != enabled:
+            action.setChecked(enabled)
+        label = dict(SENSOR_LABELS)[sensor].lower()
+        self.statusBar().showMessage(f"{label} {'in' if enabled else 'out of'} the filter", 3000)
+
+    def _on_estimator_changed(self, name: str) -> None:
+        action = self.estimator_actions.get(name)
+        if action is not None and not action.isChecked():
+            action.setChecked(True)
+        self.statusBar().showMessage(f"OWN is now: {dict(ESTIMATOR_CHOICES).get(name, name)}",
+                                     3000)
+
+    def set_cameras_linked(self, linked: bool) -> None:
+        if self.link_cameras_action.isChecked() != bool(linked):
+            self.link_cameras_action.setChecked(bool(linked))
+        if linked:
+            self.phone_view.set_camera(self.own_view.camera())
+        self.statusBar().showMessage("3D cameras linked: turning one turns both" if linked
+                                     else "3D cameras move on their own", 3000)
+
+    def _on_camera_changed(self, view: PhoneView) -> None:
+        if not self.link_cameras_action.isChecked() or self._linking_cameras:
+            return
+        self._linking_cameras = True
+        try:
+            other = self.phone_view if view is self.own_view else self.own_view
+            other.set_camera(view.camera())
+        finally:
+            self._linking_cameras = False
 
     def reset_cameras(self) -> None:
         self.own_view.reset_camera()
@@ -329,51 +484,127 @@ class MainWindow(QtWidgets.QMainWindow):
     def show_about(self) -> None:
         QtWidgets.QMessageBox.about(self, "About Orientation Lab", self.about_text())
 
-    # ---- persistence ----------------------------------------------------------------------
+    # ---- layouts and persistence ----------------------------------------------------------
+
+    def _fill_layouts_menu(self) -> None:
+        menu = self.layouts_menu
+        menu.clear()
+        menu.addAction("Save current layout as…", self.save_layout_as)
+        names = self.layouts.names()
+        if names:
+            menu.addSeparator()
+            for name in names:
+                menu.addAction(name, lambda n=name: self.apply_layout(n))
+            delete = menu.addMenu("Delete")
+            for name in names:
+                delete.addAction(name, lambda n=name: self.delete_layout(n))
+
+    def save_layout_as(self, name: str | None = None) -> None:
+        if name is None:
+            name, ok = QtWidgets.QInputDialog.getText(self, "Save layout", "Layout name:")
+            if not ok:
+                return
+        name = name.strip()
+        if not name:
+            return
+        self.layouts.save(name, self)
+        self.statusBar().showMessage(f"layout '{name}' saved", 3000)
+
+    def apply_layout(self, name: str) -> None:
+        if self.layouts.apply(name, self):
+            self.statusBar().showMessage(f"layout '{name}'", 3000)
+
+    def delete_layout(self, name: str) -> None:
+        self.layouts.delete(name)
+        self.statusBar().showMessage(f"layout '{name}' deleted", 3000)
+
+    def reset_to_defaults(self) -> None:
+        """Default layout, view options, switches and estimator (saved layouts stay)."""
+        self.arrange_default_layout()
+        self.plots.set_window_s(10.0)
+        self.plots.set_unwrapped(False)
+        self.plots.set_current_group("sensors")
+        self.set_cameras_linked(False)
+        self.reset_cameras()
+        self.controls.uncertainty_checkbox.setChecked(True)
+        for sensor in self.controls.sensor_checkboxes:
+            self.controls.set_sensor(sensor, True)
+        self.controls.set_estimator("ekf")
+        self.statusBar().showMessage("layout and switches back to their defaults", 4000)
+
+    def _on_remember_toggled(self, remember: bool) -> None:
+        self.settings.setValue("setup/remember", bool(remember))
+        self.statusBar().showMessage(
+            "sensor switches and estimator will be restored at the next start" if remember
+            else "the next start begins with all sensors and the default EKF", 4000)
+
+    def size_to_screen(self) -> None:
+        """The first start: DEFAULT_SIZE, or 92 % of a smaller screen, centred on it."""
+        screen = self.screen() or QtGui.QGuiApplication.primaryScreen()
+        if screen is None:
+            self.resize(*DEFAULT_SIZE)
+            return
+        available = screen.availableGeometry()
+        width = min(DEFAULT_SIZE[0], int(available.width() * 0.92))
+        height = min(DEFAULT_SIZE[1], int(available.height() * 0.92))
+        self.resize(width, height)
+        self.move(available.x() + (available.width() - width) // 2,
+                  available.y() + (available.height() - height) // 2)
 
     def save_settings(self) -> None:
         s = self.settings
         s.setValue("version", SETTINGS_VERSION)
         s.setValue("window/geometry", self.saveGeometry())
-        s.setValue("window/state", self.saveState(SETTINGS_VERSION))
-        s.setValue("window/central_splitter", self.central_splitter.saveState())
-        s.setValue("window/views_splitter", self.views_splitter.saveState())
+        self.layouts.write_current(s, self, "window")
         s.setValue("plots/window_s", self.plots.window_s)
+        s.setValue("view/uncertainty", self.controls.uncertainty_checkbox.isChecked())
+        s.setValue("view/link_cameras", self.link_cameras_action.isChecked())
+        s.setValue("view/unwrapped", self.plots.unwrapped)
+        s.setValue("setup/remember", self.remember_action.isChecked())
         s.setValue("filter/estimator", self.controls.estimator())
         for sensor, checkbox in self.controls.sensor_checkboxes.items():
             s.setValue(f"filter/sensor_{sensor}", checkbox.isChecked())
-        s.setValue("view/uncertainty", self.controls.uncertainty_checkbox.isChecked())
-        s.setValue("filter/comparisons", self.controls.comparisons_checkbox.isChecked())
+        s.setValue("filter/comparisons", self.comparison.comparisons_checkbox.isChecked())
+        s.setValue("filter/comparison_estimator", self.comparison.estimator())
         s.sync()
 
     def restore_settings(self) -> None:
-        """Apply saved layout and switches; switch changes reach the engine as commands."""
+        """Apply saved geometry, layout and view options; the switches and the estimator only
+        when the user chose "Remember my set-up" (their changes reach the engine as
+        commands)."""
         s = self.settings
         geometry = s.value("window/geometry")
-        if geometry is not None:
-            self.restoreGeometry(geometry)
-        state = s.value("window/state")
-        if state is not None:
-            self.restoreState(state, SETTINGS_VERSION)
-        for key, splitter in (("window/central_splitter", self.central_splitter),
-                              ("window/views_splitter", self.views_splitter)):
-            value = s.value(key)
-            if value is not None:
-                splitter.restoreState(value)
+        if geometry is None or not self.restoreGeometry(geometry):
+            self.size_to_screen()
+        self.arrange_default_layout()
+        if _to_bool(s.value("version"), False):
+            self.layouts.read_current(s, self, "window")
         window_s = s.value("plots/window_s")
         if window_s is not None:
             try:
                 self.plots.set_window_s(float(window_s))
             except (TypeError, ValueError):
                 pass
+        self.controls.uncertainty_checkbox.setChecked(_to_bool(s.value("view/uncertainty"), True))
+        self.own_view.set_uncertainty_visible(self.controls.uncertainty_checkbox.isChecked())
+        self.link_cameras_action.setChecked(_to_bool(s.value("view/link_cameras"), False))
+        self.plots.set_unwrapped(_to_bool(s.value("view/unwrapped"), False))
+        remember = _to_bool(s.value("setup/remember"), False)
+        self.remember_action.setChecked(remember)
+        if not remember:
+            return
         estimator = s.value("filter/estimator")
         if isinstance(estimator, str):
             self.controls.set_estimator(estimator)
         for sensor, checkbox in self.controls.sensor_checkboxes.items():
             checkbox.setChecked(_to_bool(s.value(f"filter/sensor_{sensor}"), True))
-        self.controls.uncertainty_checkbox.setChecked(_to_bool(s.value("view/uncertainty"), True))
-        self.own_view.set_uncertainty_visible(self.controls.uncertainty_checkbox.isChecked())
-        self.controls.comparisons_checkbox.setChecked(_to_bool(s.value("filter/comparisons"), True))
+        self.comparison.comparisons_checkbox.setChecked(
+            _to_bool(s.value("filter/comparisons"), True))
+        comparison_estimator = s.value("filter/comparison_estimator")
+        if isinstance(comparison_estimator, str):
+            index = self.comparison.estimator_combo.findData(comparison_estimator)
+            if index >= 0:
+                self.comparison.estimator_combo.setCurrentIndex(index)
 
     # ---- shutdown -------------------------------------------------------------------------
 

@@ -31,10 +31,14 @@ def _make_gl_view():
 class PhoneView(QtWidgets.QFrame):
     """One titled 3D view (OWN or PHONE). Falls back to a text label without OpenGL.
 
-    Public API: set_orientation(quat, cov), set_uncertainty_visible(bool), reset_camera(),
-    `gl_view` (the offscreen-rendered 3D scene widget, None without OpenGL; its
-    `frames_painted` counts the frames it painted).
+    Public API: set_orientation(quat, cov), set_no_data(text) (the view greys out and says why:
+    "waiting for data", "no ORI in this stream"), set_uncertainty_visible(bool), reset_camera(),
+    camera() / set_camera(opts) and the `camera_changed` signal (to link views), `gl_view` (the
+    offscreen-rendered 3D scene widget, None without OpenGL; its `frames_painted` counts the
+    frames it painted).
     """
+
+    camera_changed = QtCore.Signal()
 
     def __init__(self, title: str, parent: QtWidgets.QWidget | None = None,
                  use_gl: bool | None = None) -> None:
@@ -53,6 +57,7 @@ class PhoneView(QtWidgets.QFrame):
         self._drawn_theta_cov: np.ndarray | None = None
         self._drawn_quat: np.ndarray | None = None
         self.pose_changes = 0           # visible pose changes handed to the 3D scene
+        self.no_data_text = "waiting for data"
 
         layout = QtWidgets.QVBoxLayout(self)
         layout.setContentsMargins(2, 2, 2, 2)
@@ -82,6 +87,8 @@ class PhoneView(QtWidgets.QFrame):
             self._scene = PhoneScene()
             self._scene.changed = self.gl_view.update
             self.gl_view.scene = self._scene
+            self.gl_view.camera_changed.connect(self.camera_changed)
+            self.gl_view.set_overlay(self.no_data_text)
             self.reset_camera()
             layout.addWidget(self.gl_view, 1)
             self.placeholder = None
@@ -100,6 +107,36 @@ class PhoneView(QtWidgets.QFrame):
         self.gl_view.opts["center"] = QtGui.QVector3D(0, 0, -0.2)
         self.gl_view.setCameraPosition(**CAMERA)
 
+    def camera(self) -> dict:
+        """The camera: distance, elevation, azimuth [deg] and the centre it looks at."""
+        if self.gl_view is None:
+            return {}
+        opts = self.gl_view.opts
+        center = opts["center"]
+        return {"distance": float(opts["distance"]), "elevation": float(opts["elevation"]),
+                "azimuth": float(opts["azimuth"]),
+                "center": (center.x(), center.y(), center.z())}
+
+    def set_camera(self, camera: dict) -> None:
+        """Look from `camera` (as camera() gives it); nothing without OpenGL."""
+        if self.gl_view is None or not camera:
+            return
+        if camera == self.camera():
+            return
+        self.gl_view.opts["center"] = QtGui.QVector3D(*camera["center"])
+        self.gl_view.setCameraPosition(distance=camera["distance"],
+                                       elevation=camera["elevation"],
+                                       azimuth=camera["azimuth"])
+
+    def set_no_data(self, text: str) -> None:
+        """Grey the view out and say why there is nothing to show ("" : show the phone)."""
+        self.no_data_text = text
+        if self.gl_view is not None:
+            self.gl_view.set_overlay(text)
+        if text:
+            self._set_detail(text, urgent=True)
+        self._update_placeholder()
+
     def set_uncertainty_visible(self, visible: bool) -> None:
         self.uncertainty_visible = bool(visible)
         self._update_uncertainty()
@@ -109,10 +146,11 @@ class PhoneView(QtWidgets.QFrame):
         if quat is None or not np.all(np.isfinite(quat)) or np.linalg.norm(quat) < 1e-9:
             self.quat = None
             self.cov = None
-            self._set_detail("no data", urgent=True)
-            self._update_placeholder()
+            self.set_no_data(self.no_data_text or "waiting for data")
             self._update_uncertainty()
             return
+        if self.no_data_text:
+            self.set_no_data("")
         quat = np.asarray(quat, dtype=float)
         quat = quat / np.linalg.norm(quat)
         self.quat = quat
@@ -181,8 +219,8 @@ class PhoneView(QtWidgets.QFrame):
     def _update_placeholder(self) -> None:
         if self.placeholder is None:
             return
-        if self.quat is None:
-            body = "no orientation yet"
+        if self.quat is None or self.no_data_text:
+            body = self.no_data_text or "waiting for data"
         else:
             w, x, y, z = self.quat
             body = f"q = ({w:+.3f}, {x:+.3f}, {y:+.3f}, {z:+.3f})"

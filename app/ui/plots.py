@@ -1,150 +1,112 @@
-"""Live plots in the phone's time: accelerometer, gyroscope, magnetometer, Euler angles, angle.
+"""Live plots in time since the session's start, in three tabs.
+
+* Sensors: accelerometer, gyroscope and magnetometer (x, y, z, norm), the gates on the norms
+  and the samples the filter rejected as a thin band of ticks along the bottom;
+* Orientation: yaw, pitch and roll (z-y-x) of OWN (solid) and PHONE (dashed, same colour),
+  wrapped to ±180° (±90° for pitch) with the line broken at a wrap, or unwrapped in one turn;
+* Error vs PHONE: total angle, heading and inclination of OWN against PHONE, compared at
+  PHONE's time stamps.
 
 Samples arrive in PlotChunks (one per display frame) and go into preallocated numpy buffers
-of bounded size; the curves are redrawn at most once per display frame, only over the
-visible window. Following shows the last `window_s` seconds; pausing (button, Space, or
-dragging/zooming a plot) freezes the view while samples keep being stored, Follow resumes.
-Clicking a legend entry hides/shows that curve. The cursor reads every visible curve.
+of bounded size; the current tab's curves are redrawn at most once per display frame, only
+over the visible window, peak-downsampled to the plot's width. Following shows the last
+`window_s` seconds; pausing (button, Space, or dragging/zooming a plot) freezes the view while
+samples keep being stored, Follow resumes. The legend of each tab is a row of toggles above
+its plots (never over the data); the cursor reads every visible curve into a small table.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6 import QtCore, QtWidgets
+from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.engine.snapshot import FilterStatus, PlotChunk
+from app.ui.plot_data import (SampleBuffer, break_at_wraps, peak_downsample, rejected_spans,
+                              time_text, unwrap_deg, unwrap_in_turn)
 
 DEFAULT_WINDOW_S = 10.0
-MAX_WINDOW_S = 120.0
-# Rows kept per stream: 2 minutes at 500 Hz. The buffer holds up to twice this before it
-# drops the oldest half, so memory is bounded (about 6 MB for the widest stream).
-BUFFER_ROWS = 60_000
-XYZ_COLORS = ((220, 50, 50), (40, 170, 60), (50, 100, 230), (90, 90, 90))
-# PHONE's Euler angles: the same hues, lighter. Solid 1-px pens only: wider or dashed pens
-# take Qt's slow stroking path and cost several times the frame time at 500 Hz.
-PHONE_COLORS = ((245, 150, 150), (140, 215, 150), (150, 180, 250))
+MAX_WINDOW_S = 600.0
+AXIS_COLORS = ((220, 50, 50), (40, 160, 60), (50, 100, 230))    # x, y, z
+NORM_COLOR = (90, 90, 90)
+REJECTED_COLOR = (225, 40, 40)
+GATE_COLOR = (200, 120, 0)
+ERROR_COLORS = ((130, 40, 170), (230, 120, 0), (0, 150, 150))   # total, heading, inclination
 EULER_NAMES = ("yaw", "pitch", "roll")
-LEFT_AXIS_WIDTH = 62        # px, the same for every plot so their time axes line up
+# yaw is about z, pitch about y, roll about x: each in its axis' colour
+EULER_COLORS = (AXIS_COLORS[2], AXIS_COLORS[1], AXIS_COLORS[0])
+EULER_TOOLTIP = ("Euler angles z-y-x (the course's q2euler intent, its errata fixed): "
+                 "R = Rz(yaw) Ry(pitch) Rx(roll), sensor -> East-North-Up; yaw about up "
+                 "(0 = the phone's y axis to the north, counter-clockwise positive), pitch about "
+                 "the turned y axis (±90°), roll about the phone's x axis.")
+LEFT_AXIS_WIDTH = 64        # px, the same for every plot so their time axes line up
+BAND_FRACTION = 0.035       # the rejected band: this much of the plot's height, at the bottom
 
 
-class SampleBuffer:
-    """Time-stamped rows in one contiguous float64 array, bounded in size.
-
-    Appending is amortised O(1): rows are written after the last one, and when the array
-    is full the newest `capacity` rows move to the front. `t` and `values` are views of
-    the stored rows, oldest first.
-    """
-
-    def __init__(self, columns: int, capacity: int = BUFFER_ROWS) -> None:
-        self.capacity = int(capacity)
-        self._t = np.empty(2 * self.capacity)
-        self._values = np.empty((2 * self.capacity, columns))
-        self.size = 0
-        self.appended = 0           # rows ever appended since the last clear
-
-    @property
-    def first_index(self) -> int:
-        """Running number of the oldest stored row (counts every row appended since clear)."""
-        return self.appended - self.size
-
-    @property
-    def t(self) -> np.ndarray:
-        return self._t[:self.size]
-
-    @property
-    def values(self) -> np.ndarray:
-        return self._values[:self.size]
-
-    def clear(self) -> None:
-        self.size = 0
-        self.appended = 0
-
-    def append(self, t: np.ndarray, values: np.ndarray) -> None:
-        count = len(t)
-        if count == 0:
-            return
-        self.appended += count
-        if count > self.capacity:
-            t, values, count = t[-self.capacity:], values[-self.capacity:], self.capacity
-        if self.size + count > len(self._t):
-            keep = self.capacity - count
-            self._t[:keep] = self._t[self.size - keep:self.size]
-            self._values[:keep] = self._values[self.size - keep:self.size]
-            self.size = keep
-        self._t[self.size:self.size + count] = t
-        self._values[self.size:self.size + count] = values
-        self.size += count
-
-    def last_time(self) -> float:
-        return float(self._t[self.size - 1]) if self.size else -math.inf
-
-    def window(self, t_start: float, t_end: float) -> slice:
-        """Rows with t_start <= t <= t_end (times are increasing), plus one either side
-        so lines run to the edge of the view."""
-        t = self.t
-        start = max(int(np.searchsorted(t, t_start, "left")) - 1, 0)
-        end = min(int(np.searchsorted(t, t_end, "right")) + 1, self.size)
-        return slice(start, end)
+@dataclass
+class _CurveSpec:
+    stream: str
+    column: int
+    plot: str
+    label: str           # the cursor readout's row/column name
+    tags: frozenset[str]  # the legend toggles that show/hide it
+    color: tuple[int, int, int]
+    dashed: bool = False
 
 
-def same_turn(angles_deg: np.ndarray, reference_deg: np.ndarray) -> np.ndarray:
-    """`angles_deg` moved by whole turns to within ±180° of `reference_deg`, element-wise.
-
-    The engine unwraps OWN's and PHONE's Euler angles each on its own, so a single jump of
-    more than 180° between samples (near gimbal lock, or across a gap in PHONE's data) can
-    leave PHONE's unwrapped yaw whole turns away from OWN's although the two agree. Drawn
-    relative to OWN, PHONE stays in OWN's turn and the curves can be compared. NaN (no
-    PHONE sample yet, or no OWN estimate) stays as it is.
-    """
-    angles = np.asarray(angles_deg, dtype=np.float64)
-    reference = np.asarray(reference_deg, dtype=np.float64)
-    difference = angles - reference
-    # Python's % is a floor modulo: the result lies in [-180, 180).
-    moved = reference + (difference + 180.0) % 360.0 - 180.0
-    return np.where(np.isfinite(difference), moved, angles)
+@dataclass
+class _PlotSpec:
+    key: str
+    group: str
+    title: str
+    units: str
+    tooltip: str = ""
 
 
-def peak_downsample(t: np.ndarray, values: np.ndarray, first_index: int, max_points: int
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """At most about `max_points` points per column that keep every peak: the rows are cut
-    into bins of `factor` samples and each bin becomes two points, its minimum and maximum
-    (at the bin's first and last time). Bins are aligned to the running sample number
-    (`first_index` is that of t[0]) so a scrolling window keeps the same bins frame after
-    frame instead of flickering. Rows outside whole bins at either end are kept as they are.
+GROUPS = (("sensors", "Sensors"), ("orientation", "Orientation"), ("error", "Error vs PHONE"))
+PLOTS = (
+    _PlotSpec("acc", "sensors", "acc", "m/s²", "specific force, sensor frame"),
+    _PlotSpec("gyr", "sensors", "gyr", "rad/s", "angular rate, sensor frame"),
+    _PlotSpec("mag", "sensors", "mag", "µT", "magnetic field, sensor frame"),
+    _PlotSpec("yaw", "orientation", "yaw", "°", EULER_TOOLTIP),
+    _PlotSpec("pitch", "orientation", "pitch", "°", EULER_TOOLTIP),
+    _PlotSpec("roll", "orientation", "roll", "°", EULER_TOOLTIP),
+    _PlotSpec("error", "error", "OWN vs PHONE", "°",
+              "e = q_OWN ⊗ conj(q_PHONE) at PHONE's time stamps (OWN slerped to them): total "
+              "angle 2·acos|e_w|, heading 2·atan|e_z/e_w| (about up), inclination (tilt)"),
+)
+STREAM_COLUMNS = {"acc": 5, "gyr": 4, "mag": 5, "own": 3, "phone": 3, "error": 3}
 
-    Args:
-        t: (n,) times, increasing. values: (n, c). first_index: running number of row 0.
-        max_points: budget, e.g. the plot's width in pixels.
-    Returns:
-        (t, values) unchanged when n <= max_points, else the reduced (m,), (m, c).
-    """
-    count = len(t)
-    if count <= max_points or max_points < 4:
-        return t, values
-    factor = int(math.ceil(2.0 * count / max_points))
-    start = (-first_index) % factor
-    bins = (count - start) // factor
-    if bins < 2:
-        return t, values
-    end = start + bins * factor
-    binned = values[start:end].reshape(bins, factor, values.shape[1])
-    peaks = np.empty((bins, 2, values.shape[1]))
-    low, high = peaks[:, 0], peaks[:, 1]
-    low[...] = binned[:, 0]
-    high[...] = binned[:, 0]
-    # Element-wise over the bins' k-th samples: three times faster than min(axis=1) on the
-    # strided (bins, factor, columns) view. NaN propagates (a gap stays a gap).
-    for k in range(1, factor):
-        np.minimum(low, binned[:, k], out=low)
-        np.maximum(high, binned[:, k], out=high)
-    times = np.empty((bins, 2))
-    times[:, 0] = t[start:end:factor]
-    times[:, 1] = t[start + factor - 1:end:factor]
-    return (np.concatenate([t[:start], times.reshape(-1), t[end:]]),
-            np.concatenate([values[:start], peaks.reshape(-1, values.shape[1]), values[end:]]))
+
+def _curve_specs() -> list[_CurveSpec]:
+    specs = []
+    for key in ("acc", "gyr", "mag"):
+        for column, name in enumerate(("x", "y", "z")):
+            specs.append(_CurveSpec(key, column, key, f"{key} {name}", frozenset({name}),
+                                    AXIS_COLORS[column]))
+        specs.append(_CurveSpec(key, 3, key, f"{key} norm", frozenset({"norm"}), NORM_COLOR))
+    for column, name in enumerate(EULER_NAMES):
+        specs.append(_CurveSpec("own", column, name, f"OWN {name}", frozenset({"OWN"}),
+                                EULER_COLORS[column]))
+        specs.append(_CurveSpec("phone", column, name, f"PHONE {name}", frozenset({"PHONE"}),
+                                EULER_COLORS[column], dashed=True))
+    for column, name in enumerate(("total", "heading", "inclination")):
+        specs.append(_CurveSpec("error", column, "error", name, frozenset({name}),
+                                ERROR_COLORS[column]))
+    return specs
+
+
+LEGENDS = {
+    "sensors": (("x", AXIS_COLORS[0], "line"), ("y", AXIS_COLORS[1], "line"),
+                ("z", AXIS_COLORS[2], "line"), ("norm", NORM_COLOR, "line"),
+                ("rejected", REJECTED_COLOR, "band"), ("gates", GATE_COLOR, "dash")),
+    "orientation": (("OWN", (60, 60, 60), "line"), ("PHONE", (60, 60, 60), "dash")),
+    "error": (("total", ERROR_COLORS[0], "line"), ("heading", ERROR_COLORS[1], "line"),
+              ("inclination", ERROR_COLORS[2], "line")),
+}
 
 
 class _Curve(pg.PlotCurveItem):
@@ -159,7 +121,7 @@ class _Curve(pg.PlotCurveItem):
         super().__init__(**options)
 
     def set_curve(self, x: np.ndarray, y: np.ndarray, finite: bool,
-                  y_bounds: tuple[float, float] | None) -> None:
+                  y_bounds: tuple[float, float] | None, connect: str | None = None) -> None:
         """New points; `finite`: no NaN in y (the fast path); y_bounds: (min, max) of y."""
         if len(x) and y_bounds is not None:
             low, high = y_bounds
@@ -169,7 +131,8 @@ class _Curve(pg.PlotCurveItem):
                                        float(x[-1] - x[0]) + 2 * x_pad, high - low + 2 * y_pad)
         else:
             self._rect = QtCore.QRectF()
-        self.setData(x, y, connect="all" if finite else "finite", skipFiniteCheck=finite)
+        self.setData(x, y, connect=connect or ("all" if finite else "finite"),
+                     skipFiniteCheck=finite)
 
     def dataBounds(self, ax: int, frac: float = 1.0, orthoRange=None):  # noqa: N802 (pg name)
         if self._rect.isNull():
@@ -182,43 +145,117 @@ class _Curve(pg.PlotCurveItem):
         return self._rect
 
 
+class TimeAxis(pg.AxisItem):
+    """Seconds since the session's start ("m:ss" for long views); the phone's clock on hover."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.origin_ms: int | None = None
+        self.enableAutoSIPrefix(False)
+
+    def tickStrings(self, values, scale, spacing):  # noqa: N802 (pg name)
+        low, high = self.range
+        span = abs(high - low)
+        decimals = 0 if spacing >= 1.0 else (1 if spacing >= 0.1 else 2)
+        return [time_text(v, span, decimals) for v in values]
+
+    def set_origin(self, origin_ms: int | None) -> None:
+        if origin_ms == self.origin_ms:
+            return
+        self.origin_ms = origin_ms
+        self.setToolTip("" if origin_ms is None else
+                        f"time since the session's start; 0 is {origin_ms / 1000.0:.3f} s on "
+                        "the phone's clock")
+
+
 def _cache_painting(item: QtWidgets.QGraphicsItem) -> None:
     """Paint `item` and its children from pixmaps redrawn only when they call update():
-    legends and axis titles are text, and laying out text is the slowest part of a frame."""
+    axis titles are text, and laying out text is the slowest part of a frame."""
     item.setCacheMode(QtWidgets.QGraphicsItem.CacheMode.DeviceCoordinateCache)
     for child in item.childItems():
         _cache_painting(child)
 
 
-class _Stream:
-    """One buffer and the curves drawn from its columns."""
+def _legend_icon(color: tuple[int, int, int], style: str) -> QtGui.QIcon:
+    pixmap = QtGui.QPixmap(22, 12)
+    pixmap.fill(QtCore.Qt.GlobalColor.transparent)
+    painter = QtGui.QPainter(pixmap)
+    if style == "band":
+        painter.fillRect(QtCore.QRectF(1, 8, 20, 3), QtGui.QColor(*color))
+    else:
+        pen = QtGui.QPen(QtGui.QColor(*color), 2)
+        if style == "dash":
+            pen.setStyle(QtCore.Qt.PenStyle.DashLine)
+        painter.setPen(pen)
+        painter.drawLine(1, 6, 21, 6)
+    painter.end()
+    return QtGui.QIcon(pixmap)
 
-    def __init__(self, columns: int) -> None:
-        self.buffer = SampleBuffer(columns)
-        self.curves: list[tuple[str, _Curve, int]] = []   # (label, curve, column)
-        self.rejected_column: int | None = None
-        self.rejected_scatter: pg.ScatterPlotItem | None = None
-        self.norm_column: int | None = None
-        self.rejected_shown: np.ndarray = np.empty(0)     # times of the marks drawn now
+
+@dataclass
+class _Group:
+    """One tab: its legend toggles and its plots in one graphics view."""
+
+    key: str
+    widget: QtWidgets.QWidget
+    graphics: pg.GraphicsLayoutWidget
+    legend: QtWidgets.QWidget
+    toggles: dict[str, QtWidgets.QToolButton] = field(default_factory=dict)
+    plots: list[str] = field(default_factory=list)
 
 
 class PlotPanel(QtWidgets.QWidget):
-    """Toolbar (window length, Pause/Follow, Cursor, Clear), cursor readout, five plots."""
+    """Toolbar (window length, Pause/Follow, Cursor, Unwrap, Clear), three tabs of plots and
+    the cursor readout."""
 
     paused_changed = QtCore.Signal(bool)
 
     def __init__(self, parent: QtWidgets.QWidget | None = None) -> None:
         super().__init__(parent)
         self.following = True
+        self.unwrapped = False
         self._dirty = True
         self._last_range: tuple[float, float] | None = None
         self._setting_range = False
         self._syncing_cursor = False
+        self.origin_ms: int | None = None
+        self.buffers = {key: SampleBuffer(columns) for key, columns in STREAM_COLUMNS.items()}
+        self.plots: dict[str, pg.PlotItem] = {}
+        self.curves: list[tuple[_CurveSpec, _Curve]] = []
+        self.bands: dict[str, _Curve] = {}
+        self.gate_lines: dict[str, tuple[pg.InfiniteLine, pg.InfiniteLine]] = {}
+        self.cursors: dict[str, pg.InfiniteLine] = {}
+        self.groups: dict[str, _Group] = {}
+        self._band_spans: dict[str, np.ndarray] = {}
 
         layout = QtWidgets.QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         layout.setSpacing(2)
+        layout.addLayout(self._build_toolbar())
+        self.readout_label = QtWidgets.QLabel("")
+        self.readout_label.setObjectName("cursor_readout")
+        self.readout_label.setTextFormat(QtCore.Qt.TextFormat.RichText)
+        self.readout_label.setTextInteractionFlags(
+            QtCore.Qt.TextInteractionFlag.TextSelectableByMouse)
+        self.readout_label.setVisible(False)
+        layout.addWidget(self.readout_label)
+        self.tabs = QtWidgets.QTabWidget()
+        self.tabs.setObjectName("plot_tabs")
+        self.tabs.setDocumentMode(True)
+        for key, title in GROUPS:
+            group = self._build_group(key)
+            self.groups[key] = group
+            self.tabs.addTab(group.widget, title)
+        self.tabs.currentChanged.connect(self._on_tab_changed)
+        layout.addWidget(self.tabs, 1)
+        for spec in _curve_specs():
+            self._add_curve(spec)
+
+    # ---- construction ---------------------------------------------------------------------
+
+    def _build_toolbar(self) -> QtWidgets.QHBoxLayout:
         toolbar = QtWidgets.QHBoxLayout()
+        toolbar.setContentsMargins(2, 0, 2, 0)
         toolbar.addWidget(QtWidgets.QLabel("Window"))
         self.window_spin = QtWidgets.QDoubleSpinBox()
         self.window_spin.setRange(1.0, MAX_WINDOW_S)
@@ -231,7 +268,7 @@ class PlotPanel(QtWidgets.QWidget):
         self.pause_button = QtWidgets.QPushButton("Pause")
         self.pause_button.setCheckable(True)
         self.pause_button.setToolTip("Freeze the view to inspect it; samples keep being stored "
-                                     "(Space)")
+                                     "(Space when live)")
         self.pause_button.toggled.connect(lambda checked: self.set_paused(checked))
         self.follow_button = QtWidgets.QPushButton("Follow")
         self.follow_button.setToolTip("Show the newest samples again")
@@ -239,179 +276,139 @@ class PlotPanel(QtWidgets.QWidget):
         self.cursor_checkbox = QtWidgets.QCheckBox("Cursor")
         self.cursor_checkbox.setToolTip("A draggable line reading every visible curve")
         self.cursor_checkbox.toggled.connect(self.set_cursor_visible)
+        self.unwrap_checkbox = QtWidgets.QCheckBox("Unwrap angles")
+        self.unwrap_checkbox.setToolTip("Euler angles continuous over whole turns (OWN and PHONE "
+                                        "in the same turn) instead of wrapped to ±180°")
+        self.unwrap_checkbox.toggled.connect(self.set_unwrapped)
         self.clear_button = QtWidgets.QPushButton("Clear")
         self.clear_button.setToolTip("Forget the plotted samples (Ctrl+L)")
         self.clear_button.clicked.connect(self.clear)
         for widget in (self.window_spin, self.pause_button, self.follow_button,
-                       self.cursor_checkbox, self.clear_button):
+                       self.cursor_checkbox, self.unwrap_checkbox, self.clear_button):
             toolbar.addWidget(widget)
         toolbar.addStretch(1)
-        layout.addLayout(toolbar)
-        self.readout_label = QtWidgets.QLabel("")
-        self.readout_label.setTextInteractionFlags(
-            QtCore.Qt.TextInteractionFlag.TextSelectableByMouse)
-        self.readout_label.setWordWrap(True)
-        self.readout_label.setVisible(False)
-        layout.addWidget(self.readout_label)
+        return toolbar
 
-        self.graphics = pg.GraphicsLayoutWidget()
-        self.graphics.setBackground((250, 250, 252))
+    def _build_group(self, key: str) -> _Group:
+        widget = QtWidgets.QWidget()
+        widget.setObjectName(f"plot_group_{key}")
+        box = QtWidgets.QVBoxLayout(widget)
+        box.setContentsMargins(0, 0, 0, 0)
+        box.setSpacing(0)
+        legend = QtWidgets.QWidget()
+        legend.setObjectName(f"legend_{key}")
+        row = QtWidgets.QHBoxLayout(legend)
+        row.setContentsMargins(LEFT_AXIS_WIDTH, 0, 0, 0)
+        row.setSpacing(4)
+        graphics = pg.GraphicsLayoutWidget()
+        graphics.setBackground((250, 250, 252))
         # Every curve moves on every frame: keeping Qt's spatial index (a BSP tree) of the
         # items up to date costs more than it saves.
-        self.graphics.scene().setItemIndexMethod(QtWidgets.QGraphicsScene.ItemIndexMethod.NoIndex)
-        layout.addWidget(self.graphics, 1)
+        graphics.scene().setItemIndexMethod(QtWidgets.QGraphicsScene.ItemIndexMethod.NoIndex)
+        group = _Group(key, widget, graphics, legend)
+        for name, color, style in LEGENDS[key]:
+            button = QtWidgets.QToolButton()
+            button.setText(name)
+            button.setIcon(_legend_icon(color, style))
+            button.setToolButtonStyle(QtCore.Qt.ToolButtonStyle.ToolButtonTextBesideIcon)
+            button.setCheckable(True)
+            button.setChecked(True)
+            button.setAutoRaise(True)
+            button.setToolTip(f"Show or hide {name}")
+            button.toggled.connect(lambda checked, g=key, n=name: self.set_shown(g, n, checked))
+            row.addWidget(button)
+            group.toggles[name] = button
+        row.addStretch(1)
+        box.addWidget(legend)
+        box.addWidget(graphics, 1)
+        specs = [spec for spec in PLOTS if spec.group == key]
+        for index, spec in enumerate(specs):
+            self._new_plot(group, spec, last=index == len(specs) - 1)
+        return group
 
-        self.plots: dict[str, pg.PlotItem] = {}
-        self.streams: dict[str, _Stream] = {}
-        self.cursors: dict[str, pg.InfiniteLine] = {}
-        self.gate_lines: dict[str, tuple[pg.InfiniteLine, pg.InfiniteLine]] = {}
-        self.legends: list[pg.LegendItem] = []
-        self._build_xyz_plot("acc", "acc", "m/s²", rejected=True)
-        self._build_xyz_plot("gyr", "gyr", "rad/s", rejected=False)
-        self._build_xyz_plot("mag", "mag", "µT", rejected=True)
-        self._build_euler_plot()
-        self._build_angle_plot()
-        # The plots share their time range. Not with pyqtgraph's setXLink: that re-maps every
-        # change through each view's screen geometry and costs milliseconds per frame while
-        # following; with y axes of one fixed width the views line up, and the range is
-        # simply copied (set_x_range, _on_x_range_changed).
-        for name, plot in self.plots.items():
-            plot.getAxis("left").setWidth(LEFT_AXIS_WIDTH)
-            view_box = plot.getViewBox()
-            view_box.sigRangeChangedManually.connect(self._on_manual_range)
-            view_box.sigXRangeChanged.connect(self._on_x_range_changed)
-        self.plots["angle"].setLabel("bottom", "phone time", units="s")
-        for legend in self.legends:          # complete now: every curve has its entry
-            _cache_painting(legend)
-
-    # ---- construction ---------------------------------------------------------------------
-
-    def _new_plot(self, key: str, title: str, units: str) -> pg.PlotItem:
-        row = len(self.plots)
-        plot = self.graphics.addPlot(row=row, col=0)
-        # The title goes on the y axis: five stacked plots have no height to spare.
-        plot.setLabel("left", title, units=units)
-        plot.showGrid(x=False, y=False)
-        # Plain units: "m°" or "ks" (SI prefixes on degrees and phone time) only confuse. Off
-        # on the hidden axes too: there it would re-lay out their labels on every frame.
-        for axis in ("left", "bottom", "top", "right"):
-            plot.getAxis(axis).enableAutoSIPrefix(False)
-        # Fewer tick levels: the time axis is regenerated on every frame while following.
-        for axis in ("left", "bottom"):
-            plot.getAxis(axis).setStyle(maxTickLevel=1, maxTextLevel=1)
-        # The y axis and its title change only when the y range does: paint them from a
-        # cached pixmap instead of laying out their text on every frame.
-        _cache_painting(plot.getAxis("left"))
-        # Clipping to the view and peak downsampling are done here, in numpy, once per stream
-        # and frame (peak_downsample): pyqtgraph's own versions redo their work per curve on
-        # every view change, i.e. every frame while following.
+    def _new_plot(self, group: _Group, spec: _PlotSpec, last: bool) -> pg.PlotItem:
+        axis = TimeAxis("bottom")
+        plot = group.graphics.addPlot(row=len(group.plots), col=0, axisItems={"bottom": axis})
+        plot.setLabel("left", spec.title, units=spec.units)
+        left = plot.getAxis("left")
+        left.enableAutoSIPrefix(False)
+        left.setWidth(LEFT_AXIS_WIDTH)
+        left.setToolTip(spec.tooltip)
+        for name in ("left", "bottom"):
+            # Fewer tick levels: the time axis is regenerated on every frame while following.
+            plot.getAxis(name).setStyle(maxTickLevel=1, maxTextLevel=1)
+        # The y axis changes only when the y range does: paint it from a cached pixmap.
+        _cache_painting(left)
+        # Clipping and peak downsampling are done here, in numpy, once per stream and frame;
+        # y follows the visible samples (computed in refresh()).
         plot.setClipToView(False)
         plot.setDownsampling(ds=1, auto=False, mode="peak")
-        # y follows the visible samples, computed in refresh(): pyqtgraph's own auto range
-        # re-scans every curve at paint time and triggers a second paint per frame.
         plot.disableAutoRange()
         plot.getViewBox().setMouseEnabled(x=True, y=False)
         plot.setMenuEnabled(True)
-        legend = plot.addLegend(offset=(4, 1), colCount=8, labelTextSize="8pt",
-                                verSpacing=-6)
-        legend.setBrush(pg.mkBrush(255, 255, 255, 200))
-        self.legends.append(legend)
-        # Clicking a legend entry toggles that curve (pyqtgraph); hidden curves are not
-        # redrawn, so a shown-again curve needs a redraw even while paused.
-        legend.sigSampleClicked.connect(self._mark_dirty)
-        if row < 4:
-            # Only the bottom plot shows time: the others share it, and an x axis redrawn
-            # every frame on each plot costs more than all the curves.
+        if last:
+            plot.setLabel("bottom", "time since start", units="s")
+        else:
+            # Only the bottom plot of a tab shows time: the others share it.
             plot.hideAxis("bottom")
         cursor = pg.InfiniteLine(angle=90, movable=True, pen=pg.mkPen((120, 60, 160), width=1.5))
         cursor.setVisible(False)
         cursor.sigPositionChanged.connect(self._on_cursor_moved)
         plot.addItem(cursor, ignoreBounds=True)
-        self.cursors[key] = cursor
-        self.plots[key] = plot
-        return plot
-
-    def _add_curve(self, stream: _Stream, plot: pg.PlotItem, label: str, column: int,
-                   color) -> None:
-        # Solid 1-px pens without antialiasing: Qt's fast line path.
-        curve = _Curve(pen=pg.mkPen(color, width=1), name=label, antialias=False)
-        plot.addItem(curve)                  # named, so the legend lists it
-        stream.curves.append((label, curve, column))
-
-    def _build_xyz_plot(self, key: str, title: str, units: str, rejected: bool) -> None:
-        plot = self._new_plot(key, title, units)
-        stream = _Stream(5 if rejected else 4)
-        for column, label in enumerate(("x", "y", "z", "norm")):
-            self._add_curve(stream, plot, label, column, XYZ_COLORS[column])
-        stream.norm_column = 3
-        if rejected:
-            stream.rejected_column = 4
-            scatter = pg.ScatterPlotItem(symbol="x", size=8, pen=pg.mkPen(200, 0, 0),
-                                         brush=pg.mkBrush(220, 0, 0), name="rejected")
-            plot.addItem(scatter)            # named, so the legend lists it once
-            stream.rejected_scatter = scatter
-            pen = pg.mkPen((200, 120, 0), width=1, style=QtCore.Qt.PenStyle.DashLine)
+        self.cursors[spec.key] = cursor
+        view_box = plot.getViewBox()
+        view_box.sigRangeChangedManually.connect(self._on_manual_range)
+        view_box.sigXRangeChanged.connect(self._on_x_range_changed)
+        if spec.key in ("acc", "mag"):
+            band = _Curve(pen=pg.mkPen(REJECTED_COLOR, width=4), antialias=False)
+            plot.addItem(band, ignoreBounds=True)
+            self.bands[spec.key] = band
+            pen = pg.mkPen(GATE_COLOR, width=1, style=QtCore.Qt.PenStyle.DashLine)
             lines = (pg.InfiniteLine(angle=0, pen=pen), pg.InfiniteLine(angle=0, pen=pen))
             for line in lines:
                 line.setVisible(False)
                 plot.addItem(line, ignoreBounds=True)
-            self.gate_lines[key] = lines
-        self.streams[key] = stream
+            self.gate_lines[spec.key] = lines
+        group.plots.append(spec.key)
+        self.plots[spec.key] = plot
+        return plot
 
-    def _build_euler_plot(self) -> None:
-        plot = self._new_plot("euler", "Euler", "°")   # OWN dark, PHONE light
-        stream = _Stream(6)
-        for i, name in enumerate(EULER_NAMES):
-            self._add_curve(stream, plot, f"OWN {name}", i, XYZ_COLORS[i])
-        for i, name in enumerate(EULER_NAMES):
-            self._add_curve(stream, plot, f"PHONE {name}", 3 + i, PHONE_COLORS[i])
-        self.streams["euler"] = stream
-
-    def _build_angle_plot(self) -> None:
-        plot = self._new_plot("angle", "OWN vs PHONE", "°")
-        stream = _Stream(1)
-        self._add_curve(stream, plot, "∠(OWN, PHONE)", 0, (130, 40, 170))
-        self.streams["angle"] = stream
+    def _add_curve(self, spec: _CurveSpec) -> None:
+        # 1-px pens without antialiasing: Qt's fast line path (dashes cost more: PHONE only).
+        style = QtCore.Qt.PenStyle.DashLine if spec.dashed else QtCore.Qt.PenStyle.SolidLine
+        curve = _Curve(pen=pg.mkPen(spec.color, width=1, style=style), antialias=False)
+        self.plots[spec.plot].addItem(curve)
+        self.curves.append((spec, curve))
 
     # ---- data in ---------------------------------------------------------------------------
 
     def append(self, chunk: PlotChunk) -> None:
         """Store the new samples; drawing waits for the next refresh()."""
-        if len(chunk.t_acc):
-            acc = np.asarray(chunk.acc, float)
-            rejected = np.asarray(chunk.acc_rejected, float).reshape(-1, 1)
-            if len(rejected) != len(acc):
-                rejected = np.zeros((len(acc), 1))
-            self._append("acc", chunk.t_acc, np.hstack(
-                [acc, np.linalg.norm(acc, axis=1, keepdims=True), rejected]))
-        if len(chunk.t_gyr):
-            gyr = np.asarray(chunk.gyr, float)
-            self._append("gyr", chunk.t_gyr,
-                         np.hstack([gyr, np.linalg.norm(gyr, axis=1, keepdims=True)]))
-        if len(chunk.t_mag):
-            mag = np.asarray(chunk.mag, float)
-            rejected = np.asarray(chunk.mag_rejected, float).reshape(-1, 1)
-            if len(rejected) != len(mag):
-                rejected = np.zeros((len(mag), 1))
-            self._append("mag", chunk.t_mag, np.hstack(
-                [mag, np.linalg.norm(mag, axis=1, keepdims=True), rejected]))
-        if len(chunk.t_est):
-            count = len(chunk.t_est)
-            own = np.asarray(chunk.own_euler_deg, float).reshape(count, 3)
-            phone = np.asarray(chunk.phone_euler_deg, float)
-            phone = phone.reshape(count, 3) if phone.size == 3 * count else np.full((count, 3),
-                                                                                     np.nan)
-            self._append("euler", chunk.t_est, np.hstack([own, same_turn(phone, own)]))
-            angle = np.asarray(chunk.angle_deg, float)
-            angle = angle.reshape(count, 1) if angle.size == count else np.full((count, 1), np.nan)
-            self._append("angle", chunk.t_est, angle)
+        for key, t, values, rejected in (("acc", chunk.t_acc, chunk.acc, chunk.acc_rejected),
+                                         ("gyr", chunk.t_gyr, chunk.gyr, None),
+                                         ("mag", chunk.t_mag, chunk.mag, chunk.mag_rejected)):
+            if not len(t):
+                continue
+            values = np.asarray(values, float).reshape(len(t), 3)
+            columns = [values, np.linalg.norm(values, axis=1, keepdims=True)]
+            if rejected is not None:
+                flags = np.asarray(rejected, float).reshape(-1, 1)
+                columns.append(flags if len(flags) == len(values) else np.zeros((len(t), 1)))
+            self._append(key, t, np.hstack(columns))
+        for key, t, values in (("own", chunk.t_est, chunk.own_euler_deg),
+                               ("phone", chunk.t_ori, chunk.phone_euler_deg),
+                               ("error", chunk.t_err, chunk.error_deg)):
+            if len(t):
+                self._append(key, t, np.asarray(values, float).reshape(len(t), 3))
 
     def _append(self, key: str, t: np.ndarray, values: np.ndarray) -> None:
         t = np.asarray(t, dtype=np.float64)
-        buffer = self.streams[key].buffer
-        # A replay that loops or seeks backwards restarts the phone's time: start afresh.
+        buffer = self.buffers[key]
+        # A new session (a new connection, a replay that loops or seeks) restarts the time
+        # since the start: start the plots afresh.
         if t[0] < buffer.last_time() - 1e-6:
-            buffer.clear()
+            for other in self.buffers.values():
+                other.clear()
             self._dirty = True
         buffer.append(t, values)
         # While paused, samples after the frozen view change nothing on screen.
@@ -420,14 +417,23 @@ class PlotPanel(QtWidgets.QWidget):
 
     def set_status(self, status: FilterStatus) -> None:
         """Draw the gate limits on the norms: g ± acc_gate and L ± mag_gate."""
-        for key, center, gate in (("acc", status.diagnostics.g, status.diagnostics.acc_gate),
-                                  ("mag", status.diagnostics.mag_expected, status.diagnostics.mag_gate)):
-            lines = self.gate_lines[key]
-            valid = math.isfinite(center) and math.isfinite(gate)
-            for line, sign in zip(lines, (1.0, -1.0)):
+        diagnostics = status.diagnostics
+        for key, center, gate in (("acc", diagnostics.g, diagnostics.acc_gate),
+                                  ("mag", diagnostics.mag_expected, diagnostics.mag_gate)):
+            shown = self.groups["sensors"].toggles["gates"].isChecked()
+            valid = math.isfinite(center) and math.isfinite(gate) and shown
+            for line, sign in zip(self.gate_lines[key], (1.0, -1.0)):
                 line.setVisible(valid)
                 if valid and abs(line.value() - (center + sign * gate)) > 1e-9:
                     line.setValue(center + sign * gate)
+
+    def set_time_origin(self, origin_ms: int | None) -> None:
+        """The phone's clock at time 0 (shown when hovering over the time axis)."""
+        if origin_ms == self.origin_ms:
+            return
+        self.origin_ms = origin_ms
+        for plot in self.plots.values():
+            plot.getAxis("bottom").set_origin(origin_ms)
 
     # ---- view state ------------------------------------------------------------------------
 
@@ -441,6 +447,12 @@ class PlotPanel(QtWidgets.QWidget):
 
     def set_window_s(self, seconds: float) -> None:
         self.window_spin.setValue(float(seconds))
+
+    def current_group(self) -> str:
+        return GROUPS[self.tabs.currentIndex()][0]
+
+    def set_current_group(self, key: str) -> None:
+        self.tabs.setCurrentIndex([k for k, _ in GROUPS].index(key))
 
     def set_paused(self, paused: bool) -> None:
         """Pause: the view stays where it is while samples keep being stored."""
@@ -461,16 +473,55 @@ class PlotPanel(QtWidgets.QWidget):
     def toggle_paused(self) -> None:
         self.set_paused(not self.paused)
 
+    def set_unwrapped(self, unwrapped: bool) -> None:
+        self.unwrapped = bool(unwrapped)
+        if self.unwrap_checkbox.isChecked() != self.unwrapped:
+            self.unwrap_checkbox.setChecked(self.unwrapped)
+        self._dirty = True
+
+    def set_shown(self, group: str, name: str, shown: bool) -> None:
+        """A legend toggle: show or hide every curve (or the band, the gates) it names."""
+        toggle = self.groups[group].toggles[name]
+        if toggle.isChecked() != bool(shown):
+            toggle.setChecked(bool(shown))
+            return
+        if name == "rejected":
+            for band in self.bands.values():
+                band.setVisible(bool(shown))
+        elif name == "gates" and not shown:     # shown again with the next status
+            for lines in self.gate_lines.values():
+                for line in lines:
+                    line.setVisible(False)
+        for spec, curve in self.curves:
+            if name in spec.tags and self.plots[spec.plot] in self._group_plots(group):
+                curve.setVisible(bool(shown))
+        self._dirty = True
+
+    def _group_plots(self, group: str) -> list[pg.PlotItem]:
+        return [self.plots[key] for key in self.groups[group].plots]
+
     def clear(self) -> None:
-        for stream in self.streams.values():
-            stream.buffer.clear()
+        for buffer in self.buffers.values():
+            buffer.clear()
         self._dirty = True
         self.refresh()
 
     def latest_time(self) -> float:
-        return max(stream.buffer.last_time() for stream in self.streams.values())
+        return max(buffer.last_time() for buffer in self.buffers.values())
 
     def x_range(self) -> tuple[float, float]:
+        plot = self.plots[self.groups[self.current_group()].plots[0]]
+        low, high = plot.getViewBox().viewRange()[0]
+        return float(low), float(high)
+
+    def _on_tab_changed(self, index: int) -> None:
+        low, high = self._last_range or self.x_range_of_any()
+        self.set_x_range(low, high)
+        self._dirty = True
+        if self.cursor_checkbox.isChecked():
+            self.set_cursor_time(self.cursor_time())
+
+    def x_range_of_any(self) -> tuple[float, float]:
         low, high = self.plots["acc"].getViewBox().viewRange()[0]
         return float(low), float(high)
 
@@ -487,7 +538,7 @@ class PlotPanel(QtWidgets.QWidget):
         self._dirty = True
 
     def set_x_range(self, low: float, high: float, source=None) -> None:
-        """Show phone times low..high (s) in every plot (but `source`, which already does)."""
+        """Show times low..high (s since the start) in every plot (but `source`)."""
         self._setting_range = True
         try:
             for plot in self.plots.values():
@@ -503,7 +554,7 @@ class PlotPanel(QtWidgets.QWidget):
     # ---- drawing ---------------------------------------------------------------------------
 
     def refresh(self) -> None:
-        """Redraw the visible window if anything changed. Call once per display frame."""
+        """Redraw the current tab's visible window if anything changed (once per frame)."""
         latest = self.latest_time()
         if self.following and math.isfinite(latest):
             x_range = (latest - self.window_s, latest)
@@ -515,51 +566,82 @@ class PlotPanel(QtWidgets.QWidget):
         self._dirty = False
         t_start, t_end = self.x_range()
         self._last_range = (t_start, t_end) if self.following else None
-        for key, stream in self.streams.items():
-            self._draw_stream(key, stream, t_start, t_end)
+        group = self.current_group()
+        bounds: dict[str, list[tuple[float, float]]] = {key: [] for key in self.groups[group].plots}
+        for stream in self._streams_of(group):
+            self._draw_stream(stream, t_start, t_end, bounds)
+        for key, spans in bounds.items():
+            finite = [(low, high) for low, high in spans if math.isfinite(low)
+                      and math.isfinite(high)]
+            if finite:
+                self._fit_y(key, min(low for low, _ in finite), max(high for _, high in finite))
+        for key in self.bands:
+            if key in bounds:
+                self._draw_band(key)
         # Apply the new ranges now: pyqtgraph would do it lazily at the start of the paint,
         # which moves every item once more and so asks for a second paint of each frame.
-        for plot in self.plots.values():
-            plot.getViewBox().prepareForPaint()
+        for key in self.groups[group].plots:
+            self.plots[key].getViewBox().prepareForPaint()
         if self.cursor_checkbox.isChecked():
             self._update_readout()
 
-    def _draw_stream(self, key: str, stream: _Stream, t_start: float, t_end: float) -> None:
-        """Hand one stream's visible window, peak-downsampled to the plot's width, to its curves."""
-        buffer = stream.buffer
+    @staticmethod
+    def _streams_of(group: str) -> tuple[str, ...]:
+        return {"sensors": ("acc", "gyr", "mag"), "orientation": ("own", "phone"),
+                "error": ("error",)}[group]
+
+    def _display_window(self, stream: str, t_start: float, t_end: float
+                        ) -> tuple[np.ndarray, np.ndarray, int]:
+        """The stream's samples in view as they are drawn (Euler: wrapped with breaks, or
+        unwrapped; PHONE in OWN's turn) and the running index of the first."""
+        buffer = self.buffers[stream]
         window = buffer.window(t_start, t_end)
-        t = buffer.t[window]
-        values = buffer.values[window]
-        width = max(int(self.plots[key].getViewBox().width()), 1)
-        shown_t, shown = peak_downsample(t, values, buffer.first_index + window.start, width)
-        visible = [(curve, column) for _, curve, column in stream.curves if curve.isVisible()]
-        if len(shown_t):
-            columns = [column for _, column in visible] or [0]
-            finite_columns = np.isfinite(shown[:, columns]).all(axis=0)
-            # fmin/fmax skip NaN (PHONE before its first ORI) without all-NaN warnings.
-            lows = np.fmin.reduce(shown[:, columns], axis=0)
-            highs = np.fmax.reduce(shown[:, columns], axis=0)
-        for index, (curve, column) in enumerate(visible):
-            if not len(shown_t):
-                curve.set_curve(shown_t, shown[:, column], True, None)
-                continue
-            low, high = float(lows[index]), float(highs[index])
-            bounds = (low, high) if math.isfinite(low) and math.isfinite(high) else None
-            curve.set_curve(shown_t, shown[:, column], bool(finite_columns[index]), bounds)
-        # A hidden curve keeps its old points; it gets the current ones when shown again
-        # (the legend click marks the panel dirty).
-        if stream.rejected_scatter is not None:
-            mask = values[:, stream.rejected_column] > 0.5 if len(t) else np.zeros(0, bool)
-            marked_t = t[mask]
-            # Marks move with the data only when there are any; re-setting an unchanged
-            # scatter costs a millisecond a frame.
-            if not np.array_equal(marked_t, stream.rejected_shown):
-                stream.rejected_shown = marked_t
-                stream.rejected_scatter.setData(marked_t, values[mask, stream.norm_column])
-        if len(shown_t) and visible:
-            finite = np.isfinite(lows) & np.isfinite(highs)
-            if finite.any():
-                self._fit_y(key, float(lows[finite].min()), float(highs[finite].max()))
+        t, values = buffer.t[window], buffer.values[window]
+        first = buffer.first_index + window.start
+        if stream in ("own", "phone") and len(t):
+            if self.unwrapped:
+                own = self.buffers["own"]
+                own_window = own.window(t_start, t_end)
+                own_t = own.t[own_window]
+                own_values = unwrap_deg(own.values[own_window])
+                values = own_values if stream == "own" else unwrap_in_turn(
+                    own_t, own_values, t, values)
+            else:
+                t, values = break_at_wraps(t, values)
+        return t, values, first
+
+    def _draw_stream(self, stream: str, t_start: float, t_end: float,
+                     bounds: dict[str, list[tuple[float, float]]]) -> None:
+        """Hand one stream's visible window, peak-downsampled to the plot's width, to its
+        curves; collect each plot's y span."""
+        t, values, first = self._display_window(stream, t_start, t_end)
+        curves = [(spec, curve) for spec, curve in self.curves if spec.stream == stream]
+        width = max(int(self.plots[curves[0][0].plot].getViewBox().width()), 1)
+        shown_t, shown = peak_downsample(t, values, first, width)
+        for spec, curve in curves:
+            if not curve.isVisible():
+                continue    # a hidden curve gets the current points when shown (dirty)
+            column = shown[:, spec.column] if len(shown_t) else np.empty(0)
+            low = float(np.fmin.reduce(column)) if len(column) else math.nan
+            high = float(np.fmax.reduce(column)) if len(column) else math.nan
+            finite = bool(np.isfinite(column).all())
+            valid = math.isfinite(low) and math.isfinite(high)
+            curve.set_curve(shown_t, column, finite, (low, high) if valid else None)
+            if valid:
+                bounds[spec.plot].append((low, high))
+        if stream in self.bands:
+            rejected = values[:, 4] > 0.5 if len(t) else np.zeros(0, bool)
+            self._band_spans[stream] = rejected_spans(t, rejected)
+
+    def _draw_band(self, key: str) -> None:
+        """The rejected samples as ticks along the bottom of the plot (the curves stay
+        visible above them)."""
+        spans = self._band_spans.get(key, np.empty((0, 2)))
+        low, high = self.plots[key].getViewBox().viewRange()[1]
+        level = low + BAND_FRACTION * (high - low)
+        x = spans.reshape(-1)
+        self.bands[key].set_curve(x, np.full(len(x), level), True,
+                                  (level, level) if len(x) else None, connect="pairs")
 
     def _fit_y(self, key: str, low: float, high: float) -> None:
         """Fit the y range to the visible curves' span (and gate lines), with hysteresis so the
@@ -567,8 +649,15 @@ class PlotPanel(QtWidgets.QWidget):
         for line in self.gate_lines.get(key, ()):
             if line.isVisible():
                 low, high = min(low, line.value()), max(high, line.value())
+        if key in ("yaw", "roll") and not self.unwrapped:
+            low, high = min(low, -180.0), max(high, 180.0)
+        elif key == "pitch" and not self.unwrapped:
+            low, high = min(low, -90.0), max(high, 90.0)
         span = max(high - low, 1e-6 * max(abs(high), 1.0), 1e-9)
-        low, high = low - 0.08 * span, high + 0.08 * span
+        margin = 0.08 * span
+        if key in self.bands:
+            margin = max(margin, 1.5 * BAND_FRACTION * span)   # room for the band below
+        low, high = low - margin, high + 0.08 * span
         view_low, view_high = self.plots[key].getViewBox().viewRange()[1]
         if low < view_low or high > view_high or (view_high - view_low) > 2.0 * (high - low):
             self.plots[key].setYRange(low, high, padding=0.0)
@@ -603,34 +692,54 @@ class PlotPanel(QtWidgets.QWidget):
         self.set_cursor_time(float(line.value()))
 
     def cursor_values(self) -> dict[str, float]:
-        """Value of every visible curve at the cursor (nearest stored sample), by
-        "plot/label"; NaN where a stream has no samples."""
+        """Value of every visible curve at the cursor (nearest stored sample, as drawn), by
+        its label ("acc x", "OWN yaw", "total", ...); NaN where a stream has no samples."""
         t_cursor = self.cursor_time()
         values: dict[str, float] = {}
-        for key, stream in self.streams.items():
-            t = stream.buffer.t
+        for stream in ("acc", "gyr", "mag", "own", "phone", "error"):
+            buffer = self.buffers[stream]
+            t = buffer.t
             index = None
             if len(t):
-                index = int(np.clip(np.searchsorted(t, t_cursor), 1, len(t) - 1)) if len(t) > 1 else 0
-                if len(t) > 1 and abs(t[index - 1] - t_cursor) <= abs(t[index] - t_cursor):
+                index = int(np.clip(np.searchsorted(t, t_cursor), 0, len(t) - 1))
+                if index > 0 and abs(t[index - 1] - t_cursor) <= abs(t[index] - t_cursor):
                     index -= 1
-            for label, curve, column in stream.curves:
-                if not curve.isVisible():
-                    continue
-                values[f"{key}/{label}"] = (float(stream.buffer.values[index, column])
-                                            if index is not None else math.nan)
+            for spec, curve in self.curves:
+                if spec.stream == stream and curve.isVisible():
+                    values[spec.label] = (float(buffer.values[index, spec.column])
+                                          if index is not None else math.nan)
         return values
 
     def _update_readout(self) -> None:
-        if not self.readout_label.isVisible() and not self.cursor_checkbox.isChecked():
+        if not self.cursor_checkbox.isChecked():
             return
-        parts = [f"<b>t = {self.cursor_time():.3f} s</b>"]
-        grouped: dict[str, list[str]] = {}
-        for name, value in self.cursor_values().items():
-            key, label = name.split("/", 1)
-            grouped.setdefault(key, []).append(f"{label} {value:.3f}" if math.isfinite(value)
-                                               else f"{label} –")
-        titles = {"acc": "acc", "gyr": "gyr", "mag": "mag", "euler": "Euler", "angle": "angle"}
-        for key, items in grouped.items():
-            parts.append(f"<b>{titles[key]}</b>: " + ", ".join(items))
-        self.readout_label.setText(" &nbsp; ".join(parts))
+        values = self.cursor_values()
+        span = self.x_range()[1] - self.x_range()[0]
+        self.readout_label.setText(readout_table(values, self.cursor_time(), span,
+                                                 self.current_group()))
+
+
+READOUT_ROWS = {
+    "sensors": ((("acc", "m/s²"), ("gyr", "rad/s"), ("mag", "µT")), ("x", "y", "z", "norm")),
+    "orientation": ((("OWN", "°"), ("PHONE", "°")), EULER_NAMES),
+    "error": (((None, "°"),), ("total", "heading", "inclination")),
+}
+
+
+def readout_table(values: dict[str, float], t: float, span: float, group: str) -> str:
+    """The cursor's readout: a small HTML table of the tab's values with units."""
+    rows, columns = READOUT_ROWS[group]
+    head = "".join(f"<th align='right'>&nbsp;{c}&nbsp;</th>" for c in columns)
+    lines = [f"<table cellspacing='0' cellpadding='1'><tr><th align='left'>t = "
+             f"{time_text(t, span, 3)} s</th>{head}<th></th></tr>"]
+    for name, unit in rows:
+        cells = []
+        for column in columns:
+            label = column if name is None else f"{name} {column}"
+            value = values.get(label)
+            cells.append("–" if value is None or not math.isfinite(value) else f"{value:.3f}")
+        title = name or "OWN vs PHONE"
+        lines.append(f"<tr><td>{title}</td>" + "".join(f"<td align='right'>&nbsp;{c}&nbsp;</td>"
+                                                        for c in cells)
+                     + f"<td>{unit}</td></tr>")
+    return "".join(lines) + "</table>"

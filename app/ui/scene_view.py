@@ -20,10 +20,15 @@ class SceneView(GLViewMixin, QtWidgets.QWidget):
     Rendering happens in paintEvent and only when something changed (the scene, the
     camera, the size): `update()` marks the scene for rendering and asks Qt for a repaint, and Qt
     merges all repaints of one event-loop pass into one painted frame; `frames_painted`
-    counts the frames this widget actually painted.
+    counts the frames this widget actually painted. With `overlay_text` set (no data) the
+    scene is greyed out and the text says why. Turning or zooming with the mouse emits
+    `camera_changed`.
     """
 
+    camera_changed = QtCore.Signal()
+
     def __init__(self) -> None:
+        self.overlay_text = ""
         self._needs_render = True
         self._image: QtGui.QImage | None = None
         self._framebuffer = None
@@ -98,10 +103,33 @@ class SceneView(GLViewMixin, QtWidgets.QWidget):
             self._image = self.render_scene()
         return self._image
 
+    def set_overlay(self, text: str) -> None:
+        if text != self.overlay_text:
+            self.overlay_text = text
+            self.update()
+
+    def mouseMoveEvent(self, event) -> None:  # noqa: N802 (Qt name)
+        super().mouseMoveEvent(event)
+        if event.buttons():
+            self.camera_changed.emit()
+
+    def wheelEvent(self, event) -> None:  # noqa: N802 (Qt name)
+        super().wheelEvent(event)
+        self.camera_changed.emit()
+
     def paintEvent(self, event) -> None:  # noqa: N802 (Qt name)
         image = self._current_image()
         painter = QtGui.QPainter(self)
-        if image is None:
+        if self.overlay_text:
+            if image is not None:
+                painter.drawImage(0, 0, image)
+            painter.fillRect(self.rect(), QtGui.QColor(60, 63, 70, 215))
+            painter.setPen(QtGui.QColor(225, 228, 235))
+            font = painter.font()
+            font.setPointSize(13)
+            painter.setFont(font)
+            painter.drawText(self.rect(), QtCore.Qt.AlignmentFlag.AlignCenter, self.overlay_text)
+        elif image is None:
             painter.fillRect(self.rect(), QtGui.QColor(34, 38, 46))
             painter.setPen(QtGui.QColor(200, 204, 212))
             painter.drawText(self.rect(), QtCore.Qt.AlignmentFlag.AlignCenter,

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from app.cli import main
+from app.stream.protocol import ParseError, parse_line
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -32,13 +33,11 @@ def _wait_port(port: int, timeout: float = 20.0) -> None:
     raise AssertionError("serve never listened")
 
 
-def test_send_to_serve_records_raw_verbatim(tmp_path, realphone_dir):
-    log = realphone_dir / "sensorLog_20221024T182616_standstill.txt"
+def _serve_and_send(log: Path, record: Path, *extra: str) -> tuple[str, str]:
     port = _free_port()
-    record = tmp_path / "session"
     server = subprocess.Popen(
         [sys.executable, "-m", "app", "serve", "--host", "127.0.0.1", "--port", str(port),
-         "--record", str(record), "--exit-when-idle", "1", "--no-comparisons"],
+         "--record", str(record), "--exit-when-idle", "1", "--no-comparisons", *extra],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         _wait_port(port)     # this probe connection counts as a (silent) phone
@@ -52,9 +51,59 @@ def test_send_to_serve_records_raw_verbatim(tmp_path, realphone_dir):
             server.kill()
             server.communicate()
     assert server.returncode == 0, err
-    assert "final: disconnected" in out and "9339 lines" in out and "2 damaged" in out
-    assert (record / "raw.txt").read_bytes() == log.read_bytes()
+    assert "Traceback" not in err
+    return out, err
+
+
+def test_send_to_serve_records_the_lines_that_parse_verbatim(tmp_path, realphone_dir):
+    log = realphone_dir / "sensorLog_20221024T182616_standstill.txt"
+    record = tmp_path / "session"
+    out, _ = _serve_and_send(log, record)
+    assert "final: disconnected" in out and "9339 lines" in out
+    assert "2 damaged (2 value count)" in out
+    lines = log.read_bytes().splitlines(keepends=True)
+    raw = (record / "raw.txt").read_bytes()
+    assert raw == b"".join(line for line in lines if _parses(line))   # all but the 2 damaged
     assert '"stopped_utc": "20' in (record / "session.json").read_text()
+    # a second recording into the same folder leaves the first alone: DIR-2
+    out, err = _serve_and_send(log, record)
+    assert f"{record} already holds a recorded session: recording into {record}-2" in err
+    assert (record / "raw.txt").read_bytes() == raw
+    assert (tmp_path / "session-2" / "raw.txt").read_bytes() == raw
+
+
+def test_serve_with_nul_bytes_and_absurd_values_records_a_file_our_tools_read(tmp_path):
+    """A NUL byte makes a line damaged, not a recording: `filter` reads what serve recorded,
+    and gets the estimates of the clean log."""
+    clean = b"".join(f"{1000 + 10 * k}\tGYR\t0.01\t0.0\t0.0\n{1000 + 10 * k}\tACC\t0.0\t0.0\t"
+                     f"9.81\n{1000 + 10 * k}\tMAG\t0.0\t20.0\t-40.0\n".encode()
+                     for k in range(300))
+    lines = clean.splitlines(keepends=True)
+    dirty = b"".join(lines[:300] + [b"1990\tACC\t0.0\x00\t0.0\t9.81\n", b"\x00" * 500 + b"\n",
+                                    b"1995\tACC\t1e160\t0\t0\n"] + lines[300:])
+    log = tmp_path / "dirty.txt"
+    log.write_bytes(dirty)
+    record = tmp_path / "session"
+    out, _ = _serve_and_send(log, record)
+    assert "3 damaged" in out and "binary data" in out and "ACC out of range" in out
+    assert (record / "raw.txt").read_bytes() == clean
+    (tmp_path / "clean.txt").write_bytes(clean)
+    estimates = []
+    for path in (record, tmp_path / "clean.txt", log):
+        result = subprocess.run([sys.executable, "-m", "app", "filter", str(path)], cwd=ROOT,
+                                capture_output=True, text=True, timeout=60)
+        assert result.returncode == 0 and "Traceback" not in result.stderr, result.stderr
+        estimates.append(result.stdout)
+    assert estimates[0] == estimates[1] == estimates[2]
+    assert (record / "estimates.csv").read_text() == estimates[0]
+
+
+def _parses(line: bytes) -> bool:
+    try:
+        parse_line(line.decode("utf-8", "replace"))
+    except ParseError:
+        return False
+    return True
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -62,6 +111,10 @@ def test_send_to_serve_records_raw_verbatim(tmp_path, realphone_dir):
     (["send", "--port", "70000", "x"], "port out of range"),
     (["serve", "--estimator", "nope", "--exit-after", "0"], "unknown 'nope'"),
     (["serve", "--speed", "1"], "unrecognized arguments"),
+    (["serve", "--allow", "10.0.0.300"], "not an address or network"),
+    (["serve", "--limits", "acc=-1"], "--limits: expected NAME=VALUE"),
+    (["serve", "--record-max-mb", "x"], "not a size in MB"),
+    (["filter", "x.txt", "--limits", "speed=3"], "--limits: expected NAME=VALUE"),
 ])
 def test_bad_arguments_exit_2_with_one_line(argv, message):
     result = subprocess.run([sys.executable, "-m", "app", *argv], cwd=ROOT,

@@ -8,8 +8,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.stream.protocol import (LineParser, ParseError, Sample, format_line, java_float_text,
-                             parse_line)
+from app.stream.protocol import (LineParser, Limits, ParseError, Sample, format_line,
+                                 java_float_text, parse_line)
+
+UNBOUNDED = Limits(acc=math.inf, gyr=math.inf, mag=math.inf)
 
 
 def test_parse_numeric_line_with_java_float_text():
@@ -66,7 +68,7 @@ def test_java_float_text(value, text):
 @given(st.floats(allow_nan=False, allow_infinity=False))
 def test_format_line_round_trips_any_float(value):
     sample = Sample(42, "MAG", (value, 1.0, -2.5))
-    assert parse_line(format_line(sample)) == sample
+    assert parse_line(format_line(sample), UNBOUNDED) == sample
 
 
 def test_format_line_reproduces_phone_lines(realphone_dir):
@@ -129,13 +131,18 @@ def test_line_of_exactly_the_limit_is_kept():
     assert parser_short.feed(line + b"\r\n") == [] and parser_short.stats.too_long == 1
 
 
-def test_raw_sink_gets_known_tag_lines_verbatim():
+def test_raw_sink_gets_only_lines_that_parse_verbatim():
+    """A recording holds only lines our tools read back: a damaged known-tag line (RAWGYR with
+    2 values), one with a NUL byte or a value out of range is counted, never recorded."""
     raw: list[bytes] = []
     parser = LineParser(raw_sink=raw.append)
-    data = b"1\tACC\t1\t2\t3\r\n2\tNEW\t1\n3\tRAWGYR\t1\t2\n\xff\n4\tGYR\t1\t2\t3"
+    data = (b"1\tACC\t1\t2\t3\r\n2\tNEW\t1\n3\tRAWGYR\t1\t2\n\xff\n5\tACC\t1\x00\t2\t3\n"
+            b"6\tACC\t1e160\t0\t0\n4\tGYR\t1\t2\t3")
     parser.feed(data)
     parser.finish()
-    assert raw == [b"1\tACC\t1\t2\t3\r\n", b"3\tRAWGYR\t1\t2\n", b"4\tGYR\t1\t2\t3\n"]
+    assert raw == [b"1\tACC\t1\t2\t3\r\n", b"4\tGYR\t1\t2\t3\n"]
+    assert parser.stats.damaged_reasons == {"value count": 1, "no tag": 1, "binary data": 1,
+                                            "ACC out of range": 1}
 
 
 _LINE = st.sampled_from([
@@ -164,3 +171,20 @@ def _parse_in_chunks(data: bytes, cuts: list[int], max_line_bytes: int) -> tuple
 def test_any_bytes_any_chunking_same_samples_never_raises(data, cuts, max_line_bytes):
     whole = _parse_in_chunks(data, [], max_line_bytes)
     assert _parse_in_chunks(data, cuts, max_line_bytes) == whole
+
+
+@pytest.mark.parametrize("make", [LineParser, "fast"])
+def test_a_torn_ori_line_is_damaged_and_a_three_value_stream_is_fine(make):
+    """Was: an ORI line torn to 3 values was taken as a 3-value ORI. Its vector part always has
+    a norm <= 1, so what gives it away is the stream: 4-value ORI lines before it."""
+    from app.stream.fastparse import FastLineParser
+    parser = LineParser() if make is LineParser else FastLineParser()
+    four = b"1\tORI\t0.9\t0.3\t0.3\t0.1\n"
+    torn = b"2\tORI\t0.9\t0.3\t0.3\n"
+    assert [s.t_ms for s in parser.feed(four + torn + four)] == [1, 1]
+    assert parser.stats.damaged_reasons == {"value count": 1}
+    assert "torn" in parser.stats.bad_examples[0][2]
+    parser.reset_line()                                  # a new connection
+    three = parser.feed(b"5\tORI\t0.142\t-0.005\t0.03\n6\tORI\t0.9\t0.9\t0.9\n")
+    assert [s.t_ms for s in three] == [5]                # the second is no vector part
+    assert parser.stats.damaged_reasons == {"value count": 1, "ORI out of range": 1}

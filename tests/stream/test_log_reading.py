@@ -84,3 +84,29 @@ def test_missing_file_and_directory(tmp_path):
         read_log(tmp_path / "missing.txt")
     with pytest.raises(LogError, match="directory"):
         read_log(tmp_path)
+
+
+def test_a_log_with_nul_bytes_and_junk_in_places_is_read_with_those_lines_counted(
+        tmp_path, realphone_dir):
+    """Was: one NUL byte in the first 8 KiB refused the whole log as "binary data"."""
+    from app.stream.lines import read_lines
+    from app.stream.sources import LogFileSource
+    clean = (realphone_dir / "tsrt14_lab2_rotation.txt").read_bytes()
+    lines = clean.splitlines(keepends=True)
+    junk = bytes(b for b in range(256) if b != 10)
+    dirty = b"".join(lines[:10] + [b"\x00" * 2000 + b"\n", junk + b"\n",
+                                   lines[10][:-1] + b"\x00\n"] + lines[11:])
+    path = tmp_path / "dirty.txt"
+    path.write_bytes(dirty)
+    log = read_log(path)
+    assert log.stats.damaged == 3 and log.stats.parse.damaged_reasons == {"binary data": 3}
+    assert len(log.samples) == len(read_log(realphone_dir / "tsrt14_lab2_rotation.txt")
+                                   .samples) - 1
+    assert len(read_lines(path)) == len(lines) + 2          # the replay and `send` read it too
+    LogFileSource(path)
+    mostly_binary = tmp_path / "binary.txt"
+    mostly_binary.write_bytes(bytes(range(256)) * 400 + clean)
+    with pytest.raises(LogError, match="binary data"):
+        read_log(mostly_binary)
+    with pytest.raises(LogError, match="binary data"):
+        read_lines(mostly_binary)

@@ -100,6 +100,8 @@ def test_silent_client_then_disconnect_mid_line(engine):
 
 
 def test_two_clients_in_a_row_and_at_once(engine):
+    """The phone keeps its stream: a second connection while it streams waits (it is not
+    closed, and neither is the phone), then takes over when the phone hangs up."""
     port = engine.source.port
     with PhoneEmulator("127.0.0.1", port) as first:
         first.send(_lines(10))
@@ -108,14 +110,23 @@ def test_two_clients_in_a_row_and_at_once(engine):
     old.send(_lines(10, t0=1100))
     _wait(lambda: _health(engine).lines_total == 60)
     new = PhoneEmulator("127.0.0.1", port).connect()
-    _wait(lambda: engine.source.server.connections == 3)
-    old.sock.settimeout(2.0)                      # the old one is closed by the server
-    assert _wait(lambda: _closed(old.sock))
     new.send(_lines(10, t0=1200))
-    new.close()
-    old.close()
+    _wait(lambda: _health(engine).waiting_peers == [_peer(new)])
+    old.send(_lines(10, t0=1300))                 # the phone goes on streaming
     health = _wait(lambda: (h := _health(engine)).lines_total == 90 and h)
+    assert health.peer == _peer(old) and health.connection_state == "connected"
+    old.sock.settimeout(0.2)
+    assert not _closed(old.sock)                  # nobody cut the phone off
+    old.close()
+    health = _wait(lambda: (h := _health(engine)).lines_total == 120 and h)
+    assert health.peer == _peer(new) and health.waiting_peers == []
+    new.close()
     assert health.damaged == 0 and engine.running
+
+
+def _peer(phone: PhoneEmulator) -> str:
+    host, port = phone.sock.getsockname()[:2]
+    return f"{host}:{port}"
 
 
 def _closed(sock: socket.socket) -> bool:
@@ -179,3 +190,28 @@ def test_emulator_paced_send_takes_the_log_time():
         _wait(lambda: received.extend(server.get(0.05)) or sum(
             len(i.data) for i in received if isinstance(i, Chunk)) == sum(map(len, lines)))
     assert 0.13 < elapsed < 2.0                   # 300 ms of log at speed 2 (loaded CI: slack)
+
+
+def test_a_late_tag_a_clock_offset_and_a_late_block_over_tcp(engine):
+    """Issue 10, item 6 through the server: MAG written 150 ms late, GYR on a clock 2 s ahead,
+    a 0.9 s block written 2.9 s late: only the block is dropped, no new segment."""
+    events = []
+    for k in range(800):
+        t = 1000 + 10 * k
+        events += [(t, 0, f"{t + 2000}\tGYR\t0.01\t0.0\t0.0\n"), (t, 1, f"{t}\tACC\t0.0\t0.0\t9.81\n"),
+                   (t + 150, 2, f"{t}\tMAG\t0.0\t20.0\t-40.0\n")]
+    block = [e for e in events if 3000 <= e[0] < 3900]
+    rest = sorted(e for e in events if not 3000 <= e[0] < 3900)
+    at = next(i for i, e in enumerate(rest) if e[0] >= 6800)
+    data = "".join(e[2] for e in rest[:at] + block + rest[at:]).encode()
+    with PhoneEmulator("127.0.0.1", engine.source.port) as phone:
+        phone.send(data)
+    health = _wait(lambda: (h := _health(engine)).connection_state == "disconnected"
+                   and h.lines_total == 2400 and h)
+    # MAG shares ACC's clock: it takes ACC's offset exactly (its 150 ms are a lag, waited for)
+    assert health.clock_quirks == ["ACC clock -2000 ms vs GYR (aligned)",
+                                   "MAG clock -2000 ms vs GYR (aligned)"]
+    # the block, and the late MAG's first 150 ms after the gap it leaves (the others resumed
+    # first; MAG, 150 ms behind, was inactive by then)
+    assert len(block) <= health.out_of_order <= len(block) + 15 and health.sessions == 0
+    assert health.lags_ms.get("MAG", 0) >= 140 and health.reorder_window_ms >= 150

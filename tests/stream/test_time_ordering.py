@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import random
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.stream.ordering import TimeOrderer
+from app.stream.ordering import ReferenceTimeOrderer, TimeOrderer
 from app.stream.protocol import LineParser, Sample
 
 
@@ -92,16 +93,53 @@ def test_forward_gap_restarts_time_base_and_keeps_times():
     assert [s.t_ms for s in out] == sorted(s.t_ms for s in out)
 
 
-def test_backward_clock_after_restart_is_shifted_after_last_release():
+def test_backward_clock_after_restart_is_a_new_session_on_its_own_times():
+    """Another connection (or an earlier stranger's fake clock) never shifts the next stream's
+    time axis: a segment starting before the last released time starts a new session."""
+    for cls in (ReferenceTimeOrderer, TimeOrderer):
+        orderer = cls()
+        first = [_s(10**18 + 10 * k, tag) for k in range(50) for tag in ("GYR", "ACC")]
+        out = orderer.push_many(first)
+        out += orderer.restart()
+        second = [_s(1000 + 10 * k, tag) for k in range(50) for tag in ("GYR", "ACC")]
+        out += _run(orderer, second)
+        assert len(out) == 200 and orderer.stats.out_of_order == 0
+        assert [s.t_ms for s in out[100:]] == [s.t_ms for s in sorted(second, key=_key)]
+        assert orderer.stats.sessions == 1 and orderer.stats.session_starts == [100]
+    arrays = TimeOrderer()
+    arrays.push_arrays(*_arrays(first))
+    arrays.restart_arrays()
+    released = arrays.push_arrays(*_arrays(second))
+    released_all = arrays.flush_arrays()
+    assert released.session_starts.tolist() == [0] and len(released) + len(released_all) == 100
+
+
+def test_a_continuing_clock_keeps_the_session_and_a_loop_shifts_after_last_release():
     orderer = TimeOrderer(restart_gap_ms=1500)
     first = [_s(500_000 + 10 * k, tag) for k in range(50) for tag in ("GYR", "ACC")]
     out = orderer.push_many(first)
-    out += orderer.restart()
+    out += orderer.restart(continue_time=True)           # a replay that loops
     second = [_s(1000 + 10 * k, tag) for k in range(50) for tag in ("GYR", "ACC")]
     out += _run(orderer, second)
     assert len(out) == 200 and orderer.stats.out_of_order == 0
     assert out[100].t_ms == 500_490 + 1500             # dt > 1 s: the filter restarts its dt
     assert [s.t_ms for s in out] == sorted(s.t_ms for s in out)
+    assert orderer.stats.sessions == 0
+    later = TimeOrderer()
+    later.push_many(first)
+    later.restart()                                       # the phone reconnecting later
+    out = later.push_many([_s(600_000 + 10 * k, "GYR") for k in range(50)]) + later.flush()
+    assert later.stats.sessions == 0 and out[0].t_ms == 600_000
+
+
+def _key(sample: Sample):
+    return (sample.t_ms, ("GYR", "ACC", "MAG", "ORI").index(sample.tag))
+
+
+def _arrays(samples: list[Sample]):
+    from app.stream.fastparse import samples_to_arrays
+    arrays = samples_to_arrays(samples)
+    return arrays.t_ms, arrays.tag, arrays.values
 
 
 def test_buffer_is_bounded():
@@ -114,6 +152,11 @@ def test_buffer_is_bounded():
 
 
 def test_real_logs_ordered_and_counted(realphone_dir):
+    # The standstill log's 0.9 s block is written 0.92 s after its time: beyond the largest
+    # window (0.5 s), so its 420 samples are dropped as before the window adapted (187 ACC,
+    # 187 GYR, 46 MAG). The lags the real logs show are at most ~20 ms (MAG written in pairs),
+    # so their window stays 100 ms and no other count changes. (A 0.9 s gap in the data is not
+    # a lag: lags are learned from how far behind the newest time a sample arrives.)
     expected_out_of_order = {"sensorLog_20221024T182616_standstill.txt": 420}
     for path in sorted(realphone_dir.glob("*.txt")):
         parser = LineParser()
@@ -123,6 +166,87 @@ def test_real_logs_ordered_and_counted(realphone_dir):
         assert orderer.stats.out_of_order == expected_out_of_order.get(path.name, 0), path.name
         times = [s.t_ms for s in out]
         assert times == sorted(times)
+        assert orderer.stats.sessions == 0 and max(orderer.stats.lags_ms.values(), default=0) < 50
+
+
+def _arriving(tags: dict[str, int], seconds: float = 6.0, clock: dict[str, int] | None = None,
+              rate_ms: int = 10) -> list[Sample]:
+    """GYR/ACC/MAG/ORI every rate_ms from t=1000; each tag's lines written `tags[tag]` ms after
+    their time (the others at once); `clock[tag]` added to a tag's time stamps (another clock,
+    written at the true time)."""
+    clock = clock or {}
+    events = []
+    for k in range(int(seconds * 1000 / rate_ms)):
+        t = 1000 + rate_ms * k
+        for order, tag in enumerate(("GYR", "ACC", "MAG", "ORI")):
+            events.append((t + tags.get(tag, 0), order, _s(t + clock.get(tag, 0), tag)))
+    return [sample for *_, sample in sorted(events, key=lambda e: (e[0], e[1]))]
+
+
+@pytest.mark.parametrize("cls", [ReferenceTimeOrderer, TimeOrderer])
+@pytest.mark.parametrize("lag", [73, 80, 95, 150, 240])
+def test_a_tag_arriving_late_is_waited_for_not_dropped(cls, lag):
+    """Was: a tag arriving >= 95 ms behind the others was dropped entirely. Its lag is learned
+    and the window grows to hold it (bounded by 0.5 s); its own time stamps are kept."""
+    stream = _arriving({"MAG": lag})
+    orderer = cls()
+    out = _run(orderer, stream)
+    assert orderer.stats.out_of_order == 0 and len(out) == len(stream)
+    assert [s.t_ms for s in out] == sorted(s.t_ms for s in out)
+    learned = orderer.stats.lags_ms["MAG"]
+    assert lag - 10 <= learned <= lag + 10              # in steps of the 10 ms sample period
+    assert orderer.stats.window_ms == max(100, min(500, learned + learned // 4 + 10))
+    assert orderer.stats.offsets_ms.get("MAG", 0) == 0 and not orderer.stats.clock_quirks
+
+
+@pytest.mark.parametrize("cls", [ReferenceTimeOrderer, TimeOrderer])
+@pytest.mark.parametrize("offset", [150, -150, 300, -400, 2000, -2000, 9000, -9000,
+                                    131_072_000])
+def test_a_constant_clock_offset_of_any_size_loses_nothing(cls, offset):
+    """Was: offsets from 150 ms to 9 s (under the 10 s alignment threshold) dropped every
+    other tag. Beyond 250 ms the tag's clock is aligned exactly (a whole number of seconds is
+    snapped to); up to 250 ms it is indistinguishable from a tag arriving late: waited for."""
+    stream = _arriving({}, clock={"GYR": offset})
+    orderer = cls()
+    out = _run(orderer, stream)
+    assert orderer.stats.out_of_order == 0 and len(out) == len(stream)
+    assert [s.t_ms for s in out] == sorted(s.t_ms for s in out)
+    by_tag = {tag: [s.t_ms for s in out if s.tag == tag] for tag in ("GYR", "ACC")}
+    if abs(offset) > 250:
+        assert orderer.stats.clock_quirks
+        assert by_tag["GYR"] == by_tag["ACC"]          # the same instants after alignment
+    else:
+        assert orderer.stats.window_ms >= abs(offset)
+
+
+@pytest.mark.parametrize("cls", [ReferenceTimeOrderer, TimeOrderer])
+def test_a_block_arriving_after_the_window_is_dropped_never_a_new_segment(cls):
+    """Was: a 0.9 s block arriving 2.9 s late (beyond gap_ms) was played as a new segment
+    (OWN vs PHONE 179 deg for 1.5 s). Now it is dropped and counted."""
+    stream = _arriving({}, seconds=10.0)
+    block = [s for s in stream if 3000 <= s.t_ms < 3900]
+    rest = [s for s in stream if not 3000 <= s.t_ms < 3900]
+    at = next(i for i, s in enumerate(rest) if s.t_ms >= 6800)      # 2.9 s after its end
+    orderer = cls()
+    out = _run(orderer, rest[:at] + block + rest[at:])
+    assert orderer.stats.out_of_order == len(block) == 360
+    assert orderer.stats.restarts == 0 and orderer.stats.sessions == 0
+    assert [s.t_ms for s in out] == sorted(s.t_ms for s in out)
+    assert len(out) == len(rest)
+
+
+def test_a_clock_that_really_goes_back_starts_a_new_session_after_gap_ms():
+    """A reboot within the late horizon looks like a late block at first; once its samples go
+    on for more than gap_ms of their own time, they are a new clock: a new session."""
+    first = _arriving({}, seconds=8.0)
+    again = [s._replace(t_ms=s.t_ms + 2000) for s in _arriving({}, seconds=5.0)]   # 3000..
+    for cls in (ReferenceTimeOrderer, TimeOrderer):
+        orderer = cls()
+        out = _run(orderer, first + again)
+        assert orderer.stats.sessions == 1 and orderer.stats.restarts == 1
+        dropped = orderer.stats.out_of_order
+        assert 0 < dropped <= 4 * 202                   # about gap_ms of the new clock
+        assert len(out) + dropped == len(first) + len(again)
 
 
 @settings(max_examples=60, deadline=None)
@@ -142,36 +266,48 @@ def test_output_is_time_sorted_and_accounts_for_every_sample(batch, seed):
 
 
 def _phone_like_stream(rng: random.Random, n: int) -> list[Sample]:
-    """Per-tag increasing clocks with batching, jitter, drops back, pauses and other clocks."""
+    """Per-tag increasing clocks with batching, jitter, drops back, pauses and other clocks;
+    sometimes one tag written late (lags the window learns) or blocks written late."""
     tags = ("GYR", "ACC", "MAG", "ORI")
     clocks = {tag: 1000 + rng.randrange(0, 30) for tag in tags}
     if rng.random() < 0.3:
         clocks["ACC"] += 131_072_000
-    out = []
+    if rng.random() < 0.2:
+        clocks["MAG"] += rng.choice([-180, 120, 400, -3000, 9000])
+    late_tag = rng.choice(tags) if rng.random() < 0.4 else None
+    late_by = rng.randrange(20, 600)
+    out: list[tuple[int, int, Sample]] = []
+    arrival = 0
     while len(out) < n:
         tag = rng.choice(tags)
         for _ in range(rng.randrange(1, 8)):
             step = rng.choice([0, 2, 5, 10, 10, 10, 15])
             if rng.random() < 0.01:
-                step = rng.choice([-3000, -50, 2500, 60_000])      # reboot, glitch, pause
+                # reboot, late block, glitch, pause, a clock beyond the late horizon
+                step = rng.choice([-3000, -50, 2500, 60_000, -20_000, 700_000])
             clocks[tag] += step
-            out.append(_s(clocks[tag], tag))
-    return out
+            arrival += 1
+            delay = late_by // 10 if tag == late_tag else 0        # arrival in ~10 ms steps
+            out.append((arrival + delay, len(out), _s(clocks[tag], tag)))
+    return [sample for *_, sample in sorted(out)]
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(seed=st.integers(0, 10**6), n=st.integers(1, 600), cut=st.integers(1, 200),
-       max_pending=st.sampled_from([20_000, 7]), restart_at=st.integers(-1, 600))
-def test_compiled_orderer_equals_the_reference(seed, n, cut, max_pending, restart_at):
-    from app.stream.ordering import ReferenceTimeOrderer
+       max_pending=st.sampled_from([20_000, 7]), restart_at=st.integers(-1, 600),
+       continue_time=st.booleans(),
+       params=st.sampled_from([{}, {"late_horizon_ms": 2500, "session_gap_ms": 50_000},
+                               {"max_window_ms": 200, "align_threshold_ms": 100}]))
+def test_compiled_orderer_equals_the_reference(seed, n, cut, max_pending, restart_at,
+                                               continue_time, params):
     stream = _phone_like_stream(random.Random(seed), n)
     results = []
     for cls in (ReferenceTimeOrderer, TimeOrderer):
-        orderer = cls(max_pending=max_pending)
+        orderer = cls(max_pending=max_pending, **params)
         out = []
         for start in range(0, len(stream), cut):
             if start <= restart_at < start + cut:
-                out += orderer.restart()
+                out += orderer.restart(continue_time)
             out += orderer.push_many(stream[start:start + cut])
         out += orderer.flush()
         results.append((out, orderer.stats, orderer.pending, orderer.last_released_ms))

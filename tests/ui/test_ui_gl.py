@@ -23,7 +23,7 @@ BACKGROUND = np.array([34, 38, 46])
 
 @pytest.fixture(autouse=True)
 def _need_gl():
-    if os.environ.get("QT_QPA_PLATFORM", "") == "offscreen":
+    if os.environ.get("QT_QPA_PLATFORM", "").startswith("offscreen"):
         pytest.skip("needs OpenGL: offscreen platform has none (run under xvfb-run)")
 
 
@@ -156,6 +156,32 @@ def test_the_camera_orbits_and_resets(make_window, qtbot):
     view.reset_camera_button.click()
     _settle(qtbot)
     np.testing.assert_array_equal(_pixels(view.grab_image()), home)
+
+
+def test_linked_cameras_turn_together_and_no_data_greys_the_view_out(make_window, qtbot):
+    window = make_window(FakeEngine(), use_gl=None)
+    window.resize(1400, 900)
+    window.show()
+    qtbot.waitExposed(window)
+    own, phone = window.own_view, window.phone_view
+    window.set_cameras_linked(True)
+    own.gl_view.orbit(40.0, 10.0)
+    own.gl_view.camera_changed.emit()               # what a mouse drag emits
+    assert phone.camera()["azimuth"] == pytest.approx(own.camera()["azimuth"])
+    assert phone.camera()["elevation"] == pytest.approx(own.camera()["elevation"])
+    window.set_cameras_linked(False)
+    own.gl_view.orbit(40.0, 0.0)
+    own.gl_view.camera_changed.emit()
+    assert phone.camera()["azimuth"] != pytest.approx(own.camera()["azimuth"])
+    # before any data the view is greyed out and says so; a phone appears with the first pose
+    assert own.gl_view.overlay_text == "waiting for data"
+    _settle(qtbot)
+    waiting = _pixels(own.grab_image())
+    own.set_orientation(quat_about_z(0.0))
+    assert own.gl_view.overlay_text == ""
+    _settle(qtbot)
+    shown = _pixels(own.grab_image())
+    assert shown.std() > waiting.std()
 
 
 def _region_is_drawn(pixels: np.ndarray, top: float, bottom: float, left: float,

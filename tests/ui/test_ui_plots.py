@@ -1,4 +1,6 @@
-"""Live plots: bounded buffers, following window, pause-and-inspect, cursor, legend, clear."""
+"""The plots: bounded buffers, the following window, pause-and-inspect, three tabs, legend
+toggles outside the data, wrapped and unwrapped Euler angles, rejected samples as a band,
+the cursor readout with units, time since the start."""
 
 from __future__ import annotations
 
@@ -6,10 +8,10 @@ import numpy as np
 import pytest
 from PySide6 import QtCore
 
-from app.engine.snapshot import FilterStatus
-from app.ui.plots import PlotPanel, SampleBuffer, peak_downsample, same_turn
-
-from ui_helpers import status_of, make_chunk
+from app.ui.plot_data import (SampleBuffer, break_at_wraps, peak_downsample, rejected_spans,
+                              same_turn, time_text, unwrap_deg, unwrap_in_turn)
+from app.ui.plots import PlotPanel, readout_table
+from ui_helpers import make_chunk, status_of
 
 
 def test_sample_buffer_is_bounded_and_keeps_the_newest_rows_in_order():
@@ -37,25 +39,36 @@ def panel(qtbot):
     return widget
 
 
-def _curve(panel: PlotPanel, key: str, label: str):
-    return next(curve for name, curve, _ in panel.streams[key].curves if name == label)
+def _curve(panel: PlotPanel, label: str):
+    return next(curve for spec, curve in panel.curves if spec.label == label)
 
 
-def test_following_shows_the_last_window_of_phone_time(panel):
+def test_following_shows_the_last_window_of_session_time(panel):
     panel.set_window_s(5.0)
     for k in range(20):                       # 10 s of samples at 100 Hz
-        panel.append(make_chunk(1000.0 + 0.5 * k, count=50))
+        panel.append(make_chunk(0.5 * k, count=50))
         panel.refresh()
     low, high = panel.x_range()
-    assert high == pytest.approx(1000.0 + 9.99)
+    assert high == pytest.approx(9.993)          # the newest sample: PHONE, 3 ms after
     assert high - low == pytest.approx(5.0)
-    x, y = _curve(panel, "acc", "norm").getData()
-    assert x[0] <= low + 0.02 and x[-1] == pytest.approx(high)
+    x, y = _curve(panel, "acc norm").getData()
+    assert x[0] <= low + 0.02 and x[-1] == pytest.approx(9.99)
     assert len(x) < 600                        # only the visible window is handed to the curve
-    np.testing.assert_allclose(y, np.linalg.norm(panel.streams["acc"].buffer.values[-len(y):, :3],
+    np.testing.assert_allclose(y, np.linalg.norm(panel.buffers["acc"].values[-len(y):, :3],
                                                  axis=1))
-    x_angle, y_angle = _curve(panel, "angle", "∠(OWN, PHONE)").getData()
-    np.testing.assert_allclose(y_angle, np.sqrt(3.0))
+
+
+def test_only_the_shown_tab_is_drawn_and_a_tab_switch_draws_it(panel):
+    panel.append(make_chunk(0.0, count=300))
+    panel.refresh()
+    assert _curve(panel, "acc x").getData()[0] is not None
+    x, _ = _curve(panel, "total").getData()
+    assert x is None or len(x) == 0                              # not drawn while hidden
+    panel.set_current_group("error")
+    panel.refresh()
+    x, y = _curve(panel, "total").getData()
+    np.testing.assert_allclose(y, np.sqrt(3.0))
+    assert panel.x_range() == pytest.approx((2.993 - 10.0, 2.993), abs=0.001)
 
 
 def test_pause_keeps_the_view_while_data_keeps_arriving_then_follow(panel, qtbot):
@@ -65,126 +78,196 @@ def test_pause_keeps_the_view_while_data_keeps_arriving_then_follow(panel, qtbot
     qtbot.mouseClick(panel.pause_button, QtCore.Qt.MouseButton.LeftButton)
     assert panel.paused
     frozen = panel.x_range()
-    size_before = panel.streams["gyr"].buffer.size
-    for k in range(5):
-        panel.append(make_chunk(3.0 + k, count=100))
-        panel.refresh()
+    panel.append(make_chunk(3.0, count=300))
+    panel.refresh()
     assert panel.x_range() == pytest.approx(frozen)
-    assert panel.streams["gyr"].buffer.size == size_before + 500     # still stored
+    assert panel.buffers["acc"].size == 600    # kept storing
     qtbot.mouseClick(panel.follow_button, QtCore.Qt.MouseButton.LeftButton)
     panel.refresh()
-    assert not panel.paused
-    assert panel.x_range()[1] == pytest.approx(7.99)
+    assert not panel.paused and panel.x_range()[1] == pytest.approx(5.993)
 
 
 def test_zooming_a_plot_by_hand_pauses(panel):
     panel.append(make_chunk(0.0, count=300))
     panel.refresh()
-    view_box = panel.plots["gyr"].getViewBox()
-    view_box.sigRangeChangedManually.emit([True, False])
+    panel.plots["gyr"].getViewBox().sigRangeChangedManually.emit([True, False])
     assert panel.paused
 
 
-def test_rejected_samples_and_gate_lines_on_the_acc_norm(panel):
+def test_rejected_samples_are_a_thin_band_and_the_gates_lines(panel):
     panel.append(make_chunk(0.0, count=100, acc_rejected_every=10))
     panel.set_status(status_of(g=9.81, acc_gate=0.5, mag_expected=50.0, mag_gate=float("nan")))
     panel.refresh()
-    x, y = panel.streams["acc"].rejected_scatter.getData()
-    np.testing.assert_allclose(x, np.arange(0, 100, 10) / 100.0)
+    x, y = panel.bands["acc"].getData()
+    assert len(x) == 20                         # 10 spans, a start and an end each
+    np.testing.assert_allclose(x[::2], np.arange(0, 100, 10) / 100.0 - 0.005)
+    low, high = panel.plots["acc"].getViewBox().viewRange()[1]
+    assert np.all(y < low + 0.05 * (high - low))       # along the bottom, under the curves
+    norm_low = np.linalg.norm(panel.buffers["acc"].values[:, :3], axis=1).min()
+    assert y[0] < norm_low
     upper, lower = panel.gate_lines["acc"]
     assert upper.isVisible() and upper.value() == pytest.approx(10.31)
     assert lower.value() == pytest.approx(9.31)
     assert not panel.gate_lines["mag"][0].isVisible()       # no gate known yet
+    panel.set_shown("sensors", "rejected", False)
+    assert not panel.bands["acc"].isVisible()
 
 
-def test_legend_click_hides_a_curve(panel):
-    legend = panel.plots["euler"].legend
-    sample, _ = legend.items[0]
+def test_rejected_spans_merge_runs_and_widen_single_samples():
+    t = np.arange(10) * 0.01
+    spans = rejected_spans(t, np.array([0, 1, 1, 0, 0, 1, 0, 0, 0, 1], bool))
+    np.testing.assert_allclose(spans, [[0.005, 0.025], [0.045, 0.055], [0.085, 0.095]])
+    assert rejected_spans(t, np.zeros(10, bool)).shape == (0, 2)
 
-    class Click:
-        def button(self):
-            return QtCore.Qt.MouseButton.LeftButton
 
-        def accept(self):
-            pass
-
-    curve = _curve(panel, "euler", "OWN yaw")
-    assert curve.isVisible()
-    sample.mouseClickEvent(Click())
-    assert not curve.isVisible()
+def test_legend_toggles_hide_curves_in_every_plot_of_the_tab(panel, qtbot):
+    panel.append(make_chunk(0.0, count=100))
+    panel.refresh()
+    toggle = panel.groups["sensors"].toggles["norm"]
+    qtbot.mouseClick(toggle, QtCore.Qt.MouseButton.LeftButton)
+    assert not toggle.isChecked()
+    assert not any(_curve(panel, f"{key} norm").isVisible() for key in ("acc", "gyr", "mag"))
+    assert _curve(panel, "acc x").isVisible()
     panel.set_cursor_visible(True)
-    assert "euler/OWN yaw" not in panel.cursor_values()
-    sample.mouseClickEvent(Click())
-    assert curve.isVisible()
+    assert "acc norm" not in panel.cursor_values()
+    qtbot.mouseClick(toggle, QtCore.Qt.MouseButton.LeftButton)
+    assert _curve(panel, "mag norm").isVisible()
 
 
-def test_cursor_reads_every_visible_curve(panel):
+def test_legends_lie_outside_every_data_rectangle(panel):
+    panel.append(make_chunk(0.0, count=100))
+    for key, group in panel.groups.items():
+        panel.set_current_group(key)
+        panel.refresh()
+        QtCore.QCoreApplication.processEvents()
+        legend = group.legend.geometry()
+        legend = QtCore.QRect(group.legend.mapTo(panel, QtCore.QPoint(0, 0)), legend.size())
+        for plot_key in group.plots:
+            view_box = panel.plots[plot_key].getViewBox()
+            scene_rect = view_box.sceneBoundingRect().toRect()
+            top_left = group.graphics.mapTo(panel, group.graphics.mapFromScene(
+                scene_rect.topLeft()))
+            data = QtCore.QRect(top_left, scene_rect.size())
+            assert data.height() > 60, (key, plot_key, data)
+            assert not legend.intersects(data), (key, plot_key, legend, data)
+
+
+def test_cursor_reads_every_visible_curve_into_a_table_with_units(panel):
     panel.append(make_chunk(10.0, count=200))
     panel.refresh()
     panel.cursor_checkbox.setChecked(True)
     assert all(cursor.isVisible() for cursor in panel.cursors.values())
     panel.set_cursor_time(10.5)
     values = panel.cursor_values()
-    assert values["acc/z"] == pytest.approx(9.81)
-    assert values["mag/y"] == pytest.approx(15.0)
-    assert values["euler/PHONE pitch"] == pytest.approx(6.0)
-    assert values["gyr/x"] == pytest.approx(0.1 * np.sin(2 * np.pi * 0.5 * 10.5), abs=1e-9)
-    assert len(values) == 4 + 4 + 4 + 6 + 1
-    assert "t = 10.500 s" in panel.readout_label.text()
+    assert values["acc z"] == pytest.approx(9.81)
+    assert values["mag y"] == pytest.approx(15.0)
+    assert values["PHONE pitch"] == pytest.approx(6.0)
+    assert values["gyr x"] == pytest.approx(0.1 * np.sin(2 * np.pi * 0.5 * 10.5), abs=1e-9)
+    assert values["total"] == pytest.approx(np.sqrt(3.0))
+    text = panel.readout_label.text()
+    assert "<table" in text and "t = 10.500 s" in text and "m/s²" in text and "rad/s" in text
+    panel.set_current_group("orientation")
+    assert "OWN" in panel.readout_label.text() and "°" in panel.readout_label.text()
     # All plots share one cursor: dragging one moves the others.
     panel.cursors["mag"].setValue(11.0)
     assert panel.cursor_time() == pytest.approx(11.0)
-    assert panel.cursors["euler"].value() == pytest.approx(11.0)
+    assert panel.cursors["yaw"].value() == pytest.approx(11.0)
 
 
-def test_clear_and_time_going_backwards_start_afresh(panel, qtbot):
+def test_readout_table_says_dash_where_there_is_no_value():
+    html = readout_table({"OWN yaw": 12.3456}, 3.0, 10.0, "orientation")
+    assert "12.346" in html and "–" in html and "PHONE" in html and html.count("<tr>") == 3
+
+
+def test_a_new_session_starts_the_plots_afresh_and_clear(panel, qtbot):
     panel.append(make_chunk(100.0, count=100))
-    panel.append(make_chunk(5.0, count=10))           # a looped replay restarts phone time
-    assert panel.streams["acc"].buffer.size == 10
+    panel.append(make_chunk(0.0, count=10))           # a looped replay starts again at 0
+    assert panel.buffers["acc"].size == 10 and panel.buffers["own"].size == 10
     qtbot.mouseClick(panel.clear_button, QtCore.Qt.MouseButton.LeftButton)
-    assert all(stream.buffer.size == 0 for stream in panel.streams.values())
-    x, _ = _curve(panel, "acc", "x").getData()
+    assert all(buffer.size == 0 for buffer in panel.buffers.values())
+    x, _ = _curve(panel, "acc x").getData()
     assert x is None or len(x) == 0
 
 
-def test_phone_angles_may_be_missing(panel):
+def test_phone_may_be_missing(panel):
     chunk = make_chunk(0.0, count=20)
-    chunk.phone_euler_deg = np.full((20, 3), np.nan)
-    chunk.angle_deg = np.empty(0)                      # nothing to compare with yet
+    chunk.t_ori = np.empty(0)
+    chunk.phone_euler_deg = np.empty((0, 3))
+    chunk.t_err = np.empty(0)
+    chunk.error_deg = np.empty((0, 3))
     panel.append(chunk)
+    panel.set_current_group("orientation")
     panel.refresh()
-    assert np.isnan(panel.streams["angle"].buffer.values).all()
-    assert panel.streams["euler"].buffer.size == 20
+    assert panel.buffers["phone"].size == 0 and panel.buffers["own"].size == 20
 
 
-def test_phone_yaw_is_drawn_in_the_same_turn_as_own(panel):
-    # OWN turns steadily through three turns; PHONE agrees within a few degrees, but its own
-    # unwrapping went astray twice (a jump of more than 180° between samples), so its
-    # unwrapped yaw ends up two turns (720°) away from OWN's.
-    chunk = make_chunk(0.0, count=200)
-    own_yaw = np.linspace(0.0, 1080.0, 200)
-    phone_yaw = own_yaw + 3.0 + np.where(np.arange(200) >= 60, 360.0, 0.0) \
-        + np.where(np.arange(200) >= 140, 360.0, 0.0)
+def _turning_chunk(turns: float = 3.0, count: int = 300) -> object:
+    chunk = make_chunk(0.0, count=count)
+    own_yaw = (np.linspace(0.0, 360.0 * turns, count) + 180.0) % 360.0 - 180.0   # wrapped
     chunk.own_euler_deg[:, 0] = own_yaw
-    chunk.phone_euler_deg[:, 0] = phone_yaw
-    chunk.phone_euler_deg[:10] = np.nan                 # no ORI at first
-    panel.append(chunk)
+    chunk.phone_euler_deg[:, 0] = (own_yaw + 3.0 + 180.0) % 360.0 - 180.0
+    return chunk
+
+
+def test_wrapped_euler_breaks_the_line_at_a_wrap_never_a_vertical_stroke(panel):
+    panel.append(_turning_chunk())
+    panel.set_current_group("orientation")
     panel.refresh()
-    stored = panel.streams["euler"].buffer.values
-    np.testing.assert_allclose(stored[:, 0], own_yaw)
-    np.testing.assert_allclose(stored[10:, 3], own_yaw[10:] + 3.0)
-    assert np.isnan(stored[:10, 3:]).all()
-    np.testing.assert_allclose(stored[10:, 4:], chunk.phone_euler_deg[10:, 1:])   # pitch, roll
-    x, y = _curve(panel, "euler", "PHONE yaw").getData()
-    assert np.nanmax(np.abs(y - np.interp(x, chunk.t_est, own_yaw))) < 3.5
+    x, y = _curve(panel, "OWN yaw").getData()
+    finite = np.isfinite(y)
+    assert np.abs(y[finite]).max() <= 180.0
+    assert (~finite).sum() >= 2                          # broken at each wrap
+    runs = np.split(y, np.flatnonzero(~finite))
+    for run in runs:
+        run = run[np.isfinite(run)]
+        assert len(run) < 2 or np.abs(np.diff(run)).max() < 30    # no stroke across the plot
+    low, high = panel.plots["yaw"].getViewBox().viewRange()[1]
+    assert low <= -180 and high >= 180
+    # the pitch axis spans ±90°
+    low, high = panel.plots["pitch"].getViewBox().viewRange()[1]
+    assert low <= -90 and high >= 90
 
 
-def test_same_turn_picks_the_nearest_turn_and_keeps_nan():
+def test_unwrapped_euler_puts_own_and_phone_in_the_same_turn(panel):
+    panel.append(_turning_chunk())
+    panel.set_current_group("orientation")
+    panel.set_unwrapped(True)
+    panel.refresh()
+    x, y = _curve(panel, "OWN yaw").getData()
+    assert np.isfinite(y).all() and y.max() - y.min() > 700
+    assert np.abs(np.diff(y)).max() < 30
+    xp, yp = _curve(panel, "PHONE yaw").getData()
+    assert np.nanmax(np.abs(yp - np.interp(xp, x, y) - 3.0)) < 2.0
+
+
+def test_euler_helpers():
+    t = np.array([0.0, 1.0, 2.0, 3.0])
+    angles = np.array([[170.0, 0, 0], [179.0, 0, 0], [-178.0, 0, 0], [-170.0, 0, 0]])
+    t2, broken = break_at_wraps(t, angles)
+    assert len(t2) == 5 and np.isnan(broken[2]).all() and t2[2] == 1.5
+    unwrapped = unwrap_deg(angles)
+    np.testing.assert_allclose(unwrapped[:, 0], [170, 179, 182, 190])
+    moved = unwrap_in_turn(t, unwrapped, np.array([2.5]), np.array([[-175.0, 0, 0]]))
+    assert moved[0, 0] == pytest.approx(185.0)
     reference = np.array([0.0, 350.0, -725.0, 10.0, np.nan])
     angles = np.array([719.0, -5.0, 0.0, np.nan, 40.0])
     np.testing.assert_allclose(same_turn(angles, reference)[:3], [-1.0, 355.0, -720.0])
-    assert np.isnan(same_turn(angles, reference)[3])
-    assert same_turn(angles, reference)[4] == 40.0          # no OWN: left as it came
+    assert np.isnan(same_turn(angles, reference)[3]) and same_turn(angles, reference)[4] == 40.0
+
+
+def test_time_since_the_start_reads_as_seconds_then_minutes():
+    assert time_text(12.34, 10.0, 1) == "12.3"
+    assert time_text(125.0, 130.0, 0) == "2:05"
+    assert time_text(3725.0, 700.0, 0) == "1:02:05"
+    assert time_text(float("nan")) == "–"
+    assert time_text(75.25, 200.0, 1) == "1:15.2"
+
+
+def test_the_time_axis_names_the_phone_clock_on_hover(panel):
+    panel.set_time_origin(282_545_123)
+    axis = panel.plots["mag"].getAxis("bottom")
+    assert "282545.123 s on the phone's clock" in axis.toolTip()
+    assert panel.plots["mag"].getAxis("left").labelText == "mag"
 
 
 def test_peak_downsample_keeps_every_peak_with_stable_bins():
@@ -195,11 +278,8 @@ def test_peak_downsample_keeps_every_peak_with_stable_bins():
     shown_t, shown = peak_downsample(t, values, first_index=0, max_points=1000)
     assert len(shown_t) <= 1100 and np.all(np.diff(shown_t) >= 0)
     assert shown[:, 1].max() == 7.0 and shown[:, 1].min() == -3.0
-    assert shown[:, 0].max() == pytest.approx(values[:, 0].max())
-    # One sample later the window has scrolled by one: the bins are the same samples.
     later_t, later = peak_downsample(t[1:], values[1:], first_index=1, max_points=1000)
-    common = np.intersect1d(shown_t, later_t)
-    assert len(common) > 0.9 * len(shown_t)
+    assert len(np.intersect1d(shown_t, later_t)) > 0.9 * len(shown_t)
     np.testing.assert_array_equal(peak_downsample(t[:500], values[:500], 0, 1000)[1], values[:500])
 
 
@@ -212,7 +292,6 @@ def test_all_plots_share_one_time_range(panel):
     panel.plots["mag"].getViewBox().setXRange(1.0, 2.0, padding=0.0)   # e.g. dragged by hand
     for plot in panel.plots.values():
         assert plot.getViewBox().viewRange()[0] == pytest.approx([1.0, 2.0])
-    # The views line up: the same time is at the same x on the screen in every plot.
-    xs = {key: plot.getViewBox().mapViewToScene(QtCore.QPointF(1.5, 0.0)).x()
-          for key, plot in panel.plots.items()}
+    xs = {key: panel.plots[key].getViewBox().mapViewToScene(QtCore.QPointF(1.5, 0.0)).x()
+          for key in ("acc", "gyr", "mag")}
     assert max(xs.values()) - min(xs.values()) < 1.0

@@ -58,7 +58,8 @@ def quat_about_z(degrees: float) -> np.ndarray:
 
 def make_chunk(t0_s: float, count: int = 50, rate_hz: float = 100.0,
                acc_rejected_every: int = 0) -> PlotChunk:
-    """`count` samples per sensor from t0_s at rate_hz, gentle sines, a 1g accelerometer."""
+    """`count` samples per sensor from t0_s at rate_hz, gentle sines, a 1g accelerometer;
+    PHONE 1° off OWN in each angle, 3 ms later; the error 1.7° total, 1° heading."""
     t = t0_s + np.arange(count) / rate_hz
     phase = 2 * np.pi * 0.5 * t
     acc = np.column_stack([0.3 * np.sin(phase), 0.2 * np.cos(phase), 9.81 + 0 * t])
@@ -69,10 +70,11 @@ def make_chunk(t0_s: float, count: int = 50, rate_hz: float = 100.0,
         acc_rejected[::acc_rejected_every] = True
     own = np.column_stack([30 * np.sin(phase), 5 + 0 * t, -3 + 0 * t])
     phone = own + 1.0
+    error = np.column_stack([np.full(count, np.sqrt(3.0)), np.ones(count), np.full(count, 1.4)])
     return PlotChunk(t_acc=t, acc=acc, acc_rejected=acc_rejected, t_gyr=t, gyr=gyr,
                      t_mag=t, mag=mag, mag_rejected=np.zeros(count, bool),
-                     t_est=t, own_euler_deg=own, phone_euler_deg=phone,
-                     angle_deg=np.full(count, np.sqrt(3.0)))
+                     t_est=t, own_euler_deg=own, t_ori=t + 0.003, phone_euler_deg=phone,
+                     t_err=t + 0.003, error_deg=error)
 
 
 _NO_VALUE = object()
@@ -82,13 +84,14 @@ def make_snapshot(seq: int, t_s: float, count: int = 50, phone_quat=_NO_VALUE,
                   **status_fields) -> Snapshot:
     """A snapshot at t_s with `count` plot samples; flat status fields (see status_of)."""
     status = status_of(**{**dict(acc_norm=9.83, g=9.81, acc_gate=0.5, mag_norm=50.4,
-                                 mag_expected=50.5, mag_gate=5.0), **status_fields})
+                                 mag_expected=50.5, mag_gate=5.0, initialised=True),
+                          **status_fields})
     health = StreamHealth(connection_state="connected", peer="192.168.1.23:51234",
                           listen_addresses=["192.168.1.10"], port=3400,
                           rates_hz={"ACC": 100.0, "GYR": 100.0, "MAG": 50.0, "ORI": 100.0},
                           lines_per_s=350.0, lines_total=350 * seq, damaged=2, unknown=1,
                           out_of_order=3)
-    return Snapshot(seq=seq, t_ms=int(round((t_s + count / 100.0) * 1000)),
+    return Snapshot(seq=seq, t_ms=int(round((t_s + count / 100.0) * 1000)), t0_ms=0,
                     own_quat=quat_about_z(10.0 * seq), own_cov=np.eye(4) * 1e-4,
                     phone_quat=(quat_about_z(10.0 * seq + 1.0) if phone_quat is _NO_VALUE
                                 else phone_quat), status=status,

@@ -1,0 +1,330 @@
+"""The executable specification of :class:`app.stream.ordering.TimeOrderer`, in plain Python
+(the algorithm is described in :mod:`app.stream.ordering`; tests compare the two), and what
+both share: :class:`OrderStats` and the window rule.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+from app.stream.protocol import FILTER_TAGS, TAG_PRIORITY, Sample
+
+_MAX_QUIRKS = 20
+LAG_BUCKET_MS = 5000     # lags are the largest of the current and the previous 5 s of phone time
+
+
+@dataclass
+class OrderStats:
+    """Counters of a :class:`TimeOrderer`."""
+
+    pushed: int = 0                 # filter-tag samples pushed
+    released: int = 0
+    out_of_order: int = 0           # dropped: older than released, a tag going back, late blocks
+    forced: int = 0                 # released early because the buffer bound was reached
+    restarts: int = 0               # segments started after the first
+    restart_times_ms: list[int] = field(default_factory=list)   # aligned start of the last 100
+    clock_quirks: list[str] = field(default_factory=list)
+    offsets_ms: dict[str, int] = field(default_factory=dict)    # current tag -> aligned offset
+    sessions: int = 0               # new sessions (a clock that did not continue) after the first
+    session_starts: list[int] = field(default_factory=list)     # `released` at the last 100
+    window_ms: int = 0              # the reorder window now
+    lags_ms: dict[str, int] = field(default_factory=dict)       # tag -> learned lag (> 0 only)
+
+    def copy(self) -> OrderStats:
+        return OrderStats(self.pushed, self.released, self.out_of_order, self.forced,
+                          self.restarts, list(self.restart_times_ms), list(self.clock_quirks),
+                          dict(self.offsets_ms), self.sessions, list(self.session_starts),
+                          self.window_ms, dict(self.lags_ms))
+
+
+def effective_window(lag_ms: int, window_ms: int, max_window_ms: int) -> int:
+    """The reorder window for the largest learned lag (0: none learned)."""
+    if lag_ms == 0:
+        return window_ms
+    return min(max_window_ms, max(window_ms, lag_ms + lag_ms // 4 + 10))
+
+
+def _append_bounded(values: list, value, keep: int = 100) -> None:
+    values.append(value)
+    del values[:-keep]
+
+
+class ReferenceTimeOrderer:
+    """Streaming reorder + clock alignment of filter-tag samples (see the module docstring),
+    in plain Python: the executable specification of :class:`TimeOrderer` (tests compare them).
+
+    push(sample) -> the samples released by it (aligned t_ms), flush() at end of stream.
+    """
+
+    def __init__(self, window_ms: int = 100, gap_ms: int = 2000,
+                 align_threshold_ms: int = 250, max_pending: int = 20_000,
+                 restart_gap_ms: int = 1500, startup_hold_ms: int = 250,
+                 max_window_ms: int = 500, late_horizon_ms: int = 10_000,
+                 session_gap_ms: int = 600_000) -> None:
+        self.window_ms = int(window_ms)
+        self.gap_ms = int(gap_ms)
+        self.align_threshold_ms = int(align_threshold_ms)
+        self.max_pending = int(max_pending)
+        self.restart_gap_ms = int(restart_gap_ms)
+        self.startup_hold_ms = int(startup_hold_ms)
+        self.max_window_ms = max(int(max_window_ms), self.window_ms)
+        self.late_horizon_ms = int(late_horizon_ms)
+        self.session_gap_ms = int(session_gap_ms)
+        self.stats = OrderStats(window_ms=self.window_ms)
+        self._heap: list[tuple[int, int, int, Sample]] = []
+        self._sequence = 0
+        self.last_released_ms: int | None = None
+        self._offsets: dict[str, int] = {}
+        self._continue_time = False
+        self._new_segment(first=True, keep_offsets=False)
+
+    # -- public ------------------------------------------------------------------------------
+
+    def push(self, sample: Sample) -> list[Sample]:
+        """Take one sample (any tag); return what it releases, in release order."""
+        if sample.tag not in TAG_PRIORITY:
+            return [sample]
+        out: list[Sample] = []
+        self._push(sample, out)
+        self._update_stats()
+        return out
+
+    def push_many(self, samples: Iterable[Sample]) -> list[Sample]:
+        out: list[Sample] = []
+        for sample in samples:
+            if sample.tag in TAG_PRIORITY:
+                self._push(sample, out)
+            else:
+                out.append(sample)
+        self._update_stats()
+        return out
+
+    def flush(self) -> list[Sample]:
+        """Release everything pending (end of stream). The segment stays open."""
+        out: list[Sample] = []
+        self._release_all(out)
+        return out
+
+    def restart(self, continue_time: bool = False) -> list[Sample]:
+        """Reconnect: release what is pending and learn the clocks again for what follows.
+        continue_time (a looping replay): shift the next segment after the last release
+        instead of starting a new session when its clock goes back."""
+        out = self.flush()
+        self._new_segment(first=False, keep_offsets=False)
+        self._continue_time = bool(continue_time)
+        self._update_stats()
+        return out
+
+    @property
+    def pending(self) -> int:
+        return len(self._heap)
+
+    # -- internals -----------------------------------------------------------------------------
+
+    def _new_segment(self, first: bool, keep_offsets: bool) -> None:
+        # within one stream the reference tag keeps its clock offset into the next segment
+        self._previous_offsets = dict(self._offsets) if keep_offsets else {}
+        self._offsets = {}
+        self._last: dict[str, int] = {}          # tag -> latest aligned time in this segment
+        self._reference: str | None = None
+        self._segment_start: int | None = None
+        self._warm = False           # hold releases for startup_hold_ms: lets every tag show up
+        self._newest: int | None = None
+        self._last_new_tag_ms = 0
+        self._late_since: dict[str, int] = {}    # tag -> first sample of its late block
+        self._lag_current: dict[str, int] = {}   # tag -> largest lag in this lag bucket
+        self._lag_previous: dict[str, int] = {}  # ... in the bucket before
+        self._lag_bucket: int | None = None
+        self.stats.offsets_ms = self._offsets
+        if not first:
+            self.stats.restarts += 1
+
+    def _update_stats(self) -> None:
+        lags = {tag: max(self._lag_current.get(tag, 0), self._lag_previous.get(tag, 0))
+                for tag in FILTER_TAGS}
+        self.stats.lags_ms = {tag: lag for tag, lag in lags.items() if lag > 0}
+        self.stats.window_ms = self._window()
+
+    def _window(self) -> int:
+        lag = max([0] + list(self._lag_current.values()) + list(self._lag_previous.values()))
+        return effective_window(lag, self.window_ms, self.max_window_ms)
+
+    def _quirk(self, text: str) -> None:
+        quirks = self.stats.clock_quirks
+        if text not in quirks:
+            quirks.append(text)
+            del quirks[:-_MAX_QUIRKS]
+
+    def _start_segment_clock(self, sample: Sample) -> int:
+        """The reference tag of a new segment: its offset, and whether a session starts."""
+        raw = sample.t_ms
+        self._reference = sample.tag
+        base = self._previous_offsets.get(sample.tag, 0)
+        t = raw + base
+        shift = 0
+        last = self.last_released_ms
+        if last is not None:
+            if self._continue_time:
+                if t <= last:
+                    shift = last + self.restart_gap_ms - t
+            elif t <= last or t - last > self.session_gap_ms:
+                # A clock that does not continue the previous one: a new session, on its own
+                # times (never shifted by an earlier stream's); the consumer starts afresh.
+                self.last_released_ms = None
+                self.stats.sessions += 1
+                _append_bounded(self.stats.session_starts, self.stats.released)
+        self._continue_time = False
+        if self.stats.restarts or last is not None:
+            _append_bounded(self.stats.restart_times_ms, t + shift)
+        self._segment_start = t + shift
+        return base + shift
+
+    def _learn_offset(self, sample: Sample) -> int:
+        if self._reference is None:
+            return self._start_segment_clock(sample)
+        raw = sample.t_ms
+        reference_latest = self._last[self._reference]
+        reference_offset = self._offsets[self._reference]
+        if abs(raw + reference_offset - reference_latest) > self.align_threshold_ms:
+            # Another tag's clock (a phone's GYR and MAG share one)? Then its offset, exactly.
+            offset = next((self._offsets[other] for other in FILTER_TAGS
+                           if other in self._offsets and abs(
+                               raw + self._offsets[other] - reference_latest)
+                           <= self.align_threshold_ms), None)
+            if offset is None:
+                offset = reference_latest - raw
+                # The estimate is off by the batching delay (~10 ms); the known quirk is a
+                # whole number of seconds (131,072 s), so snap to one when this close to it.
+                whole_seconds = round((offset - reference_offset) / 1000) * 1000 \
+                    + reference_offset
+                if abs(offset - whole_seconds) <= self.window_ms // 2:
+                    offset = whole_seconds
+            difference = -(offset - reference_offset)
+            self._quirk(f"{sample.tag} clock {difference:+d} ms vs {self._reference} (aligned)")
+            return offset
+        return reference_offset
+
+    def _late(self, tag: str, t: int, last: int) -> bool:
+        """A sample more than gap_ms behind its tag's latest: a block written late (dropped),
+        unless beyond the horizon or such samples have gone on for more than gap_ms of their
+        own time (then the clock really went back)."""
+        if last - t > self.late_horizon_ms:
+            return False
+        since = self._late_since.get(tag)
+        if since is None:
+            self._late_since[tag] = t
+            return True
+        return t - since <= self.gap_ms
+
+    def _own_clock(self, tag: str, t: int) -> str:
+        """"ok", "drop" (counted) or "segment" (a new time base) for a sample at aligned time
+        t of a tag already seen in this segment."""
+        last = self._last[tag]
+        if t < last - self.gap_ms:
+            return "drop" if self._late(tag, t, last) else "segment"
+        if t > last + self.gap_ms:
+            return "segment"
+        if t < last:
+            return "drop"
+        self._late_since.pop(tag, None)
+        return "ok"
+
+    def _push(self, sample: Sample, out: list[Sample]) -> None:
+        stats = self.stats
+        stats.pushed += 1
+        tag = sample.tag
+        offset = self._offsets.get(tag)
+        if offset is not None:
+            t = sample.t_ms + offset
+            verdict = self._own_clock(tag, t)
+            if verdict == "drop":
+                stats.out_of_order += 1
+                return
+            if verdict == "segment":
+                # A pause, a reboot or another phone: a new time base.
+                self._release_all(out)
+                self._new_segment(first=False, keep_offsets=True)
+                offset = None
+        first_of_tag = offset is None
+        if first_of_tag:
+            offset = self._learn_offset(sample)
+            self._offsets[tag] = offset
+            t = sample.t_ms + offset
+            self._last_new_tag_ms = t
+        newest = self._newest
+        if newest is not None and 0 < newest - t <= self.max_window_ms \
+                and newest - t > self._lag_current.get(tag, 0):
+            self._lag_current[tag] = newest - t        # this tag arrives this far behind
+        if self.last_released_ms is not None and t < self.last_released_ms:
+            stats.out_of_order += 1
+            # The tag still moves on: later samples are compared with this one.
+            self._last[tag] = t
+            return
+        self._last[tag] = t
+        if newest is None or t > newest:
+            self._newest = t
+            self._rotate_lags()
+            if first_of_tag:
+                # A tag showing up ahead of the others: they are this far behind it (the
+                # tags already there cannot show it by arriving late until their next sample).
+                for other, last in self._last.items():
+                    if other != tag and 0 < t - last <= self.max_window_ms \
+                            and t - last > self._lag_current.get(other, 0):
+                        self._lag_current[other] = t - last
+        if offset:
+            sample = sample._replace(t_ms=t)
+        self._sequence += 1
+        heapq.heappush(self._heap, (t, TAG_PRIORITY[tag], self._sequence, sample))
+        if not self._warm:
+            if self._holding():
+                return
+            self._warm = True
+        self._release(out)
+
+    def _holding(self) -> bool:
+        # Hold until two tags are there and no new tag has shown up for window_ms (a sensor
+        # starting late keeps its first samples): at least startup_hold_ms, at most
+        # 4 x startup_hold_ms; all four filter tags there: none can start late any more.
+        since_start = self._newest - self._segment_start
+        return (len(self._last) < len(FILTER_TAGS) and len(self._heap) <= self.max_pending
+                and since_start < 4 * self.startup_hold_ms
+                and (since_start < self.startup_hold_ms or len(self._last) < 2
+                     or self._newest - self._last_new_tag_ms < self.window_ms))
+
+    def _rotate_lags(self) -> None:
+        bucket = self._newest // LAG_BUCKET_MS
+        if self._lag_bucket is None or bucket != self._lag_bucket:
+            consecutive = self._lag_bucket is not None and bucket == self._lag_bucket + 1
+            self._lag_previous = self._lag_current if consecutive else {}
+            self._lag_current = {}
+            self._lag_bucket = bucket
+
+    def _release(self, out: list[Sample]) -> None:
+        heap = self._heap
+        threshold = self._newest - self._window()
+        watermark = None
+        for last in self._last.values():
+            if last >= threshold and (watermark is None or last < watermark):
+                watermark = last
+        released = 0
+        while heap and heap[0][0] <= watermark:
+            out.append(heapq.heappop(heap)[3])
+            released += 1
+        while len(heap) > self.max_pending:
+            out.append(heapq.heappop(heap)[3])
+            released += 1
+            self.stats.forced += 1
+        if released:
+            self.last_released_ms = out[-1].t_ms
+            self.stats.released += released
+
+    def _release_all(self, out: list[Sample]) -> None:
+        heap = self._heap
+        if not heap:
+            return
+        self.stats.released += len(heap)
+        while heap:
+            out.append(heapq.heappop(heap)[3])
+        self.last_released_ms = out[-1].t_ms

@@ -1,0 +1,103 @@
+"""The window at 1280x720 and 1920x1080 (offscreen): nothing overlaps, every legend lies outside
+its data, the transport bar is visible, the y-axis titles do not collide, the combination table
+shows all seven rows, and a view with no data says so."""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+from PySide6 import QtCore, QtWidgets
+
+from ui_helpers import make_snapshot
+
+SIZES = [(1280, 720), (1920, 1080)]
+
+
+def _rect_in_window(window, widget) -> QtCore.QRect:
+    return QtCore.QRect(widget.mapTo(window, QtCore.QPoint(0, 0)), widget.size())
+
+
+def _shown(window, size) -> object:
+    window.resize(*size)
+    window.arrange_default_layout()
+    window.show()
+    for _ in range(3):
+        QtWidgets.QApplication.processEvents()
+    return window
+
+
+@pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
+def test_main_panels_do_not_overlap_and_the_transport_bar_is_visible(make_window, fake_engine,
+                                                                     size):
+    window = _shown(make_window(fake_engine), size)
+    assert window.size() == QtCore.QSize(*size)
+    panels = {"OWN": window.own_view, "PHONE": window.phone_view, "plots": window.plots,
+              "transport": window.transport}
+    for dock in (window.filter_dock, window.comparison_dock, window.connection_dock):
+        if dock.isVisible() and not dock.visibleRegion().isEmpty():
+            panels[dock.objectName()] = dock
+    rects = {name: _rect_in_window(window, widget) for name, widget in panels.items()}
+    frame = window.rect()
+    for name, rect in rects.items():
+        assert frame.contains(rect), (name, rect, frame)
+        assert rect.width() > 100 and rect.height() > 20, (name, rect)
+    for (a, ra), (b, rb) in itertools.combinations(rects.items(), 2):
+        assert not ra.intersects(rb), (a, ra, b, rb)
+    assert window.transport.isVisible() and window.transport.height() >= 24
+    assert rects["OWN"].height() >= 150 and rects["plots"].height() >= 250
+    assert "filter_dock" in rects and ("comparison_dock" in rects or "connection_dock" in rects)
+
+
+@pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
+def test_legends_outside_the_data_and_axis_titles_apart(make_window, fake_engine, size):
+    window = _shown(make_window(fake_engine), size)
+    fake_engine.snapshots.append(make_snapshot(1, 0.0, count=200))
+    window.tick()
+    plots = window.plots
+    for key, group in plots.groups.items():
+        plots.set_current_group(key)
+        plots.refresh()
+        QtWidgets.QApplication.processEvents()
+        legend = _rect_in_window(window, group.legend)
+        titles = []
+        for plot_key in group.plots:
+            plot = plots.plots[plot_key]
+            scene = plot.getViewBox().sceneBoundingRect().toRect()
+            data = QtCore.QRect(group.graphics.mapTo(window, group.graphics.mapFromScene(
+                scene.topLeft())), scene.size())
+            assert data.height() >= 60, (size, plot_key, data)
+            assert not legend.intersects(data), (size, plot_key)
+            titles.append(plot.getAxis("left").label.sceneBoundingRect())
+        for a, b in itertools.combinations(titles, 2):
+            assert not a.intersects(b), (size, key)
+
+
+@pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
+def test_the_combination_table_shows_all_seven_rows(make_window, fake_engine, size):
+    window = _shown(make_window(fake_engine), size)
+    window.comparison_dock.raise_()
+    QtWidgets.QApplication.processEvents()
+    table = window.comparison.table
+    assert table.viewport().height() >= 7 * table.verticalHeader().defaultSectionSize()
+
+
+def test_no_data_looks_like_no_data(make_window, fake_engine):
+    window = _shown(make_window(fake_engine), (1280, 720))
+    # before the first sample
+    assert window.lights.states() == {"acc": "no data", "mag": "no data", "standstill": "no data"}
+    assert "waiting for data" in window.own_view.placeholder.text()
+    assert "waiting for data" in window.phone_view.placeholder.text()
+    # samples, but the filter has not started and the log has no ORI
+    snapshot = make_snapshot(1, 0.0, phone_quat=None, initialised=False)
+    snapshot.t_ms, snapshot.t0_ms = 3000, 0
+    fake_engine.snapshots.append(snapshot)
+    window.tick()
+    assert window.own_view.quat is None
+    assert "no ORI in this stream" in window.phone_view.placeholder.text()
+    assert set(window.lights.states().values()) == {"no data"}
+    # the filter runs
+    fake_engine.snapshots.append(make_snapshot(2, 0.5, phone_quat=None))
+    window.tick()
+    assert window.own_view.quat is not None and window.own_view.no_data_text == ""
+    assert "waiting" not in window.own_view.placeholder.text()
