@@ -304,3 +304,17 @@ def test_applied_profile_is_recorded_in_the_session(tmp_path, sim_log):
     # the recording replays with the settings it saved
     assert config.load_settings(str(tmp_path / "session" / "session.json")) == \
         profile.to_settings()
+
+
+def test_refilter_starts_afresh_where_the_logs_clock_restarts(tmp_path):
+    first, second, both = (tmp_path / n for n in ("a.txt", "b.txt", "ab.txt"))
+    write_session(simulate(duration_s=10, seed=1, t0_ms=5_000_000), first)
+    write_session(simulate(duration_s=10, seed=2, t0_ms=1_000_000), second)
+    both.write_text(first.read_text() + second.read_text())
+    log = config.open_log(both)
+    assert log.session_starts                       # a second stream whose clock went back
+    result = refilter(log, None)
+    rows = filter_log(log)
+    mine = result.rows.select(result.rows.has_sample)
+    np.testing.assert_array_equal(mine.quat, rows.quat)
+    assert result.summary == evaluate_log(log)
