@@ -13,7 +13,8 @@ from typing import Any
 from app.stream.events import ReplayControl
 
 __all__ = ["SetSensorEnabled", "SetEstimator", "SetSettings", "ResetFilter", "AlignHeading",
-           "SetComparisonsEnabled", "ReplayControl"]
+           "SetComparisonsEnabled", "ReplayControl", "LoadUserFilter", "UnloadUserFilter",
+           "SetConsistencyEnabled"]
 
 
 @dataclass(frozen=True)
@@ -44,4 +45,26 @@ class AlignHeading:
 
 @dataclass(frozen=True)
 class SetComparisonsEnabled:
+    enabled: bool
+
+
+@dataclass(frozen=True)
+class LoadUserFilter:
+    """Run your filter file (a .py with class Filter) beside ours as YOURS; replaces a loaded
+    one. File -> Load filter... sends it."""
+
+    path: str
+
+
+@dataclass(frozen=True)
+class UnloadUserFilter:
+    """Stop running your filter."""
+
+
+@dataclass(frozen=True)
+class SetConsistencyEnabled:
+    """Publish our EKF's innovations for the consistency view (costs a little per sample, so
+    only while the view is open). Your filter's innovations are published whenever it returns
+    them."""
+
     enabled: bool

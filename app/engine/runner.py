@@ -24,6 +24,9 @@ from numba import njit
 
 import ekf
 from ekf import SENSORS
+from app.engine.innovations import YOURS, InnovationBuffer, InnovationProbe
+from app.engine.user_filter import make_estimator
+from app.engine.user_lane import UserLane
 from app.stream.fastparse import samples_to_arrays
 from app.stream.protocol import Sample
 
@@ -65,7 +68,9 @@ class Rows:
     t_ms (N,) int64; quat (N, 4) the main estimate after every sample at that time; phone_quat
     (N, 4) the latest ORI at or before that time (NaN before the first); angle_deg (N,) OWN vs
     PHONE; acc_rejected, mag_rejected, at_rest (N,) bool: the main estimator's lights;
-    has_sample (N,) bool: a GYR, ACC or MAG sample has this time (False: ORI only).
+    has_sample (N,) bool: a GYR, ACC or MAG sample has this time (False: ORI only);
+    user_quat (N, 4): your filter's quaternion (YOURS; NaN where it has none), None when no
+    user filter runs beside the main estimator.
     """
 
     t_ms: np.ndarray
@@ -76,6 +81,7 @@ class Rows:
     mag_rejected: np.ndarray
     at_rest: np.ndarray
     has_sample: np.ndarray
+    user_quat: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t_ms)
@@ -91,15 +97,21 @@ class Rows:
 
     def select(self, mask: np.ndarray) -> Rows:
         """The rows where `mask` is true."""
-        return Rows(*(getattr(self, name)[mask] for name in self.__dataclass_fields__))
+        return Rows(*(None if getattr(self, name) is None else getattr(self, name)[mask]
+                      for name in self.__dataclass_fields__))
 
     @staticmethod
     def concatenate(parts: list[Rows]) -> Rows:
-        """Rows of several pieces, in order."""
+        """Rows of several pieces, in order (user_quat NaN for pieces without one)."""
         if not parts:
             return Rows.empty()
+        user = None
+        if any(part.user_quat is not None for part in parts):
+            user = np.concatenate([np.full((len(part), 4), np.nan) if part.user_quat is None
+                                   else part.user_quat for part in parts])
         return Rows(*(np.concatenate([getattr(part, name) for part in parts])
-                      for name in Rows.__dataclass_fields__))
+                      for name in Rows.__dataclass_fields__ if name != "user_quat"),
+                    user_quat=user)
 
 
 @dataclass
@@ -249,7 +261,8 @@ class _ChunkLayout:
 class EstimatorRunner:
     """Feed ordered samples; read the latest estimates; take the rows produced so far.
 
-    estimator: a name from ekf.ESTIMATORS; settings: ekf.EKFSettings or None (default preset);
+    estimator: a name from ekf.ESTIMATORS, a user's filter file (FILE.py) or an estimator
+    object (``ekf.Estimator``); settings: ekf.EKFSettings or None (default preset);
     sensors: the sensors enabled in the main estimator; comparisons: also run the 7 EKF sensor
     combinations. collect_plot: keep the raw ACC/GYR/MAG samples with their rejected flags for
     plotting (:meth:`take_plot_samples`).
@@ -260,15 +273,24 @@ class EstimatorRunner:
     result does not depend on the chunking: it is what feeding the samples one by one with
     update_gyr/acc/mag gives, bit for bit, with one row per distinct time committed when a
     later time arrives (or at :meth:`finish`) from the estimators' state at that moment.
+
+    Beside the main estimator: your filter (:meth:`set_user_lane`, YOURS: its quaternion per row
+    in Rows.user_quat, its error against PHONE in the lane) and, on request, our EKF's
+    innovations (:meth:`set_consistency_enabled`); both go to :meth:`take_innovations`.
     """
 
-    def __init__(self, estimator: str = "ekf", settings: ekf.EKFSettings | None = None,
+    def __init__(self, estimator: str | ekf.Estimator = "ekf",
+                 settings: ekf.EKFSettings | None = None,
                  sensors: Iterable[str] = SENSORS, comparisons: bool = False,
                  collect_plot: bool = False) -> None:
-        self.estimator_name = estimator
         self.settings = settings if settings is not None else ekf.PRESETS["default"]
         self._sensors = tuple(s for s in SENSORS if s in tuple(sensors))
-        self.main: ekf.Estimator = ekf.make_estimator(estimator, self.settings, self._sensors)
+        self.main: ekf.Estimator = make_estimator(estimator, self.settings, self._sensors)
+        self.estimator_name = estimator if isinstance(estimator, str) else self.main.name
+        self.user: UserLane | None = None
+        self.innovations = InnovationBuffer()
+        self.probe: InnovationProbe | None = None
+        self.samples_fed = 0                      # filter-tag samples fed so far
         self.collect_plot = collect_plot
         self.comparisons: list[ComparisonState] = []
         if comparisons:
@@ -290,12 +312,14 @@ class EstimatorRunner:
         if sensor not in SENSORS:
             raise ValueError(f"unknown sensor {sensor!r}")
         self.main.set_enabled(**{sensor: bool(enabled)})
+        if self.user is not None:
+            self.user.set_enabled(sensor, enabled)
 
     def set_estimator(self, name: str) -> None:
         """Switch the main estimator (it starts afresh, with the current sensor switches)."""
         enabled = self.main.enabled
-        self.main = ekf.make_estimator(name, self.settings,
-                                       tuple(s for s in SENSORS if enabled[s]) or SENSORS)
+        self.main = make_estimator(name, self.settings,
+                                   tuple(s for s in SENSORS if enabled[s]) or SENSORS)
         self.main.set_enabled(**enabled)
         self.estimator_name = name
 
@@ -304,6 +328,8 @@ class EstimatorRunner:
         self.settings = settings
         for estimator in [self.main] + [c.estimator for c in self.comparisons]:
             estimator.set_settings(settings)
+        if self.user is not None and self.user.estimator is not None:
+            self.user.estimator.set_settings(settings)   # restarts it: its constructor reads them
 
     def reset(self) -> None:
         """Forget the orientation of every estimator; they re-initialise from the next samples."""
@@ -312,6 +338,8 @@ class EstimatorRunner:
             comparison.estimator.reset()
             comparison.squared_sum, comparison.count = 0.0, 0
             comparison.angle_to_phone_deg = math.nan
+        if self.user is not None:
+            self.user.reset()
 
     def align_heading(self) -> bool:
         """Turn OWN's world about up so its heading matches PHONE's. False without ORI yet."""
@@ -319,6 +347,26 @@ class EstimatorRunner:
             return False
         self.main.align_heading(np.array(self.phone_quat))
         return True
+
+    def set_user_lane(self, lane: UserLane | None) -> None:
+        """Run your filter beside the main estimator (None: stop). The lane takes the current
+        sensor switches."""
+        self.user = lane
+        if lane is not None:
+            for sensor, on in self.main.enabled.items():
+                lane.set_enabled(sensor, on)
+
+    def set_consistency_enabled(self, enabled: bool) -> None:
+        """Collect our EKF's innovations (a twin's per-update replay, see
+        app.engine.innovations) for :meth:`take_innovations`."""
+        self.probe = InnovationProbe(self.innovations) if enabled else None
+
+    def take_innovations(self) -> dict[str, np.ndarray]:
+        """Innovation records (OWN and YOURS) since the previous call, as PlotChunk fields."""
+        if self.user is not None:
+            for t, sensor, nu, S, accepted in self.user.take_innovations():
+                self.innovations.add(t, YOURS, sensor, nu, S, accepted)
+        return self.innovations.take()
 
     def set_comparisons_enabled(self, enabled: bool) -> None:
         if not enabled:
@@ -353,11 +401,16 @@ class EstimatorRunner:
         before = self._state_before()
         t_s = layout.row_t.astype(np.float64) / 1000.0
         gyr, acc, mag = layout.columns
+        probed = self.probe.capture(self.main) if self.probe is not None else None
         result = _run_rows(self.main, t_s, gyr, acc, mag)
+        if probed is not None and layout.n_rows:
+            self.probe.replay(probed, t_s, gyr, acc, mag)
         # comparisons are always compiled EKFs
         compared = [c.estimator.run_batch(t_s, gyr, acc, mag).quat if layout.n_rows
                     else np.empty((0, 4)) for c in self.comparisons]
-        self._commit_groups(layout, result, compared, before)
+        users = None if self.user is None else self.user.run_rows(t_s, gyr, acc, mag)
+        self._commit_groups(layout, result, compared, before, users)
+        self.samples_fed += len(t_ms)
         ori = np.flatnonzero(tag == 3)
         if len(ori):
             self.phone_quat = tuple(values[ori[-1]].tolist())
@@ -371,16 +424,18 @@ class EstimatorRunner:
         status = self.main.flags
         flags = (status.acc_rejected, status.mag_rejected, status.at_rest)
         phone = self.phone_quat if self.phone_quat is not None else _NAN4
-        return self.main.quat, flags, [c.estimator.quat for c in self.comparisons], phone
+        user = None if self.user is None else self.user.latest.copy()
+        return self.main.quat, flags, [c.estimator.quat for c in self.comparisons], phone, user
 
     def _commit_groups(self, layout: _ChunkLayout, result: _RowsResult,
-                       compared: list[np.ndarray], before: tuple) -> None:
+                       compared: list[np.ndarray], before: tuple,
+                       users: np.ndarray | None = None) -> None:
         """Rows of the distinct times completed in this chunk (the last one stays open until a
         later time arrives)."""
         done = len(layout.group_last) - 1
         if done <= 0:
             return
-        quat_before, flags_before, compare_before, phone_before = before
+        quat_before, flags_before, compare_before, phone_before, user_before = before
         has_row = layout.group_row[:done] >= 0
         index = np.where(has_row, layout.group_row[:done], 0)
         empty = not layout.n_rows
@@ -399,8 +454,16 @@ class EstimatorRunner:
                 comparison.squared_sum, comparison.count, comparison.angle_to_phone_deg = \
                     _accumulate_errors(rows, phone, comparison.squared_sum, comparison.count,
                                        comparison.angle_to_phone_deg)
+        user = None
+        if users is not None:
+            lane = self.user
+            before_user = user_before if user_before is not None else _NAN4
+            user = np.where(has_row[:, None], users[index] if not empty else np.nan,
+                            np.asarray(before_user))
+            lane.squared_sum, lane.count, lane.angle_to_phone_deg = _accumulate_errors(
+                user, phone, lane.squared_sum, lane.count, lane.angle_to_phone_deg)
         self._add_rows(layout.t_ms[layout.group_last[:done]], quat, phone, flags,
-                       layout.own_sample[:done])
+                       layout.own_sample[:done], user)
 
     def _collect_plot(self, layout: _ChunkLayout, result: _RowsResult) -> None:
         rejected = {1: result.acc_rejected, 2: result.mag_rejected}
@@ -439,42 +502,54 @@ class EstimatorRunner:
         self._rows: list[tuple[np.ndarray, ...]] = []
 
     def _add_rows(self, t_ms: np.ndarray, quat: np.ndarray, phone: np.ndarray,
-                  flags: np.ndarray, has_sample: np.ndarray) -> None:
-        self._rows.append((t_ms, quat, phone, flags, has_sample))
+                  flags: np.ndarray, has_sample: np.ndarray,
+                  user: np.ndarray | None = None) -> None:
+        self._rows.append((t_ms, quat, phone, flags, has_sample, user))
 
     def _merged_rows(self) -> tuple[np.ndarray, ...]:
         if len(self._rows) == 1:
             return self._rows[0]
-        return tuple(np.concatenate(parts) for parts in zip(*self._rows))
+        merged = [np.concatenate(parts) for parts in zip(*(r[:5] for r in self._rows))]
+        users = [r[5] for r in self._rows]
+        if all(u is None for u in users):
+            return (*merged, None)
+        return (*merged, np.concatenate([np.full((len(r[0]), 4), np.nan) if r[5] is None
+                                         else r[5] for r in self._rows]))
 
     def _commit_row(self) -> None:
         """The row of the pending time, from the estimators' state now."""
         q = self.main.quat
         phone = self.phone_quat
         status = self.main.flags
+        user = None if self.user is None else self.user.latest.copy()
         if phone is not None:
-            for comparison in self.comparisons:
-                error = angle_deg(comparison.estimator.quat, phone)
-                comparison.angle_to_phone_deg = error
+            lanes = [(c, c.estimator.quat) for c in self.comparisons]
+            if user is not None:
+                lanes.append((self.user, user))
+            for lane, lane_quat in lanes:
+                error = angle_deg(lane_quat, phone)
+                lane.angle_to_phone_deg = error
                 if error == error:
-                    comparison.squared_sum += error * error
-                    comparison.count += 1
+                    lane.squared_sum += error * error
+                    lane.count += 1
         self._add_rows(np.array([self._row_t], np.int64), q.reshape(1, 4),
                        np.array([phone if phone is not None else _NAN4], np.float64),
                        np.array([[status.acc_rejected, status.mag_rejected, status.at_rest]],
-                                bool), np.array([self._row_has_sample]))
+                                bool), np.array([self._row_has_sample]),
+                       None if user is None else user.reshape(1, 4))
 
     def take_rows(self) -> Rows:
         """The rows committed since the previous call (the row of the latest time is committed
         when a later time arrives or at finish())."""
         if not self._rows:
             return Rows.empty()
-        t_ms, quat, phone, flags, has_sample = self._merged_rows()
+        t_ms, quat, phone, flags, has_sample, user = self._merged_rows()
         quat = np.ascontiguousarray(quat, dtype=np.float64)
         phone = np.ascontiguousarray(phone, dtype=np.float64)
         rows = Rows(np.asarray(t_ms, dtype=np.int64), quat, phone, angles_deg(quat, phone),
                     flags[:, 0].copy(), flags[:, 1].copy(), flags[:, 2].copy(),
-                    np.asarray(has_sample, dtype=bool))
+                    np.asarray(has_sample, dtype=bool),
+                    None if user is None else np.ascontiguousarray(user, dtype=np.float64))
         self._reset_rows()
         return rows
 
