@@ -45,6 +45,7 @@ class UserLane:
         self._last_call: float | None = None
         self._recent: deque[tuple[float, int, int]] = deque()   # (wall time, given, run)
         self._buffer: list[tuple[np.ndarray, ...]] | None = None
+        self._token = 0                  # of the current catch-up
         self.buffered_rows = 0
         self.enabled = {s: True for s in SENSORS}
         self.latest = _NAN4.copy()        # the quaternion of the latest row
@@ -106,18 +107,26 @@ class UserLane:
 
     # -- catching up (the background thread's side) --------------------------------------------
 
-    def begin_catch_up(self) -> None:
-        """From now on rows are only buffered, until :meth:`take_buffered` hands over."""
+    def begin_catch_up(self) -> int:
+        """From now on rows are only buffered, until :meth:`take_buffered` hands over; the
+        current estimator leaves the lane (the catch-up owns its replacement). Returns the
+        catch-up's token."""
         with self.lock:
             self._buffer = []
+            self._token += 1
             self.buffered_rows = 0
+            self.estimator = None
             self.latest = _NAN4.copy()
+            self.reset_errors()
+            return self._token
 
-    def take_buffered(self, estimator: UserFilterEstimator) -> list[tuple[np.ndarray, ...]] | None:
+    def take_buffered(self, estimator: UserFilterEstimator,
+                      token: int) -> list[tuple[np.ndarray, ...]] | None:
         """The rows buffered since the previous call; None when there were none: then
-        `estimator` has taken over (atomically, so the next row goes to it)."""
+        `estimator` has taken over (atomically, so the next row goes to it). None too when the
+        catch-up `token` was superseded."""
         with self.lock:
-            if self._buffer is None:
+            if self._buffer is None or token != self._token:
                 return None
             if self._buffer:
                 rows, self._buffer = self._buffer, []

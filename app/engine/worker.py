@@ -36,15 +36,19 @@ from typing import Any
 import numpy as np
 
 import ekf
-from app.engine.commands import (AlignHeading, ReplayControl, ResetFilter, SetComparisonsEnabled,
-                                 SetEstimator, SetSensorEnabled, SetSettings)
+from app.engine.commands import (AlignHeading, LoadUserFilter, ReplayControl, ResetFilter,
+                                 SetComparisonsEnabled, SetConsistencyEnabled, SetEstimator,
+                                 SetSensorEnabled, SetSettings, UnloadUserFilter)
 from app.engine.estimates import EstimatesWriter
-from app.engine.runner import SENSORS, EstimatorRunner, Rows
+from app.engine.runner import SENSORS, EstimatorRunner, Rows, angles_deg
 from app.engine.snapshot import (Comparison, EngineFailure, FilterStatus, PlotChunk, Snapshot,
                                  StreamHealth)
+from app.engine.user_code import is_filter_file
+from app.engine.user_host import UserFilterHost
 from app.stream import fastparse, ordering
 from app.stream.events import Chunk, SourceEvent
 from app.stream.fastparse import ParsedArrays
+from app.stream.forwarder import LineForwarder
 from app.stream.ordering import OrderedArrays, TimeOrderer
 from app.stream.protocol import FILTER_TAGS
 from app.stream.recorder import Recorder
@@ -106,7 +110,9 @@ class Engine:
     combinations too; recorder: an :class:`app.stream.recorder.Recorder` that gets every received
     known-tag line; estimates: an :class:`~app.engine.estimates.EstimatesWriter` that gets every
     estimate row (a recording's estimates.csv); record_rows: keep every estimate row in
-    :attr:`rows_log` (tests/benchmarks: unbounded memory).
+    :attr:`rows_log` (tests/benchmarks: unbounded memory); user_filter: a user's filter file
+    run beside the main estimator (YOURS, :mod:`app.engine.user_host`); forwarder: a
+    :class:`~app.stream.forwarder.LineForwarder` that gets a copy of every line from the phone.
     """
 
     def __init__(self, source: Source, settings: ekf.EKFSettings | None = None,
@@ -114,8 +120,10 @@ class Engine:
                  sensors: Iterable[str] = SENSORS, recorder: Recorder | None = None,
                  estimates: EstimatesWriter | None = None, record_rows: bool = False,
                  max_plot_rows: int = 60_000,
-                 orderer_options: dict[str, Any] | None = None) -> None:
-        if estimator not in ekf.ESTIMATORS:
+                 orderer_options: dict[str, Any] | None = None,
+                 user_filter: str | Path | None = None,
+                 forwarder: LineForwarder | None = None) -> None:
+        if estimator not in ekf.ESTIMATORS and not is_filter_file(estimator):
             raise ValueError(f"unknown estimator {estimator!r}; choose from "
                              f"{', '.join(ekf.ESTIMATORS)}")
         self.source = source
@@ -162,6 +170,11 @@ class Engine:
         self.samples_processed = 0
         self._parser_retired = [0, 0, 0, 0, 0]   # counts of parsers replaced by a seek
         self._order_retired = 0
+        self.forwarder = forwarder
+        self._previous_user_euler: np.ndarray | None = None
+        self._user = UserFilterHost(self._runner, source, record=self._record_event)
+        if user_filter is not None:
+            self._user.load(user_filter)
 
     # -- lifecycle --------------------------------------------------------------------------------
 
@@ -173,6 +186,8 @@ class Engine:
         fastparse.warm_up()
         ordering.warm_up()
         self.source.start()
+        if self.forwarder is not None:
+            self.forwarder.start()
         self._thread = threading.Thread(target=self._run, name="engine", daemon=True)
         self._thread.start()
 
@@ -186,6 +201,9 @@ class Engine:
             self._thread.join(timeout=10.0)
             self._thread = None
         self.source.stop()
+        self._user.stop()
+        if self.forwarder is not None:
+            self.forwarder.stop()
         if self.estimates is not None:
             try:
                 self._end_of_stream(partial_line_damaged=False)
@@ -235,7 +253,8 @@ class Engine:
         return Snapshot(seq=self._seq, t_ms=latest.t_ms, own_quat=latest.own_quat,
                         own_cov=latest.own_cov, phone_quat=latest.phone_quat,
                         status=latest.status, comparisons=latest.comparisons, plot=plot,
-                        health=latest.health, replay=latest.replay, failures=latest.failures)
+                        health=latest.health, replay=latest.replay, failures=latest.failures,
+                        user=latest.user)
 
     # -- engine thread ----------------------------------------------------------------------------
 
@@ -258,6 +277,7 @@ class Engine:
         """Read what the source has, process it (at most MAX_BYTES_PER_PASS of chunks, the rest
         waits in the backlog) and publish."""
         self._apply_commands()
+        self._user.tick()
         if self._backlog:
             items, self._backlog = self._backlog, []
         else:
@@ -357,6 +377,9 @@ class Engine:
         parser = self._parser
         damaged_before = parser.stats.damaged + parser.stats.too_long
         data = chunks[0].data if len(chunks) == 1 else b"".join(c.data for c in chunks)
+        if self.forwarder is not None and self.source.kind == "tcp":
+            for chunk in chunks:
+                self.forwarder.feed(chunk.data, chunk.connection)
         self._parsed(parser.feed_arrays(data))
         sequence = self._orderer.sequence
         for chunk in chunks:
@@ -373,6 +396,7 @@ class Engine:
             self._connection_state = "replaying" if self.source.kind != "tcp" else "connected"
             self._peer = event.peer
             self._record_event("connected", peer=event.peer)
+            self._user.on_restart(kind)
         elif kind == "disconnected":
             self._end_of_stream(partial_line_damaged=True)
             self._connection_state = "disconnected"
@@ -381,6 +405,7 @@ class Engine:
         elif kind == "loop":
             self._end_of_stream(partial_line_damaged=False)
             self._feed(self._orderer.restart_arrays())
+            self._user.on_restart(kind)
         elif kind == "seek":
             # Re-run the filter from the start of the log up to the target (the source sends
             # those lines unpaced): the estimate there is exactly what playing would give.
@@ -396,6 +421,8 @@ class Engine:
             self._pending_host_times = deque(((t_host, -1) for t_host, _ in
                                               self._pending_host_times), maxlen=100_000)
             self._previous_own_euler = self._previous_phone_euler = None
+            self._previous_user_euler = None
+            self._user.on_restart(kind)
         elif kind == "finished":
             self._end_of_stream(partial_line_damaged=False)
             self._connection_state = "finished"
@@ -459,6 +486,13 @@ class Engine:
             runner.set_comparisons_enabled(command.enabled)
         elif isinstance(command, ReplayControl):
             self.source.control(command)
+        elif isinstance(command, LoadUserFilter):
+            self._user.load(command.path)
+        elif isinstance(command, UnloadUserFilter):
+            self._user.unload()
+            self._previous_user_euler = None
+        elif isinstance(command, SetConsistencyEnabled):
+            runner.set_consistency_enabled(command.enabled)
         else:
             self._warn("command", f"unknown command {command!r}", force=True)
 
@@ -544,15 +578,18 @@ class Engine:
         cov = main.cov
         info = self.source.info()
         phone = runner.phone_quat
+        comparisons = [Comparison(c.name, c.estimator.quat, c.angle_to_phone_deg, c.rmse_deg)
+                       for c in runner.comparisons]
+        yours = self._user.comparison_row()
+        if yours is not None:
+            comparisons.append(Comparison(*yours))
         snapshot = Snapshot(
             t_ms=runner.latest_t_ms, own_quat=main.quat,
             own_cov=None if cov is None else np.array(cov)[:4, :4],
             phone_quat=None if phone is None else np.array(phone),
-            status=self._filter_status(),
-            comparisons=[Comparison(c.name, c.estimator.quat, c.angle_to_phone_deg, c.rmse_deg)
-                         for c in runner.comparisons],
+            status=self._filter_status(), comparisons=comparisons,
             health=self._health(now, info), replay=info.get("replay"),
-            failures=list(self.failures))
+            failures=list(self.failures), user=self._user.status())
         published = time.perf_counter()
         with self._lock:
             self._plot.add(piece)
@@ -583,12 +620,26 @@ class Engine:
                 self._previous_phone_euler = phone_euler[finite][-1]
         else:
             own_euler = phone_euler = np.empty((0, 3))
-        return PlotChunk(
+        return PlotChunk(**self._user_plot(rows), **self._runner.take_innovations(),
             t_acc=plot["t_acc"] / 1000.0, acc=plot["acc"], acc_rejected=plot["acc_rejected"],
             t_gyr=plot["t_gyr"] / 1000.0, gyr=plot["gyr"],
             t_mag=plot["t_mag"] / 1000.0, mag=plot["mag"], mag_rejected=plot["mag_rejected"],
             t_est=rows.t_s, own_euler_deg=own_euler, phone_euler_deg=phone_euler,
             angle_deg=rows.angle_deg)
+
+    def _user_plot(self, rows: Rows) -> dict[str, np.ndarray]:
+        """YOURS' rows for the plots: its Euler angles (unwrapped) and angle to PHONE."""
+        if rows.user_quat is None or not len(rows):
+            return {}
+        euler = np.full((len(rows), 3), np.nan)
+        finite = np.isfinite(rows.user_quat).all(axis=1)
+        if finite.any():
+            euler[finite] = np.degrees(ekf.quaternion.to_euler(rows.user_quat[finite]))
+        euler = _unwrap_continuing(euler, self._previous_user_euler)
+        if finite.any():
+            self._previous_user_euler = euler[finite][-1]
+        return {"t_user": rows.t_s, "user_euler_deg": euler,
+                "user_angle_deg": angles_deg(rows.user_quat, rows.phone_quat)}
 
     def _filter_status(self) -> FilterStatus:
         main = self._runner.main
@@ -609,4 +660,5 @@ class Engine:
             lines_total=lines_total, damaged=parse.damaged + retired[1],
             unknown=parse.unknown + retired[2], too_long=parse.too_long + retired[3],
             out_of_order=self._orderer.stats.out_of_order + self._order_retired,
-            clock_quirks=list(self._orderer.stats.clock_quirks), warnings=list(self._warnings))
+            clock_quirks=list(self._orderer.stats.clock_quirks), warnings=list(self._warnings),
+            forward=None if self.forwarder is None else self.forwarder.status())
