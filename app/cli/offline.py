@@ -87,8 +87,8 @@ def cmd_filter(args: argparse.Namespace) -> int:
     if len(names) != 1:
         raise config.ConfigError("filter: give exactly one --estimator")
     settings = config.load_settings(args.settings)
+    estimator = config.make_estimator(names[0], settings, sensors)   # before a long read
     log = read_log(args.log)
-    estimator = config.make_estimator(names[0], settings, sensors)
     with contextlib.redirect_stdout(sys.stderr):   # what the user's code prints: not the CSV
         rows = filter_log(log, estimator, settings, sensors)
     if not report_user_filter(estimator, args.traceback):
@@ -124,6 +124,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     names = config.estimator_names(args.estimator)
     settings = config.load_settings(args.settings)
     intervals, where = _intervals(args)
+    estimators = [config.make_estimator(name, settings, sensors) for name in names]
     log = read_log(args.log)
     skip = f", after the first {args.skip:g} s" if args.skip else ""
     print(f"{args.log}: error against ORI, {where}{skip}")
@@ -131,8 +132,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     print(f"{'estimator':<{width}}{'samples':>9}{'total °':>10}{'heading °':>11}"
           f"{'inclin. °':>11}")
     status = 0
-    for name in names:
-        estimator = config.make_estimator(name, settings, sensors)
+    for name, estimator in zip(names, estimators):
         try:
             with contextlib.redirect_stdout(sys.stderr):
                 s = evaluate_log(log, estimator, settings, sensors, intervals, args.skip)
