@@ -232,3 +232,25 @@ def test_after_a_seek_your_filter_catches_up_in_the_background(tmp_path):
         final = _wait(engine, lambda s: s.replay and s.replay["position_s"] > 8.2 and _running(s)
                       and s.user.steps > 850, timeout=10)
     assert final.user.used_fraction == 1.0           # re-synced rows were all run, none skipped
+
+
+def test_the_re_run_reads_a_log_as_the_engine_feeds_it(realphone_dir):
+    """Same samples in the same order as the live engine's runner gets them (damaged and
+    out-of-order lines included), so a re-run up to sample N is the live run up to N."""
+    from app.engine.user_host import ordered_log
+    path = realphone_dir / "sensorLog_20221024T182616_standstill.txt"   # 2 damaged, 420 late
+    t_ms, tag, values = ordered_log(path)
+    fed = []
+    engine = Engine(LogFileSource(path, speed=0), comparisons=False)
+    original = engine._runner.feed_arrays
+
+    def spy(t, g, v):
+        fed.append((t.copy(), g.copy(), v.copy()))
+        return original(t, g, v)
+
+    engine._runner.feed_arrays = spy
+    with engine:
+        _wait(engine, _finished)
+    live = [np.concatenate([f[i] for f in fed]) for i in range(3)]
+    assert np.array_equal(live[0], t_ms) and np.array_equal(live[1], tag)
+    assert np.array_equal(live[2], values, equal_nan=True)

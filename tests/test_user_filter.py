@@ -242,3 +242,18 @@ def test_make_estimator_takes_names_files_and_objects(tmp_path):
     estimator = UserFilterEstimator(path)
     assert make_estimator(estimator) is estimator
     assert textwrap.dedent(FILTERS["flat"]) in path.read_text()
+
+
+def test_an_object_that_misbehaves_when_read_is_a_problem_not_a_crash(tmp_path):
+    path = write_filter(tmp_path, "weird", """
+        class Weird:
+            def __array__(self, *args, **kwargs):
+                raise RuntimeError("no array for you")
+        class Filter:
+            def step(self, t, gyr, acc, mag):
+                return {"q": Weird()}
+    """)
+    estimator = UserFilterEstimator(path)
+    estimator.step(0.0)
+    assert estimator.paused and "no array for you" in estimator.problem.message
+    assert estimator.problem.message.startswith("weird.py:4 in __array__: RuntimeError")

@@ -246,6 +246,9 @@ class UserFilterEstimator:
         except BadOutput as error:
             self.problem = output_problem(error, self.code, t)
             return
+        except Exception as error:   # noqa: BLE001 (an object of the user's that misbehaves)
+            self.problem = problem_from_exception(error, self.code.path, t, kind="output")
+            return
         self._accept(out, t, args)
 
     def _timed(self, start: float) -> None:

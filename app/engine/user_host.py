@@ -33,8 +33,9 @@ from app.engine.snapshot import UserFilterStatus, UserHistory, UserProblem
 from app.engine.user_code import FilterCode, UserFilterError, load_code, unload_code
 from app.engine.user_filter import UserFilterEstimator
 from app.engine.user_lane import UserLane, run_chosen
-from app.stream.fastparse import samples_to_arrays
-from app.stream.logfile import read_log
+from app.stream.fastparse import FastLineParser
+from app.stream.lines import read_lines
+from app.stream.ordering import TimeOrderer
 from app.stream.sources import DemoOrPhoneSource, Source
 
 WATCH_INTERVAL_S = 0.3
@@ -49,6 +50,24 @@ def _stat(path: Path) -> tuple[int, int] | None:
     except OSError:
         return None
     return st.st_mtime_ns, st.st_size
+
+
+def ordered_log(path: Path, piece_bytes: int = 1 << 20) -> tuple[np.ndarray, ...]:
+    """A log's filter-tag samples (t_ms, tag, values) in the order the live engine feeds them
+    to the runner: the same compiled parser and time orderer, fed as a replay feeds them."""
+    data = b"".join(read_lines(path))
+    parser, orderer = FastLineParser(), TimeOrderer()
+    pieces = []
+    for start in range(0, len(data), piece_bytes):
+        parsed = parser.feed_arrays(data[start:start + piece_bytes])
+        if len(parsed.t_ms):
+            pieces.append(orderer.push_arrays(parsed.t_ms, parsed.tag, parsed.values))
+    parsed = parser.finish_arrays()
+    if len(parsed.t_ms):
+        pieces.append(orderer.push_arrays(parsed.t_ms, parsed.tag, parsed.values))
+    pieces.append(orderer.flush_arrays())
+    return (np.concatenate([p.t_ms for p in pieces]), np.concatenate([p.tag for p in pieces]),
+            np.concatenate([p.values for p in pieces]))
 
 
 def replay_path(source: Source) -> Path | None:
@@ -276,8 +295,7 @@ class UserFilterHost:
         cached = self._log_cache.get(path)
         if cached is not None and cached[0] == stat:
             return cached[1]
-        arrays = samples_to_arrays(read_log(path).samples)
-        result = (arrays.t_ms, arrays.tag, arrays.values)
+        result = ordered_log(path)
         self._log_cache = {path: (stat, result)}
         return result
 
