@@ -27,9 +27,10 @@ SEND_TIMEOUT_S = 5.0
 @dataclass
 class ForwardStatus:
     """What the forwarder did. state: "connecting" | "connected" | "reconnecting" | "stopped".
-    lines_dropped counts lines never sent: dropped_no_receiver while nothing was connected,
-    dropped_full when the receiver was too slow for the queue (or its connection broke with
-    them in flight)."""
+    lines_queued: waiting or being sent; lines_dropped counts lines never sent:
+    dropped_no_receiver while nothing was connected, dropped_full when the receiver was too
+    slow for the queue (or its connection broke with them queued or in flight). Every line fed
+    is in exactly one of lines_forwarded, lines_queued, lines_dropped."""
 
     target: str
     state: str = "connecting"
@@ -171,9 +172,9 @@ class LineForwarder:
             self._connected = False
             self._status.state = "stopped" if self._stop.is_set() else "reconnecting"
             self._status.last_error = reason
-            # what was queued for this connection is not sent to the next one (stale by then)
-            lost += sum(lines for _, lines in self._queue)
-            self._status.dropped_full += lost
+            # what was queued for this connection is not sent to the next one (stale by then);
+            # `lost` were in flight (still counted as queued)
+            self._status.dropped_full += lost + sum(lines for _, lines in self._queue)
             self._status.lines_queued = 0
             self._queue.clear()
             self._queued_bytes = 0
@@ -191,8 +192,7 @@ class LineForwarder:
                 pieces.append(block)
                 lines += count
             data = b"".join(pieces)
-            self._queued_bytes -= len(data)
-            self._status.lines_queued -= lines
+            self._queued_bytes -= len(data)      # lines_queued keeps them until sent or lost
             return data, lines
 
     @staticmethod
@@ -224,6 +224,7 @@ class LineForwarder:
                 return
             with self._lock:
                 self._status.lines_forwarded += lines
+                self._status.lines_queued -= lines
                 self._status.bytes_forwarded += len(data)
         self._disconnect(sock, "stopped")
 
