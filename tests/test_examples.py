@@ -20,9 +20,11 @@ EXAMPLES = sorted((REPO / "examples").glob("*.py"))
 QUICK_ARGS = {"headless_engine.py": ["--seconds", "1.5"],
               "stream_to_server.py": ["--seconds", "3"],
               "compare_estimators.py": ["--seconds", "20"],
-              "embed_phone_view.py": ["--exit-after", "0.5"]}
+              "embed_phone_view.py": ["--exit-after", "0.5"],
+              "course_ekf.py": ["--seconds", "10"]}
 BENCHMARKS = [("speed.py", []), ("accuracy.py", ["--only", "ours-default,ours-course"]),
-              ("live.py", ["--skip-no-loss"]), ("chaos.py", []), ("tuning.py", [])]
+              ("live.py", ["--skip-no-loss"]), ("chaos.py", []), ("tuning.py", []),
+              ("plugin.py", [])]
 
 
 def _run(script: Path, args: list[str], env: dict[str, str] | None = None,

@@ -36,7 +36,8 @@ def open_window(args: argparse.Namespace) -> int:
     from app.ui.main import WindowOptions, run_gui   # Qt only for the window
     return run_gui(WindowOptions(source=source_options(args), settings=args.settings,
                                  screenshot=args.screenshot, exit_after=args.exit_after,
-                                 size=args.window_size))
+                                 size=args.window_size, filter=args.filter,
+                                 forward=args.forward))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -20,6 +20,7 @@ from app.engine.estimates import EstimatesWriter
 from app.engine.snapshot import Snapshot, lag_text
 from app.engine.worker import Engine
 from app.stream.emulator import PhoneEmulator
+from app.stream.forwarder import LineForwarder
 from app.stream.lines import LogError, read_lines
 from app.stream.protocol import reasons_text
 from app.stream.recorder import Recorder
@@ -72,7 +73,23 @@ def health_line(snapshot: Snapshot) -> str:
     if snapshot.own_quat is not None and snapshot.t_ms is not None:
         q = snapshot.own_quat
         parts.append(f"t={snapshot.t_ms} q=({q[0]:.3f} {q[1]:.3f} {q[2]:.3f} {q[3]:.3f})")
+    if health.forward is not None:
+        parts.append(health.forward.summary())
+    if snapshot.user is not None:
+        parts.append(user_line(snapshot.user))
     return " | ".join(parts)
+
+
+def user_line(user) -> str:
+    """The user's filter in a few words: "yours my_filter.py running, 12 us/sample"."""
+    text = f"yours {user.name} {user.state}"
+    if user.time_per_sample_s == user.time_per_sample_s:
+        text += f", {user.time_per_sample_s * 1e6:.0f} us/sample"
+    if user.slow:
+        text += f", too slow: {user.used_fraction:.0%} of the samples used"
+    if user.missing_steps:
+        text += f", not written yet: {', '.join(s.split(' ')[0] for s in user.missing_steps)}"
+    return text
 
 
 def _recording(args: argparse.Namespace, settings: ekf.EKFSettings | None,
@@ -110,8 +127,10 @@ def _start_engine(args: argparse.Namespace) -> Engine:
     settings = config.load_settings(args.settings)
     source = config.make_source(options.source_options(args))
     recorder, writer = _recording(args, settings, names[0])
+    forwarder = LineForwarder(*args.forward) if args.forward else None
     engine = Engine(source, settings, names[0], comparisons=not args.no_comparisons,
-                    recorder=recorder, estimates=writer, limits=args.limits)
+                    recorder=recorder, estimates=writer, limits=args.limits,
+                    user_filter=args.filter, forwarder=forwarder)
     try:
         engine.start()
     except OSError as error:
@@ -131,6 +150,18 @@ class _Watch:
         self.connected_once = False
         self.failures_shown = 0
         self.recording_shown = False
+        self.user_said = ""
+
+    def _user_news(self, snapshot: Snapshot) -> None:
+        """The user's filter's problems and reloads, each once, on stderr."""
+        user = snapshot.user
+        if user is None:
+            return
+        news = user.problem.message if user.problem is not None else user.message
+        if news and news != self.user_said:
+            self.user_said = news
+            paused = " (paused until you save the file)" if user.problem is not None else ""
+            print(f"orientation-lab: your filter: {news}{paused}", file=sys.stderr, flush=True)
 
     def done(self, engine: Engine, snapshot: Snapshot) -> bool:
         now = time.monotonic()
@@ -151,6 +182,7 @@ class _Watch:
             self.recording_shown = True
             print(f"orientation-lab: {recording} (the stream and the estimates go on)",
                   file=sys.stderr, flush=True)
+        self._user_news(snapshot)
         if self.args.exit_after is not None and now - self.started >= self.args.exit_after:
             return True
         idle = self.args.exit_when_idle
@@ -218,6 +250,8 @@ def add_commands(sub) -> None:
     options.add_estimator(serve)
     options.add_settings(serve)
     options.add_limits(serve)
+    options.add_filter(serve)
+    options.add_forward(serve)
     serve.add_argument("--no-comparisons", action="store_true",
                        help="do not run the 7 sensor-combination comparison filters")
     serve.add_argument("--exit-after", type=options.NON_NEGATIVE, metavar="S",

@@ -1,13 +1,17 @@
-"""The offline commands: filter, evaluate, simulate (calibrate, calibrate-mag and tune are in
-app.cli.calibration). Headless: they never import Qt.
+"""The offline commands: filter, evaluate, simulate, new-filter (calibrate, calibrate-mag and
+tune are in app.cli.calibration). Headless: they never import Qt.
 
 filter and evaluate run the engine's runner (app.engine.offline), the same path as the live
-engine, so a file gives the estimates its live replay gives.
+engine, so a file gives the estimates its live replay gives. Either takes the user's own filter
+(``--estimator FILE.py``): what it prints goes to stderr (stdout may be the CSV); steps not
+written yet are listed; if it fails, its file:line and message are printed (``--traceback``: the
+whole traceback of its code) and the status is 1.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from pathlib import Path
 
@@ -15,6 +19,8 @@ from ekf.simulate import simulate
 from app.cli import options
 from app.engine import config, estimates
 from app.engine.offline import evaluate_log, filter_log
+from app.engine.user_filter import UserFilterEstimator
+from app.engine.user_template import write_template
 from app.stream.demo import write_session
 from app.stream.logfile import LogData
 
@@ -29,6 +35,45 @@ def read_log(path: str, limits=None) -> LogData:
     return log
 
 
+# ---- your own filter ------------------------------------------------------------------------
+
+def report_user_filter(estimator: object, show_traceback: bool = False) -> bool:
+    """What a user's filter left to say, on stderr; False when it failed (paused)."""
+    if not isinstance(estimator, UserFilterEstimator):
+        return True
+    name = estimator.name
+    missing = estimator.missing_steps()
+    if missing:
+        print(f"{name}: not written yet (skipped): {', '.join(missing)}", file=sys.stderr)
+    for note in estimator.notes:
+        print(f"{name}: {note}", file=sys.stderr)
+    problem = estimator.problem
+    if problem is None:
+        return True
+    print(f"orientation-lab: your filter stopped: {problem.message}", file=sys.stderr)
+    if show_traceback:
+        print(problem.details.rstrip(), file=sys.stderr)
+    elif problem.details and problem.kind == "exception":
+        print("(--traceback prints the whole traceback of your code)", file=sys.stderr)
+    return False
+
+
+def cmd_new_filter(args: argparse.Namespace) -> int:
+    try:
+        path = write_template(args.file)
+    except FileExistsError:
+        raise config.ConfigError(f"{args.file} exists already; not overwritten (choose another "
+                                 "name)") from None
+    except ValueError as error:
+        raise config.ConfigError(str(error)) from None
+    except OSError as error:
+        raise config.ConfigError(f"cannot write {args.file}: {error.strerror or error}") \
+            from None
+    print(f"wrote {path}: run it with `orientation-lab --filter {path}` (the window) or "
+          f"`orientation-lab evaluate LOG --estimator {path}`")
+    return 0
+
+
 # ---- filter -------------------------------------------------------------------------------------
 
 def cmd_filter(args: argparse.Namespace) -> int:
@@ -37,7 +82,13 @@ def cmd_filter(args: argparse.Namespace) -> int:
     if len(names) != 1:
         raise config.ConfigError("filter: give exactly one --estimator")
     settings = config.load_settings(args.settings)
-    rows = filter_log(read_log(args.log, args.limits), names[0], settings, sensors)
+    estimator = config.make_estimator(names[0], settings, sensors)   # before a long read
+    log = read_log(args.log, args.limits)
+    with contextlib.redirect_stdout(sys.stderr):   # what the user's code prints: not the CSV
+        rows = filter_log(log, estimator, settings, sensors)
+    if not report_user_filter(estimator, args.traceback):
+        print("orientation-lab: no estimates written", file=sys.stderr)
+        return 1
     try:
         if args.output:
             with open(args.output, "w", encoding="ascii", newline="\n") as stream:
@@ -68,18 +119,28 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     names = config.estimator_names(args.estimator)
     settings = config.load_settings(args.settings)
     intervals, where = intervals_of(args)
+    estimators = [config.make_estimator(name, settings, sensors) for name in names]
     log = read_log(args.log, args.limits)
     skip = f", after the first {args.skip:g} s" if args.skip else ""
     print(f"{args.log}: error against ORI, {where}{skip}")
-    print(f"{'estimator':<16}{'samples':>9}{'total °':>10}{'heading °':>11}{'inclin. °':>11}")
-    for name in names:
+    width = max([16] + [len(Path(name).name) + 2 for name in names])
+    print(f"{'estimator':<{width}}{'samples':>9}{'total °':>10}{'heading °':>11}"
+          f"{'inclin. °':>11}")
+    status = 0
+    for name, estimator in zip(names, estimators):
         try:
-            s = evaluate_log(log, name, settings, sensors, intervals, args.skip)
+            with contextlib.redirect_stdout(sys.stderr):
+                s = evaluate_log(log, estimator, settings, sensors, intervals, args.skip)
         except ValueError as error:
             raise config.ConfigError(f"evaluate: {error}") from None
-        print(f"{name:<16}{s.samples:>9}{s.total_rmse_deg:>10.2f}{s.heading_rmse_deg:>11.2f}"
-              f"{s.inclination_rmse_deg:>11.2f}")
-    return 0
+        label = Path(name).name
+        if not report_user_filter(estimator, args.traceback):
+            print(f"{label:<{width}}{'stopped: see above':>20}", flush=True)
+            status = 1
+            continue
+        print(f"{label:<{width}}{s.samples:>9}{s.total_rmse_deg:>10.2f}"
+              f"{s.heading_rmse_deg:>11.2f}{s.inclination_rmse_deg:>11.2f}", flush=True)
+    return status
 
 
 # ---- simulate -----------------------------------------------------------------------------------
@@ -106,9 +167,18 @@ def _log_filter_options(parser: argparse.ArgumentParser, several: bool) -> None:
     options.add_sensors(parser)
     options.add_settings(parser)
     options.add_limits(parser)
+    options.add_traceback(parser)
 
 
 def add_commands(sub) -> None:
+    n = sub.add_parser("new-filter", help="write a template for your own filter (tu_qw, mu_g, "
+                                          "mu_m, mu_normalizeQ as stubs)",
+                       description="Write FILE.py: the course's filterTemplate in Python, to run "
+                                   "with --filter FILE.py or --estimator FILE.py. An existing "
+                                   "file is never overwritten.")
+    n.add_argument("file", metavar="FILE.py")
+    n.set_defaults(func=cmd_new_filter)
+
     f = sub.add_parser("filter", help="run an estimator over a log and write its estimates as CSV")
     _log_filter_options(f, several=False)
     f.add_argument("-o", "--output", metavar="OUT.csv",

@@ -65,6 +65,8 @@ def window_size(text: str) -> tuple[int, int]:
 
 PORT = _checked(config.port_number)
 WINDOW_SIZE = _checked(window_size)
+FILTER_FILE = _checked(config.filter_file)
+FORWARD = _checked(config.forward_target)
 SPEED = _checked(config.replay_speed)
 NON_NEGATIVE = _checked(non_negative)
 POSITIVE = _checked(positive)
@@ -121,10 +123,32 @@ def add_settings(parser: argparse.ArgumentParser, help_text: str | None = None) 
 
 
 def add_estimator(parser: argparse.ArgumentParser, several: bool = False) -> None:
-    names = ", ".join(ekf.ESTIMATORS)
+    names = ", ".join(ekf.ESTIMATORS) + " or your own filter FILE.py"
     parser.add_argument("--estimator", default="ekf",
                         help=(f"estimator, or several separated by commas: {names}"
                               if several else f"estimator: {names}") + " (default ekf)")
+
+
+def add_filter(parser: argparse.ArgumentParser) -> None:
+    """--filter FILE.py: your own filter, run beside ours (YOURS)."""
+    parser.add_argument("--filter", type=FILTER_FILE, metavar="FILE.py",
+                        help="run your own filter (a Python file with class Filter; see "
+                             "`orientation-lab new-filter`) beside ours as YOURS; it is "
+                             "reloaded whenever you save it")
+
+
+def add_forward(parser: argparse.ArgumentParser) -> None:
+    """--forward HOST:PORT: a copy of the phone's lines for another receiver."""
+    parser.add_argument("--forward", type=FORWARD, metavar="HOST:PORT",
+                        help="also send every line received from the phone, verbatim, to the "
+                             "TCP server at HOST:PORT (e.g. the MATLAB kit's "
+                             "StreamSensorDataReader); a slow or absent receiver never slows "
+                             "the phone (lines that do not fit are dropped and counted)")
+
+
+def add_traceback(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--traceback", action="store_true",
+                        help="when your filter (FILE.py) fails, print its whole traceback")
 
 
 def add_sensors(parser: argparse.ArgumentParser) -> None:
@@ -156,6 +180,8 @@ def add_window(parser: argparse.ArgumentParser) -> None:
     add_speed_loop(group)
     add_settings(group)
     add_limits(group)
+    add_filter(group)
+    add_forward(group)
     group.add_argument("--screenshot", metavar="PNG",
                        help="save the window to PNG after --exit-after seconds, then quit")
     group.add_argument("--window-size", type=WINDOW_SIZE, metavar="WxH",

@@ -16,7 +16,7 @@ from app.stream.events import (AcceptConnection, IgnoreConnection, ReplayControl
 
 __all__ = ["SetSensorEnabled", "SetEstimator", "SetSettings", "ResetFilter", "AlignHeading",
            "SetComparisonsEnabled", "ReplayControl", "AcceptConnection", "IgnoreConnection",
-           "SetAllowedNetworks"]
+           "SetAllowedNetworks", "LoadUserFilter", "UnloadUserFilter", "SetConsistencyEnabled"]
 
 
 @dataclass(frozen=True)
@@ -59,3 +59,25 @@ class SetComparisonsEnabled:
 
     enabled: bool
     estimator: str | None = None
+
+
+@dataclass(frozen=True)
+class LoadUserFilter:
+    """Run your filter file (a .py with class Filter) beside ours as YOURS; replaces a loaded
+    one. File -> Load filter... sends it."""
+
+    path: str
+
+
+@dataclass(frozen=True)
+class UnloadUserFilter:
+    """Stop running your filter."""
+
+
+@dataclass(frozen=True)
+class SetConsistencyEnabled:
+    """Publish our EKF's innovations for the consistency view (costs a little per sample, so
+    only while the view is open). Your filter's innovations are published whenever it returns
+    them."""
+
+    enabled: bool

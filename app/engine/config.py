@@ -19,6 +19,8 @@ import ekf
 from ekf import SENSORS
 from app.engine import profiles
 from app.engine.errors import ConfigError   # defined apart (profiles raise it too)
+from app.engine.user_code import UserFilterError, is_filter_file
+from app.engine.user_filter import make_estimator as _make_estimator
 from app.stream.lines import LogError
 from app.stream.logfile import LogData, read_log
 from app.stream.protocol import DEFAULT_LIMITS, Limits
@@ -32,7 +34,8 @@ DEFAULT_TAKEOVER_S = 3.0
 __all__ = ["ConfigError", "DEFAULT_HOST", "DEFAULT_PORT", "SENSORS", "SourceOptions",
            "load_settings", "estimator_names", "sensor_list", "port_number", "replay_speed",
            "make_source", "open_log", "resolve_log_path", "read_intervals", "sensor_limits",
-           "allowed_network", "allowed_networks", "recording_folder", "megabytes"]
+           "allowed_network", "allowed_networks", "recording_folder", "megabytes",
+           "filter_file", "forward_target", "make_estimator"]
 
 
 # ---- filter settings, estimators, sensors ------------------------------------------------------
@@ -64,13 +67,50 @@ def load_settings(spec: str | Path | None) -> ekf.EKFSettings | None:
 
 
 def estimator_names(text: str) -> list[str]:
-    """"ekf,course" -> ["ekf", "course"]; unknown names raise ConfigError."""
+    """"ekf,course,my_filter.py" -> ["ekf", "course", "my_filter.py"]; unknown names raise
+    ConfigError; a name ending in .py is a user's filter file, which must exist."""
     names = [name.strip() for name in str(text).split(",") if name.strip()]
-    bad = [name for name in names if name not in ekf.ESTIMATORS]
+    bad = [name for name in names if name not in ekf.ESTIMATORS and not is_filter_file(name)]
     if bad or not names:
         raise ConfigError(f"--estimator: unknown {', '.join(repr(b) for b in bad) or repr(text)}; "
-                          f"choose from {', '.join(ekf.ESTIMATORS)}")
+                          f"choose from {', '.join(ekf.ESTIMATORS)} or give your filter "
+                          "FILE.py")
+    for name in names:
+        if is_filter_file(name):
+            filter_file(name)
     return names
+
+
+def filter_file(path: str | Path) -> str:
+    """A user's filter file that exists (``--filter``, ``--estimator FILE.py``)."""
+    path = Path(path).expanduser()
+    if not is_filter_file(path):
+        raise ConfigError(f"{path}: a filter file is a Python file (.py)")
+    if not path.is_file():
+        raise ConfigError(f"{path}: no such filter file (orientation-lab new-filter {path} "
+                          "writes a template)")
+    return str(path)
+
+
+def make_estimator(name: str, settings: ekf.EKFSettings | None = None,
+                   sensors: Iterable[str] = SENSORS) -> ekf.Estimator:
+    """The estimator a name stands for: a built-in or a user's filter file (loaded; a file that
+    does not load is a ConfigError naming its line)."""
+    try:
+        return _make_estimator(name, settings, tuple(sensors))
+    except UserFilterError as error:
+        raise ConfigError(error.problem.message) from None
+
+
+def forward_target(text: str) -> tuple[str, int]:
+    """"HOST:PORT" (or ":PORT", "PORT": this machine) -> (host, port) for ``--forward``."""
+    host, sep, port = str(text).strip().rpartition(":")
+    if not sep:
+        host, port = "", str(text).strip()
+    number = port_number(port)
+    if number == 0:
+        raise ConfigError(f"--forward: give the receiver's port, got {text!r}")
+    return host or "127.0.0.1", number
 
 
 def sensor_list(text: str | Iterable[str]) -> tuple[str, ...]:

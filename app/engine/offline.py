@@ -18,11 +18,12 @@ from app.stream.logfile import LogData
 from app.stream.protocol import Sample
 
 
-def run_offline(samples: Iterable[Sample], estimator: str = "ekf",
+def run_offline(samples: Iterable[Sample], estimator: str | ekf.Estimator = "ekf",
                 settings: ekf.EKFSettings | None = None,
                 sensors: Iterable[str] = SENSORS,
                 session_starts: Iterable[int] = ()) -> Rows:
-    """Run one estimator over ordered samples (e.g. ``read_log(path).samples``, with its
+    """Run one estimator (a name, a user's FILE.py, or an estimator object, which is then
+    advanced) over ordered samples (e.g. ``read_log(path).samples``, with its
     ``session_starts``: the estimators start afresh there): one row per distinct phone time,
     exactly as the live engine produces them."""
     runner = EstimatorRunner(estimator, settings, sensors)
@@ -38,16 +39,16 @@ def run_offline(samples: Iterable[Sample], estimator: str = "ekf",
     return runner.take_rows()
 
 
-def filter_log(log: LogData, estimator: str = "ekf", settings: ekf.EKFSettings | None = None,
-               sensors: Iterable[str] = SENSORS) -> Rows:
+def filter_log(log: LogData, estimator: str | ekf.Estimator = "ekf",
+               settings: ekf.EKFSettings | None = None, sensors: Iterable[str] = SENSORS) -> Rows:
     """The estimates of a whole log: the rows at which a GYR, ACC or MAG sample arrived."""
     rows = run_offline(log.samples, estimator, settings, sensors, log.session_starts)
     return rows.select(rows.has_sample)
 
 
-def evaluate_log(log: LogData, estimator: str = "ekf", settings: ekf.EKFSettings | None = None,
-                 sensors: Iterable[str] = SENSORS, intervals_ms: list | None = None,
-                 skip_s: float = 0.0) -> ErrorSummary:
+def evaluate_log(log: LogData, estimator: str | ekf.Estimator = "ekf",
+                 settings: ekf.EKFSettings | None = None, sensors: Iterable[str] = SENSORS,
+                 intervals_ms: list | None = None, skip_s: float = 0.0) -> ErrorSummary:
     """RMSE (degrees) of the total, heading and inclination error against the log's ORI, at the
     ORI times (the estimate there is the latest at or before it, as a viewer sees it), over
     `intervals_ms` (None: everywhere) after the first `skip_s` seconds of estimates.

@@ -25,6 +25,9 @@ from numba import njit
 import ekf
 from ekf import SENSORS, magcal
 from app.engine.compare import ErrorRows, ErrorSums, SameInstant
+from app.engine.innovations import YOURS, InnovationBuffer, InnovationProbe
+from app.engine.user_filter import make_estimator
+from app.engine.user_lane import UserLane
 from app.stream.fastparse import samples_to_arrays
 from app.stream.protocol import Sample
 
@@ -45,7 +48,9 @@ class Rows:
     t_ms (N,) int64; quat (N, 4) the main estimate after every sample at that time; phone_quat
     (N, 4) the latest ORI at or before that time (NaN before the first); acc_rejected,
     mag_rejected, at_rest (N,) bool: the main estimator's lights;
-    has_sample (N,) bool: a GYR, ACC or MAG sample has this time (False: ORI only).
+    has_sample (N,) bool: a GYR, ACC or MAG sample has this time (False: ORI only);
+    user_quat (N, 4): your filter's quaternion (YOURS; NaN where it has none), None when no
+    user filter runs beside the main estimator.
     """
 
     t_ms: np.ndarray
@@ -55,6 +60,7 @@ class Rows:
     mag_rejected: np.ndarray
     at_rest: np.ndarray
     has_sample: np.ndarray
+    user_quat: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t_ms)
@@ -70,15 +76,21 @@ class Rows:
 
     def select(self, mask: np.ndarray) -> Rows:
         """The rows where `mask` is true."""
-        return Rows(*(getattr(self, name)[mask] for name in self.__dataclass_fields__))
+        return Rows(*(None if getattr(self, name) is None else getattr(self, name)[mask]
+                      for name in self.__dataclass_fields__))
 
     @staticmethod
     def concatenate(parts: list[Rows]) -> Rows:
-        """Rows of several pieces, in order."""
+        """Rows of several pieces, in order (user_quat NaN for pieces without one)."""
         if not parts:
             return Rows.empty()
+        user = None
+        if any(part.user_quat is not None for part in parts):
+            user = np.concatenate([np.full((len(part), 4), np.nan) if part.user_quat is None
+                                   else part.user_quat for part in parts])
         return Rows(*(np.concatenate([getattr(part, name) for part in parts])
-                      for name in Rows.__dataclass_fields__))
+                      for name in Rows.__dataclass_fields__ if name != "user_quat"),
+                    user_quat=user)
 
 
 @dataclass
@@ -197,7 +209,8 @@ class _ChunkLayout:
 class EstimatorRunner:
     """Feed ordered samples; read the latest estimates; take the rows produced so far.
 
-    estimator: a name from ekf.ESTIMATORS; settings: ekf.EKFSettings or None (default preset);
+    estimator: a name from ekf.ESTIMATORS, a user's filter file (FILE.py) or an estimator
+    object (``ekf.Estimator``); settings: ekf.EKFSettings or None (default preset);
     sensors: the sensors enabled in the main estimator; comparisons: also run the 7 sensor
     combinations of `comparison_estimator` (default the EKF with the same settings).
     collect_plot: keep the raw ACC/GYR/MAG samples with their rejected flags for plotting
@@ -213,16 +226,26 @@ class EstimatorRunner:
     Against the phone's own estimate (ORI) every estimator is compared at the phone's time
     stamps (app.engine.compare): the main one's errors per ORI sample come out of
     :meth:`take_errors`, the comparisons keep running RMSEs.
+
+    Beside the main estimator: your filter (:meth:`set_user_lane`, YOURS: its quaternion per row
+    in Rows.user_quat, its errors against PHONE, at PHONE's times, from :meth:`take_user_errors`
+    and in the lane's running RMSEs) and, on request, our EKF's innovations
+    (:meth:`set_consistency_enabled`); both go to :meth:`take_innovations`.
     """
 
-    def __init__(self, estimator: str = "ekf", settings: ekf.EKFSettings | None = None,
+    def __init__(self, estimator: str | ekf.Estimator = "ekf",
+                 settings: ekf.EKFSettings | None = None,
                  sensors: Iterable[str] = SENSORS, comparisons: bool = False,
                  collect_plot: bool = False, comparison_estimator: str = "ekf") -> None:
-        self.estimator_name = estimator
         self.settings = settings if settings is not None else ekf.PRESETS["default"]
         self._mag_correction = magcal.settings_correction(self.settings)
         self._sensors = tuple(s for s in SENSORS if s in tuple(sensors))
-        self.main: ekf.Estimator = ekf.make_estimator(estimator, self.settings, self._sensors)
+        self.main: ekf.Estimator = make_estimator(estimator, self.settings, self._sensors)
+        self.estimator_name = estimator if isinstance(estimator, str) else self.main.name
+        self.user: UserLane | None = None
+        self.innovations = InnovationBuffer()
+        self.probe: InnovationProbe | None = None
+        self.samples_fed = 0                      # filter-tag samples fed so far
         self.collect_plot = collect_plot
         self.comparison_estimator = comparison_estimator
         self.comparisons: list[ComparisonState] = []
@@ -234,6 +257,7 @@ class EstimatorRunner:
         self._row_has_sample = False             # ... and whether it has a sensor sample
         self._main_same_instant = SameInstant()
         self._errors: list[ErrorRows] = []
+        self._user_errors: list[ErrorRows] = []
         self._phone_samples: list[tuple[np.ndarray, np.ndarray]] = []   # (t_ms, quat) ORI
         self._reset_rows()
         self._reset_plot()
@@ -248,12 +272,14 @@ class EstimatorRunner:
         if sensor not in SENSORS:
             raise ValueError(f"unknown sensor {sensor!r}")
         self.main.set_enabled(**{sensor: bool(enabled)})
+        if self.user is not None:
+            self.user.set_enabled(sensor, enabled)
 
     def set_estimator(self, name: str) -> None:
         """Switch the main estimator (it starts afresh, with the current sensor switches)."""
         enabled = self.main.enabled
-        self.main = ekf.make_estimator(name, self.settings,
-                                       tuple(s for s in SENSORS if enabled[s]) or SENSORS)
+        self.main = make_estimator(name, self.settings,
+                                   tuple(s for s in SENSORS if enabled[s]) or SENSORS)
         self.main.set_enabled(**enabled)
         self.estimator_name = name
         self._main_same_instant.reset()
@@ -264,6 +290,8 @@ class EstimatorRunner:
         self._mag_correction = magcal.settings_correction(settings)
         for estimator in [self.main] + [c.estimator for c in self.comparisons]:
             estimator.set_settings(settings)
+        if self.user is not None and self.user.estimator is not None:
+            self.user.estimator.set_settings(settings)   # restarts it: its constructor reads them
 
     def new_session(self) -> None:
         """A stream whose clock does not continue the previous one (another phone, a reboot,
@@ -281,6 +309,8 @@ class EstimatorRunner:
             comparison.estimator.reset()
             comparison.same_instant.reset()
             comparison.errors.clear()
+        if self.user is not None:
+            self.user.reset()
 
     def align_heading(self) -> float | None:
         """Turn OWN's world about up so its heading matches PHONE's; returns the angle turned
@@ -308,6 +338,26 @@ class EstimatorRunner:
                 ComparisonState(combination_name(combo), combo,
                                 ekf.make_estimator(self.comparison_estimator, self.settings, combo))
                 for combo in COMBINATIONS]
+
+    def set_user_lane(self, lane: UserLane | None) -> None:
+        """Run your filter beside the main estimator (None: stop). The lane takes the current
+        sensor switches."""
+        self.user = lane
+        if lane is not None:
+            for sensor, on in self.main.enabled.items():
+                lane.set_enabled(sensor, on)
+
+    def set_consistency_enabled(self, enabled: bool) -> None:
+        """Collect our EKF's innovations (a twin's per-update replay, see
+        app.engine.innovations) for :meth:`take_innovations`."""
+        self.probe = InnovationProbe(self.innovations) if enabled else None
+
+    def take_innovations(self) -> dict[str, np.ndarray]:
+        """Innovation records (OWN and YOURS) since the previous call, as PlotChunk fields."""
+        if self.user is not None:
+            for t, sensor, nu, S, accepted in self.user.take_innovations():
+                self.innovations.add(t, YOURS, sensor, nu, S, accepted)
+        return self.innovations.take()
 
     # -- samples ------------------------------------------------------------------------------
 
@@ -337,16 +387,21 @@ class EstimatorRunner:
             # The magnetometer correction (settings mag_hard_iron, mag_soft_iron) is applied
             # here, once, for every estimator; the plot samples stay as the phone sent them.
             mag = magcal.correct(mag, *self._mag_correction)
+        probed = self.probe.capture(self.main) if self.probe is not None else None
         result = _run_rows(self.main, t_s, gyr, acc, mag)
+        if probed is not None and layout.n_rows:
+            self.probe.replay(probed, t_s, gyr, acc, mag)
         compared = [c.estimator.run_batch(t_s, gyr, acc, mag).quat if layout.n_rows
                     else np.empty((0, 4)) for c in self.comparisons]
+        users = None if self.user is None else self.user.run_rows(t_s, gyr, acc, mag)
         ori = np.flatnonzero(tag == 3)
         if len(ori):
             self._add_phone(t_ms[ori], values[ori])
             self.phone_quat = tuple(values[ori[-1]].tolist())
-        self._commit_groups(layout, result, compared, before)
+        self._commit_groups(layout, result, compared, before, users)
         if self.collect_plot:
             self._collect_plot(layout, result)
+        self.samples_fed += len(t_ms)
         self.latest_t_ms = int(t_ms[-1])
         self._row_t = self.latest_t_ms
         self._row_has_sample = bool(layout.own_sample[-1])
@@ -356,6 +411,8 @@ class EstimatorRunner:
         self._main_same_instant.add_phone(t_ms, quat)
         for comparison in self.comparisons:
             comparison.same_instant.add_phone(t_ms, quat)
+        if self.user is not None:
+            self.user.same_instant.add_phone(t_ms, quat)
         if self.collect_plot:
             self._phone_samples.append((np.asarray(t_ms, np.int64), quat))
 
@@ -363,16 +420,18 @@ class EstimatorRunner:
         status = self.main.flags
         flags = (status.acc_rejected, status.mag_rejected, status.at_rest)
         phone = self.phone_quat if self.phone_quat is not None else _NAN4
-        return self.main.quat, flags, [c.estimator.quat for c in self.comparisons], phone
+        user = None if self.user is None else self.user.latest.copy()
+        return self.main.quat, flags, [c.estimator.quat for c in self.comparisons], phone, user
 
     def _commit_groups(self, layout: _ChunkLayout, result: _RowsResult,
-                       compared: list[np.ndarray], before: tuple) -> None:
+                       compared: list[np.ndarray], before: tuple,
+                       users: np.ndarray | None = None) -> None:
         """Rows of the distinct times completed in this chunk (the last one stays open until a
         later time arrives)."""
         done = len(layout.group_last) - 1
         if done <= 0:
             return
-        quat_before, flags_before, compare_before, phone_before = before
+        quat_before, flags_before, compare_before, phone_before, user_before = before
         has_row = layout.group_row[:done] >= 0
         index = np.where(has_row, layout.group_row[:done], 0)
         empty = not layout.n_rows
@@ -385,12 +444,18 @@ class EstimatorRunner:
                          np.array(phone_before))
         t_rows = layout.t_ms[layout.group_last[:done]]
         own = layout.own_sample[:done]
+        user = None
+        if users is not None:
+            user = np.where(has_row[:, None], np.nan if empty else users[index],
+                            np.asarray(user_before if user_before is not None else _NAN4))
         self._compare(t_rows[own], quat[own],
                       [np.where(has_row[:, None], 0.0 if empty else q[index], previous)[own]
-                       for q, previous in zip(compared, compare_before)])
-        self._add_rows(t_rows, quat, phone, flags, own)
+                       for q, previous in zip(compared, compare_before)],
+                      None if user is None else user[own])
+        self._add_rows(t_rows, quat, phone, flags, own, user)
 
-    def _compare(self, t_ms: np.ndarray, quat: np.ndarray, compared: list[np.ndarray]) -> None:
+    def _compare(self, t_ms: np.ndarray, quat: np.ndarray, compared: list[np.ndarray],
+                 user: np.ndarray | None = None) -> None:
         """Committed estimates (sensor times only) against the ORI samples they bracket."""
         if not len(t_ms):
             return
@@ -399,6 +464,12 @@ class EstimatorRunner:
             self._errors.append(errors)
         for comparison, rows in zip(self.comparisons, compared):
             comparison.errors.add(comparison.same_instant.add_estimates(t_ms, rows))
+        if user is not None and self.user is not None:
+            finite = np.isfinite(user).all(axis=1)      # NaN: your filter has no estimate there
+            user_errors = self.user.same_instant.add_estimates(t_ms[finite], user[finite])
+            self.user.errors.add(user_errors)
+            if len(user_errors):
+                self._user_errors.append(user_errors)
 
     def _collect_plot(self, layout: _ChunkLayout, result: _RowsResult) -> None:
         rejected = {1: result.acc_rejected, 2: result.mag_rejected}
@@ -433,13 +504,16 @@ class EstimatorRunner:
         self._rows: list[tuple[np.ndarray, ...]] = []
 
     def _add_rows(self, t_ms: np.ndarray, quat: np.ndarray, phone: np.ndarray,
-                  flags: np.ndarray, has_sample: np.ndarray) -> None:
-        self._rows.append((t_ms, quat, phone, flags, has_sample))
+                  flags: np.ndarray, has_sample: np.ndarray,
+                  user: np.ndarray | None = None) -> None:
+        self._rows.append((t_ms, quat, phone, flags, has_sample, user))
 
-    def _merged_rows(self) -> tuple[np.ndarray, ...]:
-        if len(self._rows) == 1:
-            return self._rows[0]
-        return tuple(np.concatenate(parts) for parts in zip(*self._rows))
+    def _merged_rows(self) -> tuple:
+        merged = [np.concatenate(parts) for parts in zip(*(r[:5] for r in self._rows))]
+        if all(r[5] is None for r in self._rows):
+            return (*merged, None)
+        return (*merged, np.concatenate([np.full((len(r[0]), 4), np.nan) if r[5] is None
+                                         else r[5] for r in self._rows]))
 
     def _commit_row(self) -> None:
         """The row of the pending time, from the estimators' state now."""
@@ -447,23 +521,25 @@ class EstimatorRunner:
         phone = self.phone_quat
         status = self.main.flags
         t = np.array([self._row_t], np.int64)
+        user = None if self.user is None else self.user.latest.copy().reshape(1, 4)
         if self._row_has_sample:
             self._compare(t, q.reshape(1, 4),
-                          [c.estimator.quat.reshape(1, 4) for c in self.comparisons])
+                          [c.estimator.quat.reshape(1, 4) for c in self.comparisons], user)
         self._add_rows(t, q.reshape(1, 4),
                        np.array([phone if phone is not None else _NAN4], np.float64),
                        np.array([[status.acc_rejected, status.mag_rejected, status.at_rest]],
-                                bool), np.array([self._row_has_sample]))
+                                bool), np.array([self._row_has_sample]), user)
 
     def take_rows(self) -> Rows:
         """The rows committed since the previous call (the row of the latest time is committed
         when a later time arrives or at finish())."""
         if not self._rows:
             return Rows.empty()
-        t_ms, quat, phone, flags, has_sample = self._merged_rows()
+        t_ms, quat, phone, flags, has_sample, user = self._merged_rows()
         rows = Rows(np.asarray(t_ms, dtype=np.int64), np.ascontiguousarray(quat, np.float64),
                     np.ascontiguousarray(phone, np.float64), flags[:, 0].copy(),
-                    flags[:, 1].copy(), flags[:, 2].copy(), np.asarray(has_sample, dtype=bool))
+                    flags[:, 1].copy(), flags[:, 2].copy(), np.asarray(has_sample, dtype=bool),
+                    None if user is None else np.ascontiguousarray(user, dtype=np.float64))
         self._reset_rows()
         return rows
 
@@ -471,6 +547,14 @@ class EstimatorRunner:
         """The main estimator's errors against ORI resolved since the previous call: per ORI
         sample, total/heading/inclination [deg] with our estimate slerped to its time."""
         errors, self._errors = self._errors, []
+        if not errors:
+            return ErrorRows.empty()
+        return ErrorRows(np.concatenate([e.t_ms for e in errors]),
+                         np.concatenate([e.error_deg for e in errors]))
+
+    def take_user_errors(self) -> ErrorRows:
+        """Your filter's errors against ORI resolved since the previous call (as take_errors)."""
+        errors, self._user_errors = self._user_errors, []
         if not errors:
             return ErrorRows.empty()
         return ErrorRows(np.concatenate([e.t_ms for e in errors]),

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 import ekf
-
+from app.stream.forwarder import ForwardStatus
 
 
 @dataclass
@@ -60,6 +60,7 @@ class StreamHealth:
     out_of_order: int = 0
     clock_quirks: list[str] = field(default_factory=list)     # human-readable, e.g. "ACC clock +131072000 ms (aligned)"
     warnings: list[str] = field(default_factory=list)         # rate-limited messages for the status bar
+    forward: ForwardStatus | None = None     # --forward HOST:PORT: the copy of the phone's lines
     damaged_reasons: dict[str, int] = field(default_factory=dict)   # e.g. {"ACC out of range": 2}
     sessions: int = 0                        # new sessions (a clock that did not continue)
     reorder_window_ms: int = 100             # the time orderer's window now (adapts to lags)
@@ -102,6 +103,28 @@ class PlotChunk:
     phone_euler_deg: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
     t_err: np.ndarray = field(default_factory=lambda: np.empty(0))
     error_deg: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))  # total, heading, inclination
+    # Your filter (YOURS): its Euler angles at our estimate times (NaN while it has none) and
+    # its errors against PHONE at PHONE's times, as OWN's.
+    t_user: np.ndarray = field(default_factory=lambda: np.empty(0))
+    user_euler_deg: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
+    t_user_err: np.ndarray = field(default_factory=lambda: np.empty(0))
+    user_error_deg: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
+    # Innovations for the consistency view, one entry per measurement update, on their own time
+    # axis: which estimator (INNOVATION_SOURCES), which sensor (INNOVATION_SENSORS), the
+    # innovation nu (NaN-padded to 3 components), its covariance S (NaN-padded to 3x3) and
+    # whether the update was used (False: a gate rejected it).
+    t_innovation: np.ndarray = field(default_factory=lambda: np.empty(0))
+    innovation_source: np.ndarray = field(default_factory=lambda: np.empty(0, np.int8))
+    innovation_sensor: np.ndarray = field(default_factory=lambda: np.empty(0, np.int8))
+    innovation: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
+    innovation_cov: np.ndarray = field(default_factory=lambda: np.empty((0, 3, 3)))
+    innovation_accepted: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
+
+
+#: innovation_source codes: our EKF (the main estimator) and your filter.
+INNOVATION_SOURCES = ("OWN", "YOURS")
+#: innovation_sensor codes.
+INNOVATION_SENSORS = ("acc", "mag", "gyr")
 
 
 @dataclass(frozen=True)
@@ -119,6 +142,75 @@ class EngineFailure:
     fatal: bool = False
 
 
+@dataclass(frozen=True)
+class UserProblem:
+    """Why your filter is paused: an exception in your code, a return value that breaks the
+    contract, or a file that does not load.
+
+    kind: "load" | "exception" | "output"; message: one line with your file, line and what went
+    wrong ("my_filter.py:42 in mu_g: ValueError: ..."); details: the traceback of your code (the
+    "show details" text) or the full explanation; t_s: the phone time of the sample [s]."""
+
+    kind: str
+    message: str
+    details: str = ""
+    file: str | None = None
+    line: int | None = None
+    function: str | None = None
+    t_s: float | None = None
+
+
+@dataclass
+class UserHistory:
+    """YOURS over the session so far, recomputed after a reload by re-running the replay's log
+    up to the current position with the new code: replaces the curves drawn before. t_ms (N,)
+    our estimate times on the phone's clock, euler_deg (N, 3) wrapped; t_err_ms (M,) PHONE's
+    times, error_deg (M, 3) total, heading, inclination against PHONE."""
+
+    t_ms: np.ndarray
+    euler_deg: np.ndarray
+    t_err_ms: np.ndarray
+    error_deg: np.ndarray
+
+
+@dataclass
+class UserFilterStatus:
+    """Your filter ("YOURS", a Python file you wrote) as the engine runs it beside ours.
+
+    state: "running" | "paused" (a problem: fix the file and save it) | "catching up" (re-running
+    after a reload or seek, in the background) | "failed to load". quat: its latest output
+    (w >= 0, sensor -> ENU; the last good one while paused); cov: P's quaternion block when the
+    filter returns P. The lights are None when the filter does not report them. missing_steps:
+    course steps still raising NotImplementedError (skipped), e.g. "mu_g (my_filter.py:61)".
+    time_per_sample_s: recent time in your step() per call; slow: it could not keep up with the
+    stream and got only used_fraction of the samples (decimated) instead of holding up the
+    engine. generation counts loads and reloads; history is set after a re-run (see
+    UserHistory)."""
+
+    name: str = ""
+    path: str = ""
+    sha256: str = ""
+    state: str = "failed to load"
+    quat: np.ndarray | None = None
+    cov: np.ndarray | None = None
+    acc_disturbed: bool | None = None
+    mag_disturbed: bool | None = None
+    standstill: bool | None = None
+    missing_steps: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    problem: UserProblem | None = None
+    time_per_sample_s: float = float("nan")
+    slow: bool = False
+    used_fraction: float = 1.0
+    steps: int = 0
+    angle_to_phone_deg: float = float("nan")
+    rmse_deg: float = float("nan")
+    message: str = ""
+    generation: int = 0
+    history: UserHistory | None = None
+    progress: float | None = None            # of a catch-up, 0..1
+
+
 @dataclass
 class Snapshot:
     seq: int = 0
@@ -134,3 +226,4 @@ class Snapshot:
     health: StreamHealth = field(default_factory=StreamHealth)
     replay: dict[str, Any] | None = None      # {"position_s", "duration_s", "speed", "paused", "loop"} when replaying
     failures: list[EngineFailure] = field(default_factory=list)   # the latest, oldest first
+    user: UserFilterStatus | None = None      # your filter (YOURS), when one is loaded

@@ -44,16 +44,20 @@ from typing import Any
 import numpy as np
 
 import ekf
-from app.engine.commands import (AlignHeading, ReplayControl, ResetFilter, SetComparisonsEnabled,
-                                 SetEstimator, SetSensorEnabled, SetSettings)
+from app.engine.commands import (AlignHeading, LoadUserFilter, ReplayControl, ResetFilter,
+                                 SetComparisonsEnabled, SetConsistencyEnabled, SetEstimator,
+                                 SetSensorEnabled, SetSettings, UnloadUserFilter)
 from app.stream.events import CONNECTION_COMMANDS
 from app.engine.estimates import EstimatesWriter
 from app.engine.runner import SENSORS, EstimatorRunner, Rows
 from app.engine.snapshot import (Comparison, EngineFailure, FilterStatus, PlotChunk, Snapshot,
                                  StreamHealth)
+from app.engine.user_code import is_filter_file
+from app.engine.user_host import UserFilterHost
 from app.stream import fastparse, ordering
 from app.stream.events import Chunk, SourceEvent
 from app.stream.fastparse import ParsedArrays
+from app.stream.forwarder import LineForwarder
 from app.stream.ordering import OrderedArrays, TimeOrderer
 from app.stream.protocol import DEFAULT_LIMITS, FILTER_TAGS, Limits
 from app.stream.recorder import Recorder
@@ -105,7 +109,9 @@ class Engine:
     known-tag line; estimates: an :class:`~app.engine.estimates.EstimatesWriter` that gets every
     estimate row (a recording's estimates.csv); record_rows: keep every estimate row in
     :attr:`rows_log` (tests/benchmarks: unbounded memory); limits: the physical bounds a sample
-    must respect (others are damaged lines).
+    must respect (others are damaged lines); user_filter: a user's filter file run beside the
+    main estimator (YOURS, :mod:`app.engine.user_host`); forwarder: a
+    :class:`~app.stream.forwarder.LineForwarder` that gets a copy of every line from the phone.
     """
 
     def __init__(self, source: Source, settings: ekf.EKFSettings | None = None,
@@ -114,8 +120,9 @@ class Engine:
                  estimates: EstimatesWriter | None = None, record_rows: bool = False,
                  max_plot_rows: int = 60_000,
                  orderer_options: dict[str, Any] | None = None,
-                 limits: Limits = DEFAULT_LIMITS) -> None:
-        if estimator not in ekf.ESTIMATORS:
+                 limits: Limits = DEFAULT_LIMITS, user_filter: str | Path | None = None,
+                 forwarder: LineForwarder | None = None) -> None:
+        if estimator not in ekf.ESTIMATORS and not is_filter_file(estimator):
             raise ValueError(f"unknown estimator {estimator!r}; choose from "
                              f"{', '.join(ekf.ESTIMATORS)}")
         self.source = source
@@ -164,6 +171,10 @@ class Engine:
         self._parser_retired = [0, 0, 0, 0, 0]   # counts of parsers replaced by a seek
         self._reasons_retired: dict[str, int] = {}
         self._order_retired = 0
+        self.forwarder = forwarder
+        self._user = UserFilterHost(self._runner, source, record=self._record_event)
+        if user_filter is not None:
+            self._user.load(user_filter)
 
     # -- lifecycle --------------------------------------------------------------------------------
 
@@ -175,6 +186,8 @@ class Engine:
         fastparse.warm_up()
         ordering.warm_up()
         self.source.start()
+        if self.forwarder is not None:
+            self.forwarder.start()
         self._thread = threading.Thread(target=self._run, name="engine", daemon=True)
         self._thread.start()
 
@@ -188,6 +201,9 @@ class Engine:
             self._thread.join(timeout=10.0)
             self._thread = None
         self.source.stop()
+        self._user.stop()
+        if self.forwarder is not None:
+            self.forwarder.stop()
         if self.estimates is not None:
             try:
                 self._end_of_stream(partial_line_damaged=False)
@@ -257,6 +273,7 @@ class Engine:
         """Read what the source has, process it (at most MAX_BYTES_PER_PASS of chunks, the rest
         waits in the backlog) and publish."""
         self._apply_commands()
+        self._user.tick()
         if self._backlog:
             items, self._backlog = self._backlog, []
         else:
@@ -384,6 +401,9 @@ class Engine:
         parser = self._parser
         damaged_before = parser.stats.damaged + parser.stats.too_long
         data = chunks[0].data if len(chunks) == 1 else b"".join(c.data for c in chunks)
+        if self.forwarder is not None and self.source.kind == "tcp":
+            for chunk in chunks:
+                self.forwarder.feed(chunk.data, chunk.connection)
         self._parsed(parser.feed_arrays(data))
         sequence = self._orderer.sequence
         for chunk in chunks:
@@ -402,6 +422,7 @@ class Engine:
             self._connection_state = "replaying" if self.source.kind != "tcp" else "connected"
             self._peer = event.peer
             self._record_event("connected", peer=event.peer)
+            self._user.on_restart(kind)
         elif kind == "disconnected":
             self._end_of_stream(partial_line_damaged=True)
             self._connection_state = "disconnected"
@@ -409,6 +430,7 @@ class Engine:
             self._record_event("disconnected", peer=event.peer, reason=event.detail)
         elif kind == "loop":
             self._feed(self._orderer.restart_arrays(continue_time=True))
+            self._user.on_restart(kind)
         elif kind == "seek":
             # Re-run the filter from the start of the log up to the target (the source sends
             # those lines unpaced): the estimate there is exactly what playing would give.
@@ -422,6 +444,7 @@ class Engine:
             # everything the old orderer held was released by _end_of_stream
             self._pending_host_times = deque(((t_host, -1) for t_host, _ in
                                               self._pending_host_times), maxlen=100_000)
+            self._user.on_restart(kind)
         elif kind == "finished":
             self._end_of_stream(partial_line_damaged=False)
             self._connection_state = "finished"
@@ -508,6 +531,12 @@ class Engine:
             runner.set_comparisons_enabled(command.enabled, command.estimator)
         elif isinstance(command, (ReplayControl, *CONNECTION_COMMANDS)):
             self.source.control(command)
+        elif isinstance(command, LoadUserFilter):
+            self._user.load(command.path)
+        elif isinstance(command, UnloadUserFilter):
+            self._user.unload()
+        elif isinstance(command, SetConsistencyEnabled):
+            runner.set_consistency_enabled(command.enabled)
         else:
             self._warn("command", f"unknown command {command!r}", force=True)
 
@@ -601,17 +630,20 @@ class Engine:
         cov = main.cov
         info = self.source.info()
         phone = runner.phone_quat
+        comparisons = [Comparison(c.name, c.estimator.quat, tuple(c.errors.rmse().tolist()),
+                                  tuple(c.errors.latest.tolist()), c.errors.count)
+                       for c in runner.comparisons]
+        yours = self._user.comparison_row()
+        if yours is not None:
+            comparisons.append(yours)
         snapshot = Snapshot(
             t_ms=runner.latest_t_ms, own_quat=main.quat,
             own_cov=None if cov is None else np.array(cov)[:4, :4],
             phone_quat=None if phone is None else np.array(phone),
-            status=self._filter_status(),
-            comparisons=[Comparison(c.name, c.estimator.quat, tuple(c.errors.rmse().tolist()),
-                                    tuple(c.errors.latest.tolist()), c.errors.count)
-                         for c in runner.comparisons],
+            status=self._filter_status(), comparisons=comparisons,
             comparison_estimator=runner.comparison_estimator, t0_ms=self._t0_ms,
             health=self._health(now, info), replay=info.get("replay"),
-            failures=list(self.failures))
+            failures=list(self.failures), user=self._user.status())
         published = time.perf_counter()
         with self._lock:
             self._plot.add(piece)
@@ -650,13 +682,30 @@ class Engine:
         def seconds(t_ms: np.ndarray) -> np.ndarray:
             return (np.asarray(t_ms, np.float64) - t0) / 1000.0
 
+        innovations = runner.take_innovations()
+        if "t_innovation" in innovations:
+            innovations["t_innovation"] = seconds(np.asarray(innovations["t_innovation"]) * 1000.0)
         return PlotChunk(
+            **self._user_plot(rows, seconds), **innovations,
             t_acc=seconds(plot["t_acc"]), acc=plot["acc"], acc_rejected=plot["acc_rejected"],
             t_gyr=seconds(plot["t_gyr"]), gyr=plot["gyr"],
             t_mag=seconds(plot["t_mag"]), mag=plot["mag"], mag_rejected=plot["mag_rejected"],
             t_est=seconds(rows.t_ms), own_euler_deg=euler[:count],
             t_ori=seconds(ori_t), phone_euler_deg=euler[count:],
             t_err=seconds(errors.t_ms), error_deg=errors.error_deg)
+
+    def _user_plot(self, rows: Rows, seconds) -> dict[str, np.ndarray]:
+        """YOURS for the plots: its Euler angles (wrapped, at our estimate times, NaN where it
+        has none) and its errors against PHONE at PHONE's times."""
+        errors = self._runner.take_user_errors()
+        out = {"t_user_err": seconds(errors.t_ms), "user_error_deg": errors.error_deg}
+        if rows.user_quat is None or not len(rows):
+            return out
+        euler = np.full((len(rows), 3), np.nan)
+        finite = np.isfinite(rows.user_quat).all(axis=1)
+        if finite.any():
+            euler[finite] = np.degrees(ekf.quaternion.to_euler(rows.user_quat[finite]))
+        return {**out, "t_user": seconds(rows.t_ms), "user_euler_deg": euler}
 
     def _filter_status(self) -> FilterStatus:
         main = self._runner.main
@@ -687,7 +736,8 @@ class Engine:
             reorder_window_ms=order.window_ms, lags_ms=dict(order.lags_ms),
             waiting_peers=list(info.get("waiting_peers") or []),
             connections_closed=dict(info.get("connections_closed") or {}),
-            allowed=list(info.get("allowed") or []), recording=self._recording_text())
+            allowed=list(info.get("allowed") or []), recording=self._recording_text(),
+            forward=None if self.forwarder is None else self.forwarder.status())
 
     def _recording_text(self) -> str | None:
         recorder = self.recorder

@@ -20,27 +20,35 @@ from typing import Any
 from app import paths
 from app.engine.config import ConfigError, SourceOptions, load_settings, make_source
 from app.engine.worker import Engine
+from app.stream.forwarder import LineForwarder
 
 GUI_SWITCH_INTERVAL_S = 0.0002
-HEADLESS_COMMANDS = "filter, evaluate, calibrate, calibrate-mag, tune, simulate, send, serve"
+HEADLESS_COMMANDS = ("filter, evaluate, calibrate, calibrate-mag, tune, simulate, send, serve, "
+                     "new-filter")
 
 
 @dataclass
 class WindowOptions:
     """What the window opens on: the source, filter settings (file or preset name) and, for
-    screenshots, a PNG to save after exit_after seconds."""
+    screenshots, a PNG to save after exit_after seconds; filter: your own filter file, run
+    beside ours as YOURS (--filter); forward: (host, port) that gets a copy of every line from
+    the phone (--forward)."""
 
     source: SourceOptions = field(default_factory=SourceOptions)
     settings: str | None = None
     screenshot: str | None = None
     exit_after: float | None = None
     size: tuple[int, int] | None = None
+    filter: str | None = None
+    forward: tuple[str, int] | None = None
 
 
 def build_engine(options: WindowOptions) -> Engine:
     """An (unstarted) engine for the options; ConfigError for a bad path or setting."""
+    forwarder = LineForwarder(*options.forward) if options.forward else None
     return Engine(make_source(options.source), settings=load_settings(options.settings),
-                  limits=options.source.limits)
+                  limits=options.source.limits, user_filter=options.filter,
+                  forwarder=forwarder)
 
 
 def check_display() -> None:

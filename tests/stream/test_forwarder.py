@@ -1,0 +1,208 @@
+"""--forward HOST:PORT: every line from the phone reaches another TCP server verbatim and in
+order; a receiver that closes is reconnected; a slow or absent one never holds up the caller."""
+
+from __future__ import annotations
+
+import random
+import socket
+import threading
+import time
+
+import pytest
+
+from app.engine.config import ConfigError, forward_target
+from app.engine.worker import Engine
+from app.stream.emulator import PhoneEmulator
+from app.stream.forwarder import LineForwarder
+from app.stream.sources import TcpSource
+
+
+def _wait(predicate, timeout: float = 15.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.01)
+    raise AssertionError("condition not reached in time")
+
+
+class Receiver:
+    """A TCP server like the MATLAB kit's reader: accepts connections one after another and
+    keeps what each sent (or, with read=False, reads nothing)."""
+
+    def __init__(self, read: bool = True) -> None:
+        self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.listener.bind(("127.0.0.1", 0))
+        self.listener.listen(4)
+        self.port = self.listener.getsockname()[1]
+        self.read = read
+        self.received: list[bytearray] = []
+        self.client: socket.socket | None = None
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        self.listener.settimeout(0.1)
+        while not self._stop.is_set():
+            try:
+                client, _ = self.listener.accept()
+            except (socket.timeout, OSError):
+                continue
+            self.client = client
+            data = bytearray()
+            self.received.append(data)
+            client.settimeout(0.1)
+            while not self._stop.is_set() and self.client is client:
+                if not self.read:
+                    time.sleep(0.05)
+                    continue
+                try:
+                    chunk = client.recv(65536)
+                except socket.timeout:
+                    continue
+                except OSError:
+                    break
+                if not chunk:
+                    break
+                data.extend(chunk)
+
+    def hang_up(self) -> None:
+        client, self.client = self.client, None
+        client.close()
+
+    def close(self) -> None:
+        self._stop.set()
+        self.thread.join(5)
+        if self.client is not None:
+            self.client.close()
+        self.listener.close()
+
+
+@pytest.fixture
+def receiver():
+    server = Receiver()
+    yield server
+    server.close()
+
+
+def _lines(n: int, start: int = 0) -> list[bytes]:
+    return [f"{1000 + 10 * k}\tACC\t0.1\t-0.2\t{9.8 + k % 7 / 100:.4f}\n".encode()
+            for k in range(start, start + n)]
+
+
+def _feed_in_random_pieces(forwarder: LineForwarder, data: bytes, connection: int = 1) -> None:
+    rng = random.Random(4)
+    position = 0
+    while position < len(data):
+        size = rng.randint(1, 300)
+        forwarder.feed(data[position:position + size], connection)
+        position += size
+
+
+def test_every_line_arrives_byte_for_byte_in_order(receiver):
+    data = b"".join(_lines(20_000)) + b"123\tGYR\t1e-3\t-0.0\t3.2043457E-4\r\n"
+    with LineForwarder("127.0.0.1", receiver.port) as forwarder:
+        _wait(lambda: forwarder.status().state == "connected")
+        _feed_in_random_pieces(forwarder, data)         # lines cut anywhere, as TCP delivers
+        _wait(lambda: len(receiver.received[0]) == len(data))
+        status = forwarder.status()
+    assert bytes(receiver.received[0]) == data
+    assert status.lines_forwarded == 20_001 and status.lines_dropped == 0
+
+
+def test_it_survives_the_receiver_closing_and_reconnects(receiver):
+    with LineForwarder("127.0.0.1", receiver.port, reconnect_s=0.05) as forwarder:
+        _wait(lambda: forwarder.status().state == "connected")
+        first = b"".join(_lines(100))
+        forwarder.feed(first, 1)
+        _wait(lambda: len(receiver.received[0]) == len(first))
+        receiver.hang_up()
+        # lines fed while it notices and reconnects are dropped and counted, never queued up
+        sent = 0
+        while forwarder.status().connections < 2:
+            forwarder.feed(_lines(1, 100 + sent)[0], 1)
+            sent += 1
+            time.sleep(0.002)
+        _wait(lambda: len(receiver.received) == 2)
+        later = b"".join(_lines(50, 10_000))
+        forwarder.feed(later, 1)
+        _wait(lambda: bytes(receiver.received[1]).endswith(later))
+        status = forwarder.status()
+    assert bytes(receiver.received[0]) == first
+    second = bytes(receiver.received[1])
+    assert second.endswith(later) and all(line.endswith(b"\n") for line in
+                                          second.splitlines(keepends=True))
+    assert status.lines_forwarded + status.lines_dropped == 100 + sent + 50
+    assert status.connections == 2
+
+
+def test_a_cut_line_of_a_dropped_connection_is_never_sent(receiver):
+    with LineForwarder("127.0.0.1", receiver.port) as forwarder:
+        _wait(lambda: forwarder.status().state == "connected")
+        forwarder.feed(b"1000\tACC\t0.1\t0.2\t9.8\n1010\tACC\t0.1", connection=1)
+        forwarder.feed(b"2000\tGYR\t0.0\t0.0\t0.1\n", connection=2)    # the phone reconnected
+        _wait(lambda: receiver.received and receiver.received[0].count(b"\n") == 2)
+    assert bytes(receiver.received[0]) == b"1000\tACC\t0.1\t0.2\t9.8\n2000\tGYR\t0.0\t0.0\t0.1\n"
+
+
+def test_a_receiver_that_reads_nothing_never_blocks_the_caller():
+    slow = Receiver(read=False)
+    try:
+        with LineForwarder("127.0.0.1", slow.port, max_queued_bytes=1 << 20) as forwarder:
+            _wait(lambda: forwarder.status().state == "connected")
+            block = b"".join(_lines(1000))                   # ~30 kB
+            started = time.perf_counter()
+            for _ in range(1000):                             # ~30 MB, far beyond the buffers
+                forwarder.feed(block, 1)
+            elapsed = time.perf_counter() - started
+            status = forwarder.status()
+    finally:
+        slow.close()
+    assert elapsed < 2.0
+    assert status.dropped_full > 500_000
+    assert status.lines_forwarded + status.lines_queued + status.lines_dropped == 1_000_000
+
+
+def test_without_a_receiver_lines_are_dropped_and_counted():
+    probe = socket.socket()
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()                                            # nothing listens there
+    with LineForwarder("127.0.0.1", port, reconnect_s=0.05) as forwarder:
+        forwarder.feed(b"".join(_lines(10)), 1)
+        time.sleep(0.1)
+        status = forwarder.status()
+    assert status.dropped_no_receiver == 10 and status.lines_forwarded == 0
+    assert status.state == "connecting" and forwarder.status().state == "stopped"
+    assert status.summary() == f"forward 127.0.0.1:{port} connecting, 0 lines sent, 10 dropped"
+
+
+def test_the_engine_forwards_what_the_phone_sends(receiver):
+    data = b"".join(_lines(3000)) + b"garbage line\n" + b"".join(_lines(10, 5000))
+    forwarder = LineForwarder("127.0.0.1", receiver.port)
+    engine = Engine(TcpSource("127.0.0.1", 0), comparisons=False, forwarder=forwarder)
+    with engine:
+        _wait(lambda: forwarder.status().state == "connected")
+        with PhoneEmulator("127.0.0.1", engine.source.port) as phone:
+            phone.send(data)
+        _wait(lambda: receiver.received and len(receiver.received[0]) == len(data))
+        health = _wait(lambda: engine.snapshot_now().health.forward.lines_forwarded == 3011
+                       and engine.snapshot_now().health)
+    assert bytes(receiver.received[0]) == data               # unknown lines too: verbatim
+    assert health.forward.summary().startswith(f"forward 127.0.0.1:{receiver.port} connected")
+
+
+@pytest.mark.parametrize("text, expected", [("192.168.1.5:3401", ("192.168.1.5", 3401)),
+                                            (":3401", ("127.0.0.1", 3401)),
+                                            ("3401", ("127.0.0.1", 3401))])
+def test_forward_target(text, expected):
+    assert forward_target(text) == expected
+
+
+@pytest.mark.parametrize("text", ["host:", "host:70000", "host:0", "nowhere"])
+def test_bad_forward_targets_are_one_line_errors(text):
+    with pytest.raises(ConfigError):
+        forward_target(text)

@@ -1,0 +1,259 @@
+"""Your own filter as an estimator: the contract, the template, and every way it can go wrong
+(each gives a message naming the file and line, or what was wrong, and pauses only that filter)."""
+
+from __future__ import annotations
+
+import math
+import textwrap
+
+import numpy as np
+import pytest
+
+import ekf
+from app.engine.offline import run_offline
+from app.engine.user_code import UserFilterError, load_code
+from app.engine.user_filter import UserFilterEstimator, filter_settings, make_estimator
+from app.engine.user_template import template_text, write_template
+from app.stream.protocol import parse_line
+from user_filters import FILTERS, log_lines, write_filter
+
+
+def _samples(seconds: float = 3.0, turn_rate: float = 0.5):
+    return [parse_line(line.decode()) for line in log_lines(seconds, turn_rate=turn_rate)]
+
+
+def _run(path, seconds: float = 3.0, settings=None, turn_rate: float = 0.5):
+    estimator = UserFilterEstimator(path, settings)
+    rows = run_offline(_samples(seconds, turn_rate), estimator, settings)
+    return estimator, rows
+
+
+# ---- the template ----------------------------------------------------------------------------
+
+def test_the_template_runs_as_written_flat_with_every_step_noted_missing(tmp_path):
+    path = write_template(tmp_path / "mine.py")
+    estimator, rows = _run(path)
+    assert isinstance(estimator, ekf.Estimator)
+    assert estimator.problem is None
+    assert np.all(rows.quat == [1.0, 0.0, 0.0, 0.0])           # a flat estimate throughout
+    lines = path.read_text().splitlines()
+    missing = estimator.missing_steps()
+    assert [m.split(" ")[0] for m in missing] == ["tu_qw", "mu_g", "mu_m", "mu_normalizeQ"]
+    for entry in missing:                     # each names the line of its raise
+        line = int(entry.rsplit(":", 1)[1].rstrip(")"))
+        assert "raise NotImplementedError" in lines[line - 1]
+    assert estimator.cov.shape == (4, 4)
+
+
+def test_writing_tu_qw_alone_turns_the_phone_with_the_gyroscope(tmp_path):
+    text = template_text("mine.py").replace(
+        '    raise NotImplementedError("task 4: tu_qw")',
+        "    F = np.eye(4) + T / 2 * Somega(omega)\n"
+        "    G = T / 2 * Sq(x)\n"
+        "    return F @ x, F @ P @ F.T + G @ Rw @ G.T")
+    path = tmp_path / "mine.py"
+    path.write_text(text)
+    estimator, rows = _run(path, seconds=3.0, turn_rate=2.0)
+    assert estimator.problem is None          # |q| drifts: normalised for display, with a note
+    assert any("mu_normalizeQ is not written yet" in note for note in estimator.notes)
+    turned = ekf.quaternion.from_axis_angle([0, 0, 1], 2.0 * 1.98)   # 2 rad/s for 1.98 s
+    assert math.degrees(ekf.quaternion.angle_between(rows.quat[-1], turned)) < 0.5
+    assert [m.split(" ")[0] for m in estimator.missing_steps()] == ["mu_g", "mu_m",
+                                                                    "mu_normalizeQ"]
+
+
+def test_the_constructor_gets_the_active_settings(tmp_path):
+    path = write_filter(tmp_path, "keeps", """
+        class Filter:
+            def __init__(self, settings):
+                self.settings = settings
+            def step(self, t, gyr, acc, mag):
+                return [1.0, 0.0, 0.0, 0.0]
+    """)
+    estimator = UserFilterEstimator(path, ekf.PRESETS["course"])
+    got = estimator.filter.settings
+    assert got["g0"].tolist() == [0.0, 0.0, 9.81]
+    assert got["Ra"].tolist() == ekf.PRESETS["course"].acc_noise_cov
+    assert got["m0"] is None and got["acc_gate"] == 1.0 and got["mag_gate"] == 5.0
+    assert set(filter_settings(ekf.PRESETS["default"])) >= {"g", "g0", "m0", "Rw", "Ra", "Rm",
+                                                            "gyr_bias"}
+
+
+# ---- what step may return ------------------------------------------------------------------
+
+def test_a_dict_with_P_lights_and_innovations(tmp_path):
+    path = write_filter(tmp_path, "full", """
+        import numpy as np
+        class Filter:
+            def step(self, t, gyr, acc, mag):
+                out = {"q": np.array([-0.6, 0.0, 0.0, -0.8]), "P": 0.01 * np.eye(7),
+                       "acc_disturbed": acc is not None, "mag_disturbed": False,
+                       "standstill": True}
+                if acc is not None:
+                    out["innovations"] = {"acc": (np.ones(3), 4.0 * np.eye(3))}
+                return out
+    """)
+    estimator = UserFilterEstimator(path)
+    estimator.collect_innovations = True
+    estimator.step(0.0, [0, 0, 0.1], [0, 0, 9.8], None)
+    assert estimator.problem is None
+    assert estimator.quat == pytest.approx([0.6, 0.0, 0.0, 0.8])   # w >= 0
+    assert estimator.cov.shape == (4, 4) and estimator.cov[0, 0] == 0.01
+    flags = estimator.flags
+    assert flags.acc_rejected and not flags.mag_rejected and flags.at_rest
+    assert flags.used_gyr and flags.used_acc and not flags.used_mag
+    assert estimator.diagnostics.acc_nis == pytest.approx(0.75)
+    t, sensor, nu, S, accepted = estimator.innovations[0]
+    assert (t, sensor, accepted) == (0.0, "acc", False) and S.shape == (3, 3)
+
+
+def test_switched_off_sensors_reach_the_filter_as_none(tmp_path):
+    path = write_filter(tmp_path, "records", """
+        class Filter:
+            seen = []
+            def step(self, t, gyr, acc, mag):
+                Filter.seen.append((gyr is None, acc is None, mag is None))
+                return [1.0, 0.0, 0.0, 0.0]
+    """)
+    estimator = UserFilterEstimator(path, sensors=("gyr", "mag"))
+    estimator.step(0.0, [0, 0, 0], [0, 0, 9.8], [0, 20, -40])
+    estimator.set_enabled(acc=True, mag=False)
+    estimator.step(0.01, [0, 0, 0], [0, 0, 9.8], [0, 20, -40])
+    assert estimator.filter.seen == [(False, True, False), (False, False, True)]
+
+
+def test_unknown_keys_are_a_note_not_a_pause(tmp_path):
+    path = write_filter(tmp_path, "typo", """
+        class Filter:
+            def step(self, t, gyr, acc, mag):
+                return {"q": [1.0, 0, 0, 0], "acc_disturbd": True}
+    """)
+    estimator = UserFilterEstimator(path)
+    estimator.step(0.0, None, [0, 0, 9.8], None)
+    assert estimator.problem is None
+    assert "acc_disturbd" in estimator.notes[0]
+
+
+# ---- errors --------------------------------------------------------------------------------
+
+def test_an_exception_pauses_the_filter_with_file_line_and_message(tmp_path):
+    path = write_filter(tmp_path, "raises")
+    estimator, rows = _run(path)
+    problem = estimator.problem
+    assert problem.kind == "exception" and problem.file == str(path.resolve())
+    assert problem.line == 11 and problem.function == "update"
+    assert problem.message.startswith("raises.py:11 in update: ValueError:")
+    assert problem.t_s == pytest.approx(1.51)
+    assert "return self.update(acc)" in problem.details            # the user's frames
+    assert "user_filter.py" not in problem.details                  # not ours
+    calls = estimator.filter.calls
+    estimator.step(5.0, None, [0, 0, 9.8], None)                    # paused: not called again
+    assert estimator.filter.calls == calls
+    assert len(rows) == 300 and np.all(rows.quat[-1] == [1.0, 0, 0, 0])
+
+
+@pytest.mark.parametrize("name, expected", [
+    ("nan", "q is not finite"),
+    ("shape", "q has shape (3,), expected 4 numbers (w, x, y, z)"),
+    ("nonunit", "q is not a unit quaternion: |q| = 1.2"),
+])
+def test_garbage_returned_pauses_with_a_message_naming_it(tmp_path, name, expected):
+    estimator, _ = _run(write_filter(tmp_path, name))
+    problem = estimator.problem
+    assert problem is not None and problem.kind == "output"
+    assert expected in problem.message and problem.message.startswith(f"{name}.py: ")
+
+
+@pytest.mark.parametrize("body, expected", [
+    ("class Filter:\n    def step(self, t, gyr, acc, mag)\n        return [1, 0, 0, 0]\n",
+     "bad.py:2: SyntaxError"),
+    ("import numpy as np\nx = 1 / 0\n", "bad.py:2 in <module>: ZeroDivisionError"),
+    ("def step(t, gyr, acc, mag):\n    return [1, 0, 0, 0]\n", "bad.py: no class Filter"),
+])
+def test_a_file_that_does_not_load_says_where(tmp_path, body, expected):
+    path = tmp_path / "bad.py"
+    path.write_text(body)
+    with pytest.raises(UserFilterError) as caught:
+        load_code(path)
+    assert caught.value.problem.message.startswith(expected)
+    assert caught.value.problem.kind == "load"
+
+
+def test_a_constructor_that_raises_pauses_it_from_the_start(tmp_path):
+    path = write_filter(tmp_path, "ctor", """
+        class Filter:
+            def __init__(self, settings):
+                self.R = settings["no such key"]
+            def step(self, t, gyr, acc, mag):
+                return [1.0, 0, 0, 0]
+    """)
+    estimator = UserFilterEstimator(path)
+    assert estimator.paused
+    assert estimator.problem.message.startswith("ctor.py:4 in __init__: KeyError")
+
+
+def test_not_implemented_in_a_helper_skips_the_sample_and_is_noted(tmp_path):
+    path = write_filter(tmp_path, "helper", """
+        class Filter:
+            def step(self, t, gyr, acc, mag):
+                if mag is not None:
+                    return self.gate(mag)
+                return [1.0, 0.0, 0.0, 0.0]
+            def gate(self, mag):
+                raise NotImplementedError("task 11")
+    """)
+    estimator, rows = _run(path)
+    assert estimator.problem is None
+    assert estimator.missing_steps() == ["gate (helper.py:8)"]
+    assert np.all(rows.quat == [1.0, 0.0, 0.0, 0.0])
+
+
+# ---- the rest of the Estimator protocol -------------------------------------------------------
+
+def test_snapshot_restore_and_align_heading(tmp_path):
+    path = write_filter(tmp_path, "count", """
+        import math
+        class Filter:
+            def __init__(self):
+                self.angle = 0.0
+            def step(self, t, gyr, acc, mag):
+                self.angle += 0.1
+                return [math.cos(self.angle / 2), 0.0, 0.0, math.sin(self.angle / 2)]
+    """)
+    estimator = UserFilterEstimator(path)
+    estimator.step(0.0)
+    saved = estimator.snapshot()
+    estimator.step(0.01)
+    estimator.step(0.02)
+    estimator.restore(saved)
+    estimator.step(0.01)
+    assert 2 * math.atan2(estimator.quat[3], estimator.quat[0]) == pytest.approx(0.2)
+    estimator.align_heading(ekf.quaternion.IDENTITY)
+    assert estimator.quat == pytest.approx([1.0, 0.0, 0.0, 0.0])
+    estimator.reset()
+    estimator.step(0.03)
+    assert estimator.filter.angle == pytest.approx(0.1)        # a new Filter object
+
+
+def test_make_estimator_takes_names_files_and_objects(tmp_path):
+    path = write_filter(tmp_path, "flat")
+    assert make_estimator(str(path)).name == "flat.py"
+    assert make_estimator("course").name == "course"
+    estimator = UserFilterEstimator(path)
+    assert make_estimator(estimator) is estimator
+    assert textwrap.dedent(FILTERS["flat"]) in path.read_text()
+
+
+def test_an_object_that_misbehaves_when_read_is_a_problem_not_a_crash(tmp_path):
+    path = write_filter(tmp_path, "weird", """
+        class Weird:
+            def __array__(self, *args, **kwargs):
+                raise RuntimeError("no array for you")
+        class Filter:
+            def step(self, t, gyr, acc, mag):
+                return {"q": Weird()}
+    """)
+    estimator = UserFilterEstimator(path)
+    estimator.step(0.0)
+    assert estimator.paused and "no array for you" in estimator.problem.message
+    assert estimator.problem.message.startswith("weird.py:4 in __array__: RuntimeError")

@@ -1,0 +1,106 @@
+"""The YOURS panel: what your filter is doing, its lights and problem (traceback on demand), and
+the Load / New / Unload buttons that send the engine's commands."""
+
+from __future__ import annotations
+
+import numpy as np
+from PySide6 import QtCore, QtWidgets
+
+from app.engine.commands import LoadUserFilter, UnloadUserFilter
+from app.engine.snapshot import UserFilterStatus, UserProblem
+from app.ui.user_filter_panel import UserFilterPanel
+
+CLICK = QtCore.Qt.MouseButton.LeftButton
+
+
+def _panel(qtbot):
+    sent = []
+    panel = UserFilterPanel(sent.append)
+    qtbot.addWidget(panel)
+    panel.show()
+    return panel, sent
+
+
+def _running(**changes) -> UserFilterStatus:
+    status = UserFilterStatus(name="mine.py", path="/home/me/mine.py", sha256="ab12cd34ef",
+                              state="running", quat=np.array([1.0, 0, 0, 0]),
+                              acc_disturbed=True, mag_disturbed=False, standstill=None,
+                              missing_steps=["mu_m (mine.py:88)"], time_per_sample_s=42e-6,
+                              angle_to_phone_deg=3.25, rmse_deg=4.5, message="loaded")
+    for key, value in changes.items():
+        setattr(status, key, value)
+    return status
+
+
+def test_nothing_loaded(qtbot):
+    panel, _ = _panel(qtbot)
+    assert "no filter loaded" in panel.file_label.text()
+    assert not panel.unload_button.isEnabled() and not panel.problem_box.isVisible()
+    assert {name: light.state for name, light in panel.lights.items()} == {
+        "acc": "off", "mag": "off", "standstill": "off"}
+
+
+def test_a_running_filter(qtbot):
+    panel, _ = _panel(qtbot)
+    panel.update_status(_running())
+    assert "mine.py" in panel.file_label.text() and "ab12cd34" in panel.file_label.text()
+    assert "running" in panel.state_label.text()
+    assert panel.lights["acc"].state == "acc disturbed" and panel.lights["mag"].state == "ok"
+    assert panel.lights["standstill"].state == "off"            # not reported by this filter
+    assert panel.speed_label.text() == "42 µs per sample"
+    assert panel.error_label.text() == "to PHONE 3.2°, RMSE 4.5°"
+    assert "Not written yet (skipped): mu_m (mine.py:88)" in panel.missing_label.text()
+    assert not panel.problem_box.isVisible() and panel.unload_button.isEnabled()
+
+
+def test_a_slow_filter_says_how_much_of_the_stream_it_gets(qtbot):
+    panel, _ = _panel(qtbot)
+    panel.update_status(_running(time_per_sample_s=3.1e-3, slow=True, used_fraction=0.22))
+    text = panel.speed_label.text()
+    assert "too slow" in text and "3.1 ms per sample" in text and "22%" in text
+
+
+def test_a_paused_filter_shows_file_line_message_and_the_traceback_on_demand(qtbot):
+    panel, _ = _panel(qtbot)
+    problem = UserProblem("exception", "mine.py:61 in mu_g: ValueError: shapes (3,) (4,)",
+                          "Traceback (most recent call last):\n  File \"mine.py\", line 61\n"
+                          "ValueError: shapes (3,) (4,)\n", "/home/me/mine.py", 61, "mu_g", 2.5)
+    panel.update_status(_running(state="paused", problem=problem))
+    assert panel.problem_box.isVisible() and "paused" in panel.state_label.text()
+    assert "mine.py:61 in mu_g: ValueError" in panel.problem_label.text()
+    assert "save the file" in panel.problem_label.text()
+    assert not panel.details.isVisible()
+    qtbot.mouseClick(panel.details_button, CLICK)
+    assert panel.details.isVisible() and "line 61" in panel.details.toPlainText()
+    qtbot.mouseClick(panel.copy_button, CLICK)
+    assert QtWidgets.QApplication.clipboard().text().startswith("mine.py:61 in mu_g")
+    panel.update_status(_running())                               # saved and running again
+    assert not panel.problem_box.isVisible()
+
+
+def test_catching_up_shows_its_progress(qtbot):
+    panel, _ = _panel(qtbot)
+    panel.update_status(_running(state="catching up", progress=0.4))
+    assert "catching up 40%" in panel.state_label.text()
+
+
+def test_load_new_and_unload_send_commands(qtbot, tmp_path, monkeypatch):
+    panel, sent = _panel(qtbot)
+    chosen = tmp_path / "theirs.py"
+    monkeypatch.setattr(QtWidgets.QFileDialog, "getOpenFileName",
+                        lambda *args, **kwargs: (str(chosen), ""))
+    qtbot.mouseClick(panel.load_button, CLICK)
+    assert sent == [LoadUserFilter(str(chosen))]
+    new = tmp_path / "mine"
+    monkeypatch.setattr(QtWidgets.QFileDialog, "getSaveFileName",
+                        lambda *args, **kwargs: (str(new), ""))
+    qtbot.mouseClick(panel.new_button, CLICK)
+    assert sent[-1] == LoadUserFilter(str(new) + ".py")
+    assert "def tu_qw(x, P, omega, T, Rw):" in (tmp_path / "mine.py").read_text()
+    (tmp_path / "mine.py").write_text("mine, keep")
+    qtbot.mouseClick(panel.new_button, CLICK)                    # never overwritten
+    assert (tmp_path / "mine.py").read_text() == "mine, keep" and len(sent) == 2
+    assert "not overwritten" in panel.action_label.text()
+    panel.update_status(_running())
+    qtbot.mouseClick(panel.unload_button, CLICK)
+    assert sent[-1] == UnloadUserFilter()
