@@ -22,7 +22,8 @@ from app.stream.forwarder import ForwardStatus
 class FilterStatus:
     """The main estimator's lights and their reasons: its flags and diagnostics as the estimator
     declares them (ekf.Flags, ekf.Diagnostics; units in their README tables), which sensors are
-    switched in, the estimator's name and whether it has started (from its first readings)."""
+    switched in, the estimator's name and whether it has started (from its first readings);
+    settings: the ekf.EKFSettings the filter runs with now (None from a test double)."""
 
     sensors_enabled: dict[str, bool] = field(
         default_factory=lambda: {"gyr": True, "acc": True, "mag": True})
@@ -30,6 +31,7 @@ class FilterStatus:
     diagnostics: ekf.Diagnostics = field(default_factory=ekf.Diagnostics)
     estimator: str = "ekf"
     initialised: bool = False
+    settings: Any = None
 
 
 @dataclass

@@ -711,7 +711,7 @@ class Engine:
         main = self._runner.main
         return FilterStatus(sensors_enabled=main.enabled, flags=main.flags,
                             diagnostics=main.diagnostics, estimator=self._runner.estimator_name,
-                            initialised=main.initialised)
+                            initialised=main.initialised, settings=self._runner.settings)
 
     def _health(self, now: float, info: dict[str, Any]) -> StreamHealth:
         parse = self._parser.stats

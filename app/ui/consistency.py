@@ -33,6 +33,7 @@ from app.engine.snapshot import INNOVATION_SENSORS, INNOVATION_SOURCES, PlotChun
 CHI2_95 = {1: (0.000982069, 5.023886), 2: (0.05063562, 7.377759), 3: (0.2157953, 9.348404)}
 COMPONENT_COLOURS = ((220, 50, 50), (40, 150, 40), (40, 90, 220))
 REFRESH_S = 0.25
+SENSOR_UNITS = ("m/s²", "µT", "rad/s")      # of the innovations, per INNOVATION_SENSORS
 
 
 class InnovationSeries:
@@ -122,10 +123,12 @@ class ConsistencyView(QtWidgets.QWidget):
         self.summary.setWordWrap(True)
         layout.addWidget(self.summary)
         self.graphics = pg.GraphicsLayoutWidget()
+        self.graphics.setBackground((250, 250, 252))    # as the live plots
         layout.addWidget(self.graphics, 1)
         self._build_plots()
         self._timer = QtCore.QTimer(self)
-        self._timer.timeout.connect(self.refresh)
+        self._timer.timeout.connect(self._tick)
+        self._asked = False          # innovations asked of the engine (while shown)
         self._timer.start(int(REFRESH_S * 1000))
 
     def _controls(self) -> QtWidgets.QHBoxLayout:
@@ -150,6 +153,8 @@ class ConsistencyView(QtWidgets.QWidget):
         self.component_plots, self.component_items = [], []
         for axis, colour in zip("xyz", COMPONENT_COLOURS):
             plot = g.addPlot(title=f"innovation {axis} with ±2σ, ±3σ")
+            plot.getAxis("left").enableAutoSIPrefix(False)
+            plot.getAxis("left").setWidth(64)
             items = {"nu": plot.plot(pen=pg.mkPen(colour, width=1)),
                      "rejected": pg.ScatterPlotItem(symbol="x", size=8, pen=pg.mkPen(200, 0, 0),
                                                     brush=pg.mkBrush(220, 0, 0))}
@@ -165,6 +170,10 @@ class ConsistencyView(QtWidgets.QWidget):
             self.component_items.append(items)
             g.nextRow()
         self.nis_plot = g.addPlot(title="NIS with the 95 % χ² bounds")
+        self.nis_plot.setLabel("left", "NIS")
+        self.nis_plot.getAxis("left").setWidth(64)
+        self.nis_plot.setLabel("bottom", "time since the session's start", units="s")
+        self.nis_plot.getAxis("bottom").enableAutoSIPrefix(False)
         self.nis_plot.setXLink(self.component_plots[0])
         self.nis_curve = self.nis_plot.plot(pen=pg.mkPen((60, 60, 60), width=1))
         self.nis_rejected = pg.ScatterPlotItem(symbol="x", size=8, pen=pg.mkPen(200, 0, 0))
@@ -176,6 +185,9 @@ class ConsistencyView(QtWidgets.QWidget):
             self.nis_plot.addItem(line)
         g.nextRow()
         self.hist_plot = g.addPlot(title="normalised innovations vs N(0, 1)")
+        self.hist_plot.setLabel("left", "density")
+        self.hist_plot.getAxis("left").setWidth(64)
+        self.hist_plot.setLabel("bottom", "S^-1/2 ν (pooled components, no unit)")
         self.hist_curve = self.hist_plot.plot(stepMode="center", fillLevel=0,
                                               brush=(80, 130, 220, 120), pen=pg.mkPen(40, 80, 180))
         x = np.linspace(-5, 5, 201)
@@ -222,6 +234,10 @@ class ConsistencyView(QtWidgets.QWidget):
 
     # -- drawing --------------------------------------------------------------------------------
 
+    def _tick(self) -> None:
+        if self.isVisible():          # hidden (another workspace): drawn when shown again
+            self.refresh()
+
     def refresh(self) -> None:
         """Redraw the selected series if anything changed."""
         if not self._dirty:
@@ -230,6 +246,9 @@ class ConsistencyView(QtWidgets.QWidget):
         t, nu, S, accepted = self.series[self.selected()].arrays()
         self.stats = stats = consistency(nu, S, accepted)
         self.summary.setText(self._summary_text(stats))
+        unit = SENSOR_UNITS[self.selected()[1]]
+        for plot in self.component_plots:
+            plot.setLabel("left", "ν", units=unit)
         k = stats["k"]
         for i, (plot, items) in enumerate(zip(self.component_plots, self.component_items)):
             shown = i < max(k, 1)
@@ -278,10 +297,12 @@ class ConsistencyView(QtWidgets.QWidget):
 
     def showEvent(self, event) -> None:  # noqa: N802 (Qt name)
         super().showEvent(event)
-        if self.send is not None:
+        if self.send is not None and not self._asked:
+            self._asked = True
             self.send(SetConsistencyEnabled(True))
 
     def hideEvent(self, event) -> None:  # noqa: N802 (Qt name)
         super().hideEvent(event)
-        if self.send is not None:
+        if self.send is not None and self._asked:
+            self._asked = False
             self.send(SetConsistencyEnabled(False))

@@ -229,7 +229,9 @@ class ComparisonPanel(QtWidgets.QWidget, _FollowsEngine):
             table.setRowCount(len(comparisons))
         for row, comparison in enumerate(comparisons):
             enough = comparison.samples >= MIN_COMPARED
-            texts = [comparison.name] + [
+            # "YOURS (my_filter.py)" is too wide for the column: the file name in the tooltip
+            name = "YOURS" if comparison.name.startswith("YOURS") else comparison.name
+            texts = [name] + [
                 _degrees(value) if enough else "—" for value in comparison.rmse_deg]
             for column, text in enumerate(texts):
                 item = table.item(row, column)
@@ -241,6 +243,8 @@ class ComparisonPanel(QtWidgets.QWidget, _FollowsEngine):
                     table.setItem(row, column, item)
                 if item.text() != text:
                     item.setText(text)
+                    if not column:
+                        item.setToolTip(comparison.name)
 
     def rows(self) -> list[tuple[str, ...]]:
         """The table's text, row by row (for tests)."""

@@ -21,6 +21,7 @@ from app import paths
 from app.engine.config import ConfigError, SourceOptions, load_settings, make_source
 from app.engine.worker import Engine
 from app.stream.forwarder import LineForwarder
+from app.stream.sources import DEMO_SESSION
 
 GUI_SWITCH_INTERVAL_S = 0.0002
 HEADLESS_COMMANDS = ("filter, evaluate, calibrate, calibrate-mag, tune, simulate, send, serve, "
@@ -49,6 +50,13 @@ def build_engine(options: WindowOptions) -> Engine:
     return Engine(make_source(options.source), settings=load_settings(options.settings),
                   limits=options.source.limits, user_filter=options.filter,
                   forwarder=forwarder)
+
+
+def session_to_tune(source: SourceOptions) -> Path | str | None:
+    """What the Tune workspace re-filters: the replayed log or session, or the demo's."""
+    if source.replay:
+        return source.replay
+    return DEMO_SESSION if source.demo else None
 
 
 def check_display() -> None:
@@ -128,7 +136,8 @@ def run_gui(options: WindowOptions) -> int:
         raise ConfigError(f"cannot start the source: {error.strerror or error}") from None
     window = None
     try:
-        window = MainWindow(engine, settings=settings, log_path=log_path)
+        window = MainWindow(engine, settings=settings, log_path=log_path,
+                            tune_log=session_to_tune(options.source))
         if options.size is not None:
             window.resize(*options.size)
             window.arrange_default_layout()

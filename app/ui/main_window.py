@@ -1,6 +1,7 @@
-"""The main window: workspaces in tabs (Live: OWN and PHONE in 3D above three tabs of plots, and
-the transport bar), docks for the filter's lights and switches, the sensor-combination table
-and the connection, menus that show their state.
+"""The main window: workspaces in tabs (Live: OWN and PHONE in 3D, and YOURS when your own
+filter is loaded, above three tabs of plots, and the transport bar; Calibrate; Tune;
+Consistency), docks for the filter's lights and switches, the sensor-combination table, the
+connection and your filter, menus that show their state.
 
 The window owns no filter state. A QTimer at display rate takes the engine's latest
 snapshot with `engine.poll()` (non-blocking) and hands its parts to the widgets; the widgets
@@ -30,9 +31,14 @@ from typing import Any, Protocol
 import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
+import ekf
 from app import __version__
+from app.engine.commands import SetSettings, UnloadUserFilter
+from app.engine.profiles import ProfileStore
 from app.engine.snapshot import Snapshot
+from app.ui.calibration import CalibrationWorkspace
 from app.ui.connection import ConnectionPanel, connection_text
+from app.ui.consistency import ConsistencyView
 from app.ui.controls import ESTIMATOR_CHOICES, SENSOR_LABELS, ComparisonPanel, FilterPanel
 from app.ui.failures import FailureDialog
 from app.ui.layouts import LayoutStore
@@ -40,6 +46,8 @@ from app.ui.lights import LightsPanel
 from app.ui.phone_view import PhoneView, software_gl
 from app.ui.plots import PlotPanel
 from app.ui.transport import TransportBar
+from app.ui.tune_workspace import TuneWorkspace
+from app.ui.user_filter_panel import UserFilterPanel, load_filter_dialog, new_filter_dialog
 
 ORGANIZATION = "OrientationLab"
 APPLICATION = "OrientationLab"
@@ -97,11 +105,15 @@ class MainWindow(QtWidgets.QMainWindow):
         frame_interval_ms: display refresh period; None: FRAME_INTERVAL_MS, or
             SOFTWARE_GL_FRAME_INTERVAL_MS when the 3D views render in software.
         log_path: where engine failures are logged (named in the failure dialog).
+        tune_log: the session the Tune workspace re-filters (the replayed log, the demo);
+            None: the user opens one there.
+        profiles: where calibration and tuning profiles are kept (None: the data folder).
     """
 
     def __init__(self, engine: EngineLike, settings: QtCore.QSettings | None = None,
                  use_gl: bool | None = None, frame_interval_ms: int | None = None,
-                 log_path: Path | None = None) -> None:
+                 log_path: Path | None = None, tune_log: str | Path | None = None,
+                 profiles: ProfileStore | None = None) -> None:
         super().__init__()
         self.engine = engine
         self.settings = settings if settings is not None else default_settings()
@@ -118,6 +130,10 @@ class MainWindow(QtWidgets.QMainWindow):
         self._panel_snapshot: Snapshot | None = None   # not yet shown in the slow panels
         self._panels_shown_at = -math.inf
         self._linking_cameras = False
+        self.filter_settings = ekf.PRESETS["default"]   # what the filter runs with (status)
+        self._engine_settings = None                    # the engine's, last seen
+        self._user_history = None                       # the YOURS re-run last drawn
+        self.profiles = profiles or ProfileStore()
 
         self.setWindowTitle("Orientation Lab")
         self.setObjectName("main_window")
@@ -129,6 +145,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.workspaces.setObjectName("workspaces")
         self.workspaces.setDocumentMode(True)
         self.add_workspace(self.live_workspace, "Live / Replay")
+        self._build_tool_workspaces(use_gl, tune_log)
         self.setCentralWidget(self.workspaces)
         self._build_docks()
         self._build_status_bar()
@@ -154,12 +171,15 @@ class MainWindow(QtWidgets.QMainWindow):
     def _build_live_workspace(self, use_gl: bool | None) -> None:
         self.own_view = PhoneView("OWN", use_gl=use_gl)
         self.phone_view = PhoneView("PHONE", use_gl=use_gl)
+        self.user_view = PhoneView("YOURS", use_gl=use_gl)
+        self.user_view.setVisible(False)        # shown while your filter is loaded
         self.plots = PlotPanel()
         self.transport = TransportBar(self.send)
         self.views_splitter = QtWidgets.QSplitter(QtCore.Qt.Orientation.Horizontal)
         self.views_splitter.setObjectName("views_splitter")
         self.views_splitter.addWidget(self.own_view)
         self.views_splitter.addWidget(self.phone_view)
+        self.views_splitter.addWidget(self.user_view)
         self.central_splitter = QtWidgets.QSplitter(QtCore.Qt.Orientation.Vertical)
         self.central_splitter.setObjectName("central_splitter")
         self.central_splitter.setChildrenCollapsible(False)
@@ -174,8 +194,24 @@ class MainWindow(QtWidgets.QMainWindow):
         box.setSpacing(2)
         box.addWidget(self.central_splitter, 1)
         box.addWidget(self.transport)        # outside the splitter: always visible
-        for view in (self.own_view, self.phone_view):
+        for view in self.views():
             view.camera_changed.connect(lambda v=view: self._on_camera_changed(v))
+
+    def _build_tool_workspaces(self, use_gl: bool | None, tune_log: str | Path | None) -> None:
+        """Calibrate (task 2, Allan, magnetometer), Tune (settings, A/B re-filter, auto-tune)
+        and Consistency (innovations): each draws and sends through the window's send."""
+        settings = lambda: self.filter_settings   # noqa: E731 (read when used)
+        self.calibration = CalibrationWorkspace(self.send, settings, store=self.profiles,
+                                                use_gl=self.own_view.gl_view is not None)
+        self.tune = TuneWorkspace(self.send, settings, log=tune_log, store=self.profiles)
+        self.consistency = ConsistencyView(self.send)
+        self.add_workspace(self.calibration, "Calibrate")
+        self.add_workspace(self.tune, "Tune")
+        self.add_workspace(self.consistency, "Consistency")
+
+    def views(self) -> tuple[PhoneView, ...]:
+        """The 3D views: OWN, PHONE, YOURS (hidden while no filter of yours is loaded)."""
+        return (self.own_view, self.phone_view, self.user_view)
 
     def add_workspace(self, widget: QtWidgets.QWidget, title: str) -> int:
         """A workspace tab (Live / Replay; later calibration, tuning, consistency)."""
@@ -212,6 +248,8 @@ class MainWindow(QtWidgets.QMainWindow):
         self.comparison_dock = self._add_dock("Sensor combinations", "comparison_dock",
                                               self.comparison)
         self.connection_dock = self._add_dock("Connection", "connection_dock", self.connection)
+        self.user_panel = UserFilterPanel(self.send)
+        self.user_dock = self._add_dock("Your filter", "user_dock", self.user_panel)
         self.controls.uncertainty_toggled.connect(self.own_view.set_uncertainty_visible)
         self.controls.sensor_toggled.connect(self._on_sensor_toggled)
         self.controls.estimator_changed.connect(self._on_estimator_changed)
@@ -219,21 +257,27 @@ class MainWindow(QtWidgets.QMainWindow):
     def arrange_default_layout(self) -> None:
         """The docks on the right: Filter above, the table and the connection below, tabbed
         together on screens too short to stack all three; the views above the plots."""
-        for dock in (self.filter_dock, self.comparison_dock, self.connection_dock):
+        for dock in self.docks():
             dock.setFloating(False)
             dock.show()
             self.addDockWidget(QtCore.Qt.DockWidgetArea.RightDockWidgetArea, dock)
         height = self.height()
         if height < 950:
             self.tabifyDockWidget(self.comparison_dock, self.connection_dock)
+            self.tabifyDockWidget(self.connection_dock, self.user_dock)
             self.comparison_dock.raise_()
         else:
             self.splitDockWidget(self.comparison_dock, self.connection_dock,
                                  QtCore.Qt.Orientation.Vertical)
+            self.tabifyDockWidget(self.connection_dock, self.user_dock)
+            self.connection_dock.raise_()
         self.resizeDocks([self.filter_dock], [max(340, int(self.width() * 0.24))],
                          QtCore.Qt.Orientation.Horizontal)
         self.central_splitter.setSizes([int(height * 0.36), int(height * 0.64)])
-        self.views_splitter.setSizes([1, 1])
+        self.views_splitter.setSizes([1, 1, 1])
+
+    def docks(self) -> tuple[QtWidgets.QDockWidget, ...]:
+        return (self.filter_dock, self.comparison_dock, self.connection_dock, self.user_dock)
 
     def _build_status_bar(self) -> None:
         bar = self.statusBar()
@@ -262,6 +306,14 @@ class MainWindow(QtWidgets.QMainWindow):
     def _build_actions(self) -> None:
         menus = self.menuBar()
         self.file_menu = menus.addMenu("&File")
+        self.load_filter_action = self._action(
+            self.file_menu, "&Load your filter…", None, lambda: load_filter_dialog(self, self.send))
+        self.new_filter_action = self._action(
+            self.file_menu, "&New filter from the course template…", None,
+            lambda: new_filter_dialog(self, self.send))
+        self.unload_filter_action = self._action(self.file_menu, "&Unload your filter", None,
+                                                 lambda: self.send(UnloadUserFilter()))
+        self.file_menu.addSeparator()
         self.quit_action = self._action(self.file_menu, "&Quit", "Ctrl+Q", self.close)
         self._build_view_menu(menus.addMenu("&View"))
         self._build_filter_menu(menus.addMenu("F&ilter"))
@@ -287,7 +339,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.remember_action = self._action(menu, "Re&member my set-up (sensors, estimator)",
                                             None, self._on_remember_toggled, checkable=True)
         menu.addSeparator()
-        for dock in (self.filter_dock, self.comparison_dock, self.connection_dock):
+        for dock in self.docks():
             menu.addAction(dock.toggleViewAction())
 
     def _build_filter_menu(self, menu: QtWidgets.QMenu) -> None:
@@ -316,8 +368,18 @@ class MainWindow(QtWidgets.QMainWindow):
     # ---- engine --------------------------------------------------------------------------
 
     def send(self, command: Any) -> None:
-        """Forward one command to the engine (applied between two batches of samples)."""
+        """Forward one command to the engine (applied between two batches of samples). New
+        settings (from Calibrate, Tune or a panel) are shown everywhere at once and re-run the
+        Tune workspace's session."""
         self.engine.send(command)
+        if isinstance(command, SetSettings):
+            self._settings_changed(command.settings)
+
+    def _settings_changed(self, settings: Any) -> None:
+        if settings is None:
+            return
+        self.filter_settings = settings
+        self.tune.settings_changed(settings)
 
     def tick(self) -> None:
         """One display frame: take the latest snapshot, draw it."""
@@ -346,6 +408,14 @@ class MainWindow(QtWidgets.QMainWindow):
         self.phone_view.set_orientation(snapshot.phone_quat)
         self.lights.update_status(snapshot.status, has_data)
         self.controls.update_status(snapshot.status)
+        running = snapshot.status.settings
+        if running is not None and running is not self._engine_settings:
+            self._engine_settings = running
+            if running != self.filter_settings:
+                self._settings_changed(running)   # e.g. a session's own settings
+        self._apply_user(snapshot)
+        self.calibration.feed(snapshot)
+        self.consistency.apply_snapshot(snapshot)
         self.plots.append(snapshot.plot)
         self.plots.set_status(snapshot.status)
         self.plots.set_time_origin(snapshot.t0_ms)
@@ -358,6 +428,30 @@ class MainWindow(QtWidgets.QMainWindow):
             self.failure_dialog.show_failure(latest, latest.number)
             self.statusBar().showMessage(f"engine error: {latest.message}", 15000)
 
+    def _apply_user(self, snapshot: Snapshot) -> None:
+        """YOURS: its 3D view, its curves (a re-run's history replaces them), its panel."""
+        user = snapshot.user
+        present = user is not None
+        if present != self.user_view.isVisible():
+            self.user_view.setVisible(present)
+        if present != self.plots.user_present:
+            self.plots.set_user_present(present)
+        if not present:
+            self._user_history = None
+            return
+        if user.quat is not None:
+            self.user_view.set_orientation(user.quat, user.cov)
+        else:
+            self.user_view.set_no_data(user.state if user.state != "running"
+                                       else "waiting for data")
+            self.user_view.set_orientation(None)
+        history = user.history
+        if history is not None and history is not self._user_history:
+            self._user_history = history
+            t0 = snapshot.t0_ms if snapshot.t0_ms is not None else 0
+            self.plots.replace_user_history((history.t_ms - t0) / 1000.0, history.euler_deg,
+                                            (history.t_err_ms - t0) / 1000.0, history.error_deg)
+
     def refresh_panels(self) -> None:
         """Show the latest snapshot in the comparison table, connection panel and status bar
         (called from tick() at most every PANEL_INTERVAL_S)."""
@@ -369,6 +463,7 @@ class MainWindow(QtWidgets.QMainWindow):
             return
         self.comparison.update_comparisons(snapshot.comparisons, snapshot.comparison_estimator)
         self.connection.update_health(snapshot.health)
+        self.user_panel.update_status(snapshot.user)
         self._update_status_bar(snapshot)
 
     def _update_status_bar(self, snapshot: Snapshot) -> None:
@@ -392,7 +487,7 @@ class MainWindow(QtWidgets.QMainWindow):
     def _drawn_widgets(self) -> list[QtWidgets.QWidget]:
         """The widgets that change every frame: their paint events are the frames."""
         widgets = [group.graphics.viewport() for group in self.plots.groups.values()]
-        for view in (self.own_view, self.phone_view):
+        for view in self.views():
             widgets.append(view.gl_view if view.gl_view is not None else view.placeholder)
         return widgets
 
@@ -453,7 +548,8 @@ class MainWindow(QtWidgets.QMainWindow):
         if self.link_cameras_action.isChecked() != bool(linked):
             self.link_cameras_action.setChecked(bool(linked))
         if linked:
-            self.phone_view.set_camera(self.own_view.camera())
+            for other in (self.phone_view, self.user_view):
+                other.set_camera(self.own_view.camera())
         self.statusBar().showMessage("3D cameras linked: turning one turns both" if linked
                                      else "3D cameras move on their own", 3000)
 
@@ -462,14 +558,15 @@ class MainWindow(QtWidgets.QMainWindow):
             return
         self._linking_cameras = True
         try:
-            other = self.phone_view if view is self.own_view else self.own_view
-            other.set_camera(view.camera())
+            for other in self.views():
+                if other is not view:
+                    other.set_camera(view.camera())
         finally:
             self._linking_cameras = False
 
     def reset_cameras(self) -> None:
-        self.own_view.reset_camera()
-        self.phone_view.reset_camera()
+        for view in self.views():
+            view.reset_camera()
 
     def about_text(self) -> str:
         import pyqtgraph
@@ -611,7 +708,8 @@ class MainWindow(QtWidgets.QMainWindow):
     def shutdown(self) -> None:
         """Stop drawing and stop the engine's thread (idempotent)."""
         self.timer.stop()
-        for view in (self.own_view, self.phone_view):
+        self.tune.close_runs()
+        for view in self.views():
             view.release_gl()
         if not self._engine_stopped:
             self._engine_stopped = True

@@ -28,6 +28,27 @@ def _make_gl_view():
     return SceneView()
 
 
+class ElidedLabel(QtWidgets.QLabel):
+    """A one-line label that may be narrower than its text: the end is cut with "…" (the whole
+    text in the tooltip), so three views side by side fit a 1280-pixel screen."""
+
+    def minimumSizeHint(self) -> QtCore.QSize:  # noqa: N802 (Qt name)
+        return QtCore.QSize(self.fontMetrics().horizontalAdvance("…") + 4,
+                            super().minimumSizeHint().height())
+
+    def setText(self, text: str) -> None:  # noqa: N802 (Qt name)
+        super().setText(text)
+        self.setToolTip(text)
+
+    def paintEvent(self, event: QtGui.QPaintEvent) -> None:  # noqa: N802 (Qt name)
+        painter = QtGui.QPainter(self)
+        text = self.fontMetrics().elidedText(self.text(), QtCore.Qt.TextElideMode.ElideRight,
+                                             self.contentsRect().width())
+        painter.setPen(self.palette().color(QtGui.QPalette.ColorRole.WindowText))
+        painter.drawText(self.contentsRect(), int(QtCore.Qt.AlignmentFlag.AlignLeft
+                                                  | QtCore.Qt.AlignmentFlag.AlignVCenter), text)
+
+
 class PhoneView(QtWidgets.QFrame):
     """One titled 3D view (OWN or PHONE). Falls back to a text label without OpenGL.
 
@@ -65,7 +86,7 @@ class PhoneView(QtWidgets.QFrame):
         header = QtWidgets.QHBoxLayout()
         self.title_label = QtWidgets.QLabel(f"<b>{title}</b>")
         self.title_label.setStyleSheet("font-size: 15px;")
-        self.detail_label = QtWidgets.QLabel("no data")
+        self.detail_label = ElidedLabel("no data")
         self.detail_label.setStyleSheet("color: gray;")
         self.reset_camera_button = QtWidgets.QToolButton()
         self.reset_camera_button.setText("Reset view")

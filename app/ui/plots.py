@@ -7,6 +7,9 @@
 * Error vs PHONE: total angle, heading and inclination of OWN against PHONE, compared at
   PHONE's time stamps.
 
+With your own filter loaded (YOURS) its Euler angles and errors join the last two tabs, dotted
+in the same colours, with a YOURS toggle in their legends (shown only while YOURS has data).
+
 Samples arrive in PlotChunks (one per display frame) and go into preallocated numpy buffers
 of bounded size; the current tab's curves are redrawn at most once per display frame, only
 over the visible window, peak-downsampled to the plot's width. Following shows the last
@@ -55,6 +58,7 @@ class _CurveSpec:
     tags: frozenset[str]  # the legend toggles that show/hide it
     color: tuple[int, int, int]
     dashed: bool = False
+    dotted: bool = False
 
 
 @dataclass
@@ -78,7 +82,9 @@ PLOTS = (
               "e = q_OWN ⊗ conj(q_PHONE) at PHONE's time stamps (OWN slerped to them): total "
               "angle 2·acos|e_w|, heading 2·atan|e_z/e_w| (about up), inclination (tilt)"),
 )
-STREAM_COLUMNS = {"acc": 5, "gyr": 4, "mag": 5, "own": 3, "phone": 3, "error": 3}
+STREAM_COLUMNS = {"acc": 5, "gyr": 4, "mag": 5, "own": 3, "phone": 3, "error": 3, "user": 3,
+                  "user_error": 3}
+USER_STREAMS = ("user", "user_error")   # YOURS: replaced by a re-run's history, never clear others
 
 
 def _curve_specs() -> list[_CurveSpec]:
@@ -93,9 +99,13 @@ def _curve_specs() -> list[_CurveSpec]:
                                 EULER_COLORS[column]))
         specs.append(_CurveSpec("phone", column, name, f"PHONE {name}", frozenset({"PHONE"}),
                                 EULER_COLORS[column], dashed=True))
+        specs.append(_CurveSpec("user", column, name, f"YOURS {name}", frozenset({"YOURS"}),
+                                EULER_COLORS[column], dotted=True))
     for column, name in enumerate(("total", "heading", "inclination")):
-        specs.append(_CurveSpec("error", column, "error", name, frozenset({name}),
+        specs.append(_CurveSpec("error", column, "error", name, frozenset({name, "OWN"}),
                                 ERROR_COLORS[column]))
+        specs.append(_CurveSpec("user_error", column, "error", f"YOURS {name}",
+                                frozenset({name, "YOURS"}), ERROR_COLORS[column], dotted=True))
     return specs
 
 
@@ -103,10 +113,13 @@ LEGENDS = {
     "sensors": (("x", AXIS_COLORS[0], "line"), ("y", AXIS_COLORS[1], "line"),
                 ("z", AXIS_COLORS[2], "line"), ("norm", NORM_COLOR, "line"),
                 ("rejected", REJECTED_COLOR, "band"), ("gates", GATE_COLOR, "dash")),
-    "orientation": (("OWN", (60, 60, 60), "line"), ("PHONE", (60, 60, 60), "dash")),
+    "orientation": (("OWN", (60, 60, 60), "line"), ("PHONE", (60, 60, 60), "dash"),
+                    ("YOURS", (60, 60, 60), "dot")),
     "error": (("total", ERROR_COLORS[0], "line"), ("heading", ERROR_COLORS[1], "line"),
-              ("inclination", ERROR_COLORS[2], "line")),
+              ("inclination", ERROR_COLORS[2], "line"), ("OWN", (60, 60, 60), "line"),
+              ("YOURS", (60, 60, 60), "dot")),
 }
+USER_TOGGLES = (("orientation", "YOURS"), ("error", "YOURS"), ("error", "OWN"))
 
 
 class _Curve(pg.PlotCurveItem):
@@ -186,6 +199,8 @@ def _legend_icon(color: tuple[int, int, int], style: str) -> QtGui.QIcon:
         pen = QtGui.QPen(QtGui.QColor(*color), 2)
         if style == "dash":
             pen.setStyle(QtCore.Qt.PenStyle.DashLine)
+        elif style == "dot":
+            pen.setStyle(QtCore.Qt.PenStyle.DotLine)
         painter.setPen(pen)
         painter.drawLine(1, 6, 21, 6)
     painter.end()
@@ -227,6 +242,7 @@ class PlotPanel(QtWidgets.QWidget):
         self.cursors: dict[str, pg.InfiniteLine] = {}
         self.groups: dict[str, _Group] = {}
         self._band_spans: dict[str, np.ndarray] = {}
+        self.user_present = False
 
         layout = QtWidgets.QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
@@ -250,6 +266,7 @@ class PlotPanel(QtWidgets.QWidget):
         layout.addWidget(self.tabs, 1)
         for spec in _curve_specs():
             self._add_curve(spec)
+        self.set_user_present(False)
 
     # ---- construction ---------------------------------------------------------------------
 
@@ -374,8 +391,10 @@ class PlotPanel(QtWidgets.QWidget):
         return plot
 
     def _add_curve(self, spec: _CurveSpec) -> None:
-        # 1-px pens without antialiasing: Qt's fast line path (dashes cost more: PHONE only).
-        style = QtCore.Qt.PenStyle.DashLine if spec.dashed else QtCore.Qt.PenStyle.SolidLine
+        # 1-px pens without antialiasing: Qt's fast line path (dashes cost more: PHONE and
+        # YOURS only).
+        style = (QtCore.Qt.PenStyle.DashLine if spec.dashed else
+                 QtCore.Qt.PenStyle.DotLine if spec.dotted else QtCore.Qt.PenStyle.SolidLine)
         curve = _Curve(pen=pg.mkPen(spec.color, width=1, style=style), antialias=False)
         self.plots[spec.plot].addItem(curve)
         self.curves.append((spec, curve))
@@ -397,13 +416,50 @@ class PlotPanel(QtWidgets.QWidget):
             self._append(key, t, np.hstack(columns))
         for key, t, values in (("own", chunk.t_est, chunk.own_euler_deg),
                                ("phone", chunk.t_ori, chunk.phone_euler_deg),
-                               ("error", chunk.t_err, chunk.error_deg)):
+                               ("error", chunk.t_err, chunk.error_deg),
+                               ("user", chunk.t_user, chunk.user_euler_deg),
+                               ("user_error", chunk.t_user_err, chunk.user_error_deg)):
             if len(t):
                 self._append(key, t, np.asarray(values, float).reshape(len(t), 3))
+
+    def set_user_present(self, present: bool) -> None:
+        """YOURS loaded or not: its legend toggles (and OWN's beside it in the error tab) show
+        only while there is a YOURS to tell apart; unloading forgets its curves."""
+        present = bool(present)
+        if not present:
+            for key in USER_STREAMS:
+                self.buffers[key].clear()
+        self.user_present = present
+        for group, name in USER_TOGGLES:
+            self.groups[group].toggles[name].setVisible(present)
+        self.plots["error"].setLabel("left", "vs PHONE" if present else "OWN vs PHONE",
+                                     units="°")
+        self._dirty = True
+
+    def replace_user_history(self, t_s: np.ndarray, euler_deg: np.ndarray, t_err_s: np.ndarray,
+                             error_deg: np.ndarray) -> None:
+        """YOURS re-run over the session after a reload: its curves drawn so far replaced."""
+        for key, t, values in (("user", t_s, euler_deg), ("user_error", t_err_s, error_deg)):
+            buffer = self.buffers[key]
+            buffer.clear()
+            t = np.asarray(t, np.float64)
+            if len(t):
+                buffer.append(t, np.asarray(values, float).reshape(len(t), 3))
+        self._dirty = True
 
     def _append(self, key: str, t: np.ndarray, values: np.ndarray) -> None:
         t = np.asarray(t, dtype=np.float64)
         buffer = self.buffers[key]
+        if key in USER_STREAMS:
+            # After a re-run's history the live rows may overlap it: keep only the newer ones.
+            newer = t > buffer.last_time() + 1e-9
+            if not newer.all():
+                if buffer.size and t[0] < buffer.last_time() - 5.0:
+                    buffer.clear()     # far earlier: a new session (the others clear too)
+                else:
+                    t, values = t[newer], values[newer]
+            if not len(t):
+                return
         # A new session (a new connection, a replay that loops or seeks) restarts the time
         # since the start: start the plots afresh.
         if t[0] < buffer.last_time() - 1e-6:
@@ -492,9 +548,12 @@ class PlotPanel(QtWidgets.QWidget):
             for lines in self.gate_lines.values():
                 for line in lines:
                     line.setVisible(False)
+        toggles = self.groups[group].toggles
         for spec, curve in self.curves:
             if name in spec.tags and self.plots[spec.plot] in self._group_plots(group):
-                curve.setVisible(bool(shown))
+                # shown when every toggle naming it is on (a YOURS heading: YOURS and heading)
+                curve.setVisible(all(toggles[tag].isChecked() for tag in spec.tags
+                                     if tag in toggles))
         self._dirty = True
 
     def _group_plots(self, group: str) -> list[pg.PlotItem]:
@@ -587,8 +646,8 @@ class PlotPanel(QtWidgets.QWidget):
 
     @staticmethod
     def _streams_of(group: str) -> tuple[str, ...]:
-        return {"sensors": ("acc", "gyr", "mag"), "orientation": ("own", "phone"),
-                "error": ("error",)}[group]
+        return {"sensors": ("acc", "gyr", "mag"), "orientation": ("own", "phone", "user"),
+                "error": ("error", "user_error")}[group]
 
     def _display_window(self, stream: str, t_start: float, t_end: float
                         ) -> tuple[np.ndarray, np.ndarray, int]:
@@ -598,7 +657,7 @@ class PlotPanel(QtWidgets.QWidget):
         window = buffer.window(t_start, t_end)
         t, values = buffer.t[window], buffer.values[window]
         first = buffer.first_index + window.start
-        if stream in ("own", "phone") and len(t):
+        if stream in ("own", "phone", "user") and len(t):
             if self.unwrapped:
                 own = self.buffers["own"]
                 own_window = own.window(t_start, t_end)
@@ -696,7 +755,9 @@ class PlotPanel(QtWidgets.QWidget):
         its label ("acc x", "OWN yaw", "total", ...); NaN where a stream has no samples."""
         t_cursor = self.cursor_time()
         values: dict[str, float] = {}
-        for stream in ("acc", "gyr", "mag", "own", "phone", "error"):
+        for stream in STREAM_COLUMNS:
+            if stream in USER_STREAMS and not self.user_present:
+                continue
             buffer = self.buffers[stream]
             t = buffer.t
             index = None
@@ -721,8 +782,8 @@ class PlotPanel(QtWidgets.QWidget):
 
 READOUT_ROWS = {
     "sensors": ((("acc", "m/s²"), ("gyr", "rad/s"), ("mag", "µT")), ("x", "y", "z", "norm")),
-    "orientation": ((("OWN", "°"), ("PHONE", "°")), EULER_NAMES),
-    "error": (((None, "°"),), ("total", "heading", "inclination")),
+    "orientation": ((("OWN", "°"), ("PHONE", "°"), ("YOURS", "°")), EULER_NAMES),
+    "error": (((None, "°"), ("YOURS", "°")), ("total", "heading", "inclination")),
 }
 
 
@@ -733,12 +794,16 @@ def readout_table(values: dict[str, float], t: float, span: float, group: str) -
     lines = [f"<table cellspacing='0' cellpadding='1'><tr><th align='left'>t = "
              f"{time_text(t, span, 3)} s</th>{head}<th></th></tr>"]
     for name, unit in rows:
+        labels = [column if name is None else f"{name} {column}" for column in columns]
+        if name == "YOURS" and all(label not in values for label in labels):
+            continue            # no YOURS loaded (or all its curves hidden)
         cells = []
-        for column in columns:
-            label = column if name is None else f"{name} {column}"
+        for label in labels:
             value = values.get(label)
             cells.append("–" if value is None or not math.isfinite(value) else f"{value:.3f}")
         title = name or "OWN vs PHONE"
+        if group == "error" and name == "YOURS":
+            title = "YOURS vs PHONE"
         lines.append(f"<tr><td>{title}</td>" + "".join(f"<td align='right'>&nbsp;{c}&nbsp;</td>"
                                                         for c in cells)
                      + f"<td>{unit}</td></tr>")

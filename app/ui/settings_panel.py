@@ -108,7 +108,7 @@ class SettingsPanel(QtWidgets.QWidget):
     # -- construction -------------------------------------------------------------------------
 
     def _buttons(self) -> QtWidgets.QLayout:
-        row = QtWidgets.QHBoxLayout()
+        row = QtWidgets.QVBoxLayout()
         self.reset_default = QtWidgets.QPushButton("Reset to default")
         self.reset_course = QtWidgets.QPushButton("Reset to course")
         self.reset_default.clicked.connect(lambda: self.reset_to("default"))
@@ -124,11 +124,17 @@ class SettingsPanel(QtWidgets.QWidget):
             lambda: self.apply_profile(self.profiles.currentText()))
         self.save_profile_button = QtWidgets.QPushButton("Save as profile…")
         self.save_profile_button.clicked.connect(self._save_profile_dialog)
+        # Two rows, so the panel fits beside the A/B plots on a 1280-pixel screen.
+        presets, profiles = QtWidgets.QHBoxLayout(), QtWidgets.QHBoxLayout()
         for widget in (self.reset_default, self.reset_course, self.save_button,
-                       self.load_button, QtWidgets.QLabel("Profile:"), self.profiles,
+                       self.load_button):
+            presets.addWidget(widget)
+        for widget in (QtWidgets.QLabel("Profile:"), self.profiles,
                        self.apply_profile_button, self.save_profile_button):
-            row.addWidget(widget)
-        row.addStretch(1)
+            profiles.addWidget(widget)
+        for line in (presets, profiles):
+            line.addStretch(1)
+            row.addLayout(line)
         self.refresh_profiles()
         return row
 
@@ -140,7 +146,10 @@ class SettingsPanel(QtWidgets.QWidget):
                 cells = (row.name, format_value(value), row.unit, format_value(row.default),
                          format_value(row.course), row.doc)
                 for c, text in enumerate(cells):
-                    item = self.table.item(r, c) or QtWidgets.QTableWidgetItem()
+                    item = self.table.item(r, c)
+                    new = item is None
+                    if new:
+                        item = QtWidgets.QTableWidgetItem()
                     item.setText(text)
                     item.setToolTip(f"{row.name} [{row.unit}]: {row.doc}")
                     flags = QtCore.Qt.ItemFlag.ItemIsEnabled | QtCore.Qt.ItemFlag.ItemIsSelectable
@@ -150,7 +159,8 @@ class SettingsPanel(QtWidgets.QWidget):
                     font = item.font()
                     font.setBold(c == VALUE and value != row.default)
                     item.setFont(font)
-                    self.table.setItem(r, c, item)
+                    if new:      # an item the table owns already stays where it is
+                        self.table.setItem(r, c, item)
             self.table.resizeColumnsToContents()
         finally:
             self._filling = False

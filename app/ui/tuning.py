@@ -25,11 +25,19 @@ from app.engine.refilter import PreparedLog, Refilterer, RefilterResult, ab_rows
 FIGURE_COLUMNS = ("", "total °", "heading °", "inclination °", "samples")
 
 
-def _figure_table(rows: int) -> QtWidgets.QTableWidget:
+def _figure_table(rows: int, visible_rows: int | None = None) -> QtWidgets.QTableWidget:
+    """A figures table tall enough for `visible_rows` (default: rows) without scrolling, its
+    columns sharing the width."""
     table = QtWidgets.QTableWidget(rows, len(FIGURE_COLUMNS))
     table.setHorizontalHeaderLabels(FIGURE_COLUMNS)
     table.verticalHeader().setVisible(False)
     table.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
+    table.horizontalHeader().setSectionResizeMode(QtWidgets.QHeaderView.ResizeMode.Stretch)
+    table.setHorizontalScrollBarPolicy(QtCore.Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+    shown = visible_rows if visible_rows is not None else rows
+    height = (table.horizontalHeader().sizeHint().height()
+              + shown * table.verticalHeader().defaultSectionSize() + 2 * table.frameWidth() + 2)
+    table.setFixedHeight(height)
     return table
 
 
@@ -245,7 +253,7 @@ class ABCompareView(QtWidgets.QWidget):
                  parent: QtWidgets.QWidget | None = None) -> None:
         super().__init__(parent)
         self.refilterer = refilterer
-        self.table = _figure_table(0)
+        self.table = _figure_table(0, visible_rows=3)
         self.timing = QtWidgets.QLabel("")
         self.keep_button = QtWidgets.QPushButton("Keep as ghost")
         self.keep_button.clicked.connect(self.keep_ghost)

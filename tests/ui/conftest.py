@@ -14,6 +14,14 @@ from ui_helpers import FakeEngine
 # to happen before pytest-qt creates the QApplication.
 QtCore.QCoreApplication.setAttribute(QtCore.Qt.ApplicationAttribute.AA_ShareOpenGLContexts)
 
+@pytest.fixture(autouse=True)
+def data_folder(tmp_path: Path, monkeypatch) -> Path:
+    """Profiles and logs the window writes go to tmp_path, never the user's data folder."""
+    folder = tmp_path / "data"
+    monkeypatch.setenv("ORIENTATION_LAB_DATA", str(folder))
+    return folder
+
+
 @pytest.fixture
 def fake_engine() -> FakeEngine:
     return FakeEngine()

@@ -212,3 +212,32 @@ def test_screenshot_of_the_demo_shows_both_phones_and_the_plots(tmp_path):
     phone = _screen_pixels(pixels[int(0.05 * len(pixels)):int(0.45 * len(pixels)),
                                  int(0.36 * pixels.shape[1]):int(0.72 * pixels.shape[1])])
     assert own.sum() > 1000 and phone.sum() > 1000
+
+
+def test_yours_draws_a_third_phone_turned_by_your_filter(make_window, qtbot):
+    from ui_helpers import make_user_snapshot, user_status
+    window = make_window(FakeEngine(), use_gl=None)
+    window.resize(1280, 720)
+    window.show()
+    qtbot.waitExposed(window)
+    turned = quat_about_z(90.0)
+    snapshot = make_user_snapshot(1, 0.0, user=user_status(quat=turned, cov=None))
+    snapshot.own_quat = snapshot.phone_quat = quat_about_z(0.0)
+    snapshot.own_cov = None
+    window.engine.snapshots.append(snapshot)
+    window.tick()
+    assert window.user_view.isVisible() and window.user_view.gl_view is not None
+    images = []
+    for view in (window.own_view, window.user_view):
+        view.gl_view.update()
+        qtbot.wait(50)
+        images.append(_screen_pixels(_pixels(view.grab_image())))
+    own, yours = images
+    assert own.sum() > 200 and yours.sum() > 200            # both draw the phone's screen
+    assert (own != yours).mean() > 0.01                     # turned by 90°: another picture
+    # linking the cameras turns YOURS' too
+    window.set_cameras_linked(True)
+    window.own_view.gl_view.orbit(30.0, 10.0)
+    window.own_view.gl_view.camera_changed.emit()     # what a mouse drag emits
+    assert window.user_view.camera()["azimuth"] == pytest.approx(
+        window.own_view.camera()["azimuth"])

@@ -9,7 +9,7 @@ import itertools
 import pytest
 from PySide6 import QtCore, QtWidgets
 
-from ui_helpers import make_snapshot
+from ui_helpers import make_snapshot, make_user_snapshot
 
 SIZES = [(1280, 720), (1920, 1080)]
 
@@ -27,14 +27,20 @@ def _shown(window, size) -> object:
     return window
 
 
+@pytest.mark.parametrize("yours", [False, True], ids=["own-phone", "with-yours"])
 @pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
 def test_main_panels_do_not_overlap_and_the_transport_bar_is_visible(make_window, fake_engine,
-                                                                     size):
-    window = _shown(make_window(fake_engine), size)
+                                                                     size, yours):
+    window = make_window(fake_engine)
+    if yours:       # a third 3D view: the window must still fit the screen
+        window.apply_snapshot(make_user_snapshot(1, 0.0))
+    window = _shown(window, size)
     assert window.size() == QtCore.QSize(*size)
     panels = {"OWN": window.own_view, "PHONE": window.phone_view, "plots": window.plots,
               "transport": window.transport}
-    for dock in (window.filter_dock, window.comparison_dock, window.connection_dock):
+    if yours:
+        panels["YOURS"] = window.user_view
+    for dock in window.docks():
         if dock.isVisible() and not dock.visibleRegion().isEmpty():
             panels[dock.objectName()] = dock
     rects = {name: _rect_in_window(window, widget) for name, widget in panels.items()}
@@ -46,6 +52,7 @@ def test_main_panels_do_not_overlap_and_the_transport_bar_is_visible(make_window
         assert not ra.intersects(rb), (a, ra, b, rb)
     assert window.transport.isVisible() and window.transport.height() >= 24
     assert rects["OWN"].height() >= 150 and rects["plots"].height() >= 250
+    assert rects["OWN"].width() >= 190 and rects["PHONE"].width() >= 190
     assert "filter_dock" in rects and ("comparison_dock" in rects or "connection_dock" in rects)
 
 

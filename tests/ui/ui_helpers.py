@@ -12,7 +12,8 @@ from collections import deque
 import numpy as np
 
 import ekf
-from app.engine.snapshot import FilterStatus, PlotChunk, Snapshot, StreamHealth
+from app.engine.snapshot import (FilterStatus, PlotChunk, Snapshot, StreamHealth,
+                                 UserFilterStatus)
 
 _FLAGS = set(ekf.Flags.__dataclass_fields__)
 _DIAGNOSTICS = set(ekf.Diagnostics.__dataclass_fields__)
@@ -96,3 +97,23 @@ def make_snapshot(seq: int, t_s: float, count: int = 50, phone_quat=_NO_VALUE,
                     phone_quat=(quat_about_z(10.0 * seq + 1.0) if phone_quat is _NO_VALUE
                                 else phone_quat), status=status,
                     plot=make_chunk(t_s, count), health=health)
+
+
+def user_status(**fields) -> UserFilterStatus:
+    """YOURS running my_filter.py at 12° about up (fields override)."""
+    base = dict(name="my_filter.py", path="/tmp/my_filter.py", state="running",
+                quat=quat_about_z(12.0), cov=np.eye(4) * 1e-4, generation=1)
+    return UserFilterStatus(**{**base, **fields})
+
+
+def make_user_snapshot(seq: int, t_s: float, user: UserFilterStatus | None = None,
+                       **fields) -> Snapshot:
+    """make_snapshot with YOURS loaded: its Euler angles 2° off OWN's, its errors 1° larger."""
+    snapshot = make_snapshot(seq, t_s, **fields)
+    chunk = snapshot.plot
+    chunk.t_user = chunk.t_est.copy()
+    chunk.user_euler_deg = chunk.own_euler_deg + 2.0
+    chunk.t_user_err = chunk.t_err.copy()
+    chunk.user_error_deg = chunk.error_deg + 1.0
+    snapshot.user = user if user is not None else user_status()
+    return snapshot

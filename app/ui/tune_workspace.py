@@ -1,0 +1,308 @@
+"""The Tune workspace: every filter setting live, the whole session re-filtered at each change
+with the previous run kept as a ghost (A/B), and auto-tune against the session's reference.
+
+* Left: the settings panel (app.ui.settings_panel). A change goes to the engine (the live
+  filter, from the next sample) and re-runs the session shown here in the background
+  (app.engine.refilter.Refilterer, the compiled batch path).
+* Right, "A/B re-filter": the current run's and the ghost's errors against PHONE over the whole
+  session (total and heading; the ghost dashed), the angle between the two runs at the same
+  instants, and the A/B error table (app.ui.tuning.ABCompareView) with Keep as ghost / Clear
+  ghost.
+* Right, "Auto-tune": app.ui.tuning.TuningPanel on the same session (tune on one range, check
+  on another).
+
+The session is the log the window replays (or the demo), or one chosen with "Open log…"; it is
+read when the workspace is first shown. Draws and forwards intent only: the runs are the
+engine's (Qt-free) code.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6 import QtCore, QtWidgets
+
+import ekf
+from app.engine import config
+from app.engine.profiles import ProfileStore
+from app.engine.refilter import (PreparedLog, Refilterer, RefilterResult,
+                                 angle_between_runs_deg, prepare_path)
+from app.ui.settings_panel import SettingsPanel
+from app.ui.tuning import ABCompareView, TuningPanel
+
+CURRENT_COLOR = (130, 40, 170)
+GHOST_COLOR = (110, 110, 110)
+DIFFERENCE_COLOR = (0, 130, 130)
+NO_SESSION_TEXT = ("No session to re-filter.\nReplay a log (orientation-lab --replay LOG) or "
+                   "choose one with Open log…")
+
+
+class ABPlots(QtWidgets.QWidget):
+    """The current run and the ghost over the whole session: error against PHONE (total,
+    heading) and the angle between the runs, in seconds from the session's start."""
+
+    def __init__(self, parent: QtWidgets.QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.legend = QtWidgets.QLabel(
+            f"<span style='color: rgb{CURRENT_COLOR}'>━ current run</span>&nbsp;&nbsp; "
+            f"<span style='color: rgb{GHOST_COLOR}'>╍ ghost (kept run)</span>&nbsp;&nbsp; "
+            f"<span style='color: rgb{DIFFERENCE_COLOR}'>━ current vs ghost</span>")
+        self.legend.setTextFormat(QtCore.Qt.TextFormat.RichText)
+        self.legend.setWordWrap(True)
+        self.message = QtWidgets.QLabel(NO_SESSION_TEXT)
+        self.message.setObjectName("ab_message")
+        self.message.setWordWrap(True)
+        self.graphics = pg.GraphicsLayoutWidget()
+        self.graphics.setBackground((250, 250, 252))
+        self.plots: dict[str, pg.PlotItem] = {}
+        self.curves: dict[tuple[str, str], pg.PlotDataItem] = {}
+        titles = (("total", "total error", "°"), ("heading", "heading error", "°"),
+                  ("difference", "current vs ghost", "°"))
+        for row, (key, title, units) in enumerate(titles):
+            plot = self.graphics.addPlot(row=row, col=0)
+            plot.setLabel("left", title, units=units)
+            plot.getAxis("left").enableAutoSIPrefix(False)
+            plot.getAxis("left").setWidth(64)
+            plot.setClipToView(True)
+            plot.setDownsampling(auto=True, mode="peak")
+            plot.showGrid(x=True, y=True, alpha=0.2)
+            if row:
+                plot.setXLink(self.plots["total"])
+            self.plots[key] = plot
+        self.plots["difference"].setLabel("bottom", "time since the session's start", units="s")
+        self.plots["difference"].getAxis("bottom").enableAutoSIPrefix(False)
+        for key in ("total", "heading"):
+            self.curves[(key, "ghost")] = self.plots[key].plot(
+                pen=pg.mkPen(GHOST_COLOR, width=1, style=QtCore.Qt.PenStyle.DashLine))
+            self.curves[(key, "current")] = self.plots[key].plot(
+                pen=pg.mkPen(CURRENT_COLOR, width=1))
+        self.curves[("difference", "current")] = self.plots["difference"].plot(
+            pen=pg.mkPen(DIFFERENCE_COLOR, width=1))
+        layout = QtWidgets.QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        layout.addWidget(self.legend)
+        layout.addWidget(self.message)
+        layout.addWidget(self.graphics, 1)
+        self.show_runs(None, None, None)
+
+    def show_runs(self, current: RefilterResult | None, ghost: RefilterResult | None,
+                  start_ms: int | None) -> None:
+        """Draw the current run and the ghost (either may be None); start_ms: the session's
+        first time on the phone's clock (None: no session)."""
+        loaded = start_ms is not None
+        start_ms = start_ms or 0
+        for key, run in (("current", current), ("ghost", ghost)):
+            errors = None if run is None else run.errors
+            for plot in ("total", "heading"):
+                curve = self.curves[(plot, key)]
+                if errors is None:
+                    curve.setData([], [])
+                    continue
+                t = (errors.t_ms - start_ms) / 1000.0
+                values = errors.total_deg if plot == "total" else errors.heading_deg
+                curve.setData(t, values)
+        for plot in ("total", "heading"):
+            self._fit_errors(plot, [run.errors for run in (current, ghost)
+                                    if run is not None and run.errors is not None])
+        difference = self.curves[("difference", "current")]
+        if current is not None and ghost is not None and len(current.rows):
+            t = (current.rows.t_ms - start_ms) / 1000.0
+            difference.setData(t, angle_between_runs_deg(current, ghost), connect="finite")
+        else:
+            difference.setData([], [])
+        if current is None:
+            text = "re-filtering…" if loaded else NO_SESSION_TEXT
+        elif current.errors is None:
+            text = ("This session has no ORI (the phone's own estimate): no error to draw; the "
+                    "angle between the current run and the ghost is still shown.")
+        elif ghost is None:
+            text = "Keep as ghost to compare the next change with this run."
+        else:
+            text = ""
+        self.message.setText(text)
+        self.message.setVisible(bool(text))
+
+
+    def _fit_errors(self, plot: str, errors: list) -> None:
+        """y from 0 to a little above the 99th percentile of both runs: the start, before the
+        filter has settled, does not flatten the rest (the "A" button shows everything)."""
+        values = [e.total_deg if plot == "total" else e.heading_deg for e in errors]
+        values = [v[np.isfinite(v)] for v in values if len(v)]
+        values = [v for v in values if len(v)]
+        if not values:
+            return
+        top = max(float(np.percentile(v, 99.0)) for v in values)
+        self.plots[plot].setYRange(0.0, max(1.25 * top, 0.5), padding=0.0)
+
+
+class TuneWorkspace(QtWidgets.QWidget):
+    """See the module's docstring. send: the window's send (SetSettings reach the engine and
+    come back through :meth:`settings_changed`); settings(): the settings in use; log: the
+    session to re-filter (read on the first show); store: profiles (None: the data folder)."""
+
+    def __init__(self, send: Callable[[Any], None],
+                 settings: Callable[[], ekf.EKFSettings | None] = lambda: None,
+                 log: str | Path | None = None, store: ProfileStore | None = None,
+                 parent: QtWidgets.QWidget | None = None) -> None:
+        super().__init__(parent)
+        self._send = send
+        self._settings = settings
+        self.store = store
+        self.pending_log: str | Path | None = log
+        self.prepared: PreparedLog | None = None
+        self.refilterer: Refilterer | None = None
+        self.ab_view: ABCompareView | None = None
+        self.tuning_panel: TuningPanel | None = None
+        self._submitted: ekf.EKFSettings | None = None
+
+        self.log_label = QtWidgets.QLabel("no session")
+        self.log_label.setObjectName("tune_log")
+        self.log_label.setWordWrap(True)
+        open_button = QtWidgets.QPushButton("Open log…")
+        open_button.setToolTip("Re-filter and tune on another log or recorded session")
+        open_button.clicked.connect(self._open_dialog)
+        header = QtWidgets.QHBoxLayout()
+        header.addWidget(self.log_label, 1)
+        header.addWidget(open_button)
+
+        self.settings_panel = SettingsPanel(send, settings(), store=store)
+        settings_box = QtWidgets.QGroupBox("Filter settings (live: the filter and the re-run)")
+        QtWidgets.QVBoxLayout(settings_box).addWidget(self.settings_panel)
+        self.ab_plots = ABPlots()
+        self.ab_page = QtWidgets.QWidget()
+        ab_layout = QtWidgets.QVBoxLayout(self.ab_page)
+        ab_layout.setContentsMargins(0, 0, 0, 0)
+        ab_layout.addWidget(self.ab_plots, 1)
+        self.tune_page = QtWidgets.QWidget()
+        self.tune_message = QtWidgets.QLabel(NO_SESSION_TEXT)
+        self.tune_message.setWordWrap(True)
+        QtWidgets.QVBoxLayout(self.tune_page).addWidget(self.tune_message)
+        self.tabs = QtWidgets.QTabWidget()
+        self.tabs.addTab(self.ab_page, "A/B re-filter")
+        self.tabs.addTab(self.tune_page, "Auto-tune")
+        splitter = QtWidgets.QSplitter(QtCore.Qt.Orientation.Horizontal)
+        splitter.addWidget(settings_box)
+        splitter.addWidget(self.tabs)
+        splitter.setStretchFactor(0, 5)
+        splitter.setStretchFactor(1, 6)
+        layout = QtWidgets.QVBoxLayout(self)
+        layout.addLayout(header)
+        layout.addWidget(splitter, 1)
+
+    # -- the session --------------------------------------------------------------------------
+
+    def showEvent(self, event) -> None:  # noqa: N802 (Qt name)
+        super().showEvent(event)
+        if self.pending_log is not None and self.prepared is None:
+            # Reading a long log takes a moment: after the tab has been drawn.
+            QtCore.QTimer.singleShot(0, self._load_pending)
+
+    def _load_pending(self) -> None:
+        if self.pending_log is not None and self.prepared is None:
+            self.set_log(self.pending_log)
+
+    def _open_dialog(self) -> None:
+        path, _ = QtWidgets.QFileDialog.getOpenFileName(
+            self, "Re-filter and tune on a log", "", "Logs and sessions (*.txt *.txt.gz *.json)")
+        if path:
+            self.set_log(path)
+
+    def set_log(self, path: str | Path) -> bool:
+        """Re-filter and tune on this log or session (False with a message when unusable)."""
+        self.pending_log = None
+        QtWidgets.QApplication.setOverrideCursor(QtCore.Qt.CursorShape.WaitCursor)
+        try:
+            prepared = prepare_path(path)
+        except config.ConfigError as error:
+            self.log_label.setText(f"cannot use {Path(path).name}: {error}")
+            return False
+        finally:
+            QtWidgets.QApplication.restoreOverrideCursor()
+        if not len(prepared.t_ms):
+            self.log_label.setText(f"{Path(path).name}: no samples to filter")
+            return False
+        self.close_runs()
+        self.prepared = prepared
+        has_ori = len(prepared.ori_times) > 0
+        self.log_label.setText(
+            f"Session: <b>{Path(path).name}</b>, {prepared.duration_s:.1f} s, "
+            f"{len(prepared.t_ms)} samples; re-filtered by our EKF at every settings change"
+            + ("" if has_ori else " (no ORI: nothing to score against)"))
+        self.refilterer = Refilterer(prepared, on_error=self._on_error)
+        self.ab_view = ABCompareView(self.refilterer)
+        self.ab_view.resultReady.connect(lambda _result: self.redraw())
+        self.ab_view.keep_button.clicked.connect(self.redraw)
+        self.ab_view.clear_button.clicked.connect(self.redraw)
+        self.ab_page.layout().addWidget(self.ab_view)
+        self._replace_tuning(prepared, has_ori)
+        self._submitted = None
+        self.submit(self._settings())
+        return True
+
+    def _replace_tuning(self, prepared: PreparedLog, has_ori: bool) -> None:
+        layout = self.tune_page.layout()
+        if self.tuning_panel is not None:
+            layout.removeWidget(self.tuning_panel)
+            self.tuning_panel.deleteLater()
+            self.tuning_panel = None
+        if has_ori:
+            self.tuning_panel = TuningPanel(prepared, self._send, settings=self._settings,
+                                            store=self.store)
+            layout.addWidget(self.tuning_panel, 1)
+        self.tune_message.setText("" if has_ori else "Auto-tune needs a reference: this "
+                                  "session has no ORI (the phone's own estimate).")
+        self.tune_message.setVisible(not has_ori)
+
+    def submit(self, settings: ekf.EKFSettings | None) -> None:
+        """Re-run the session with these settings (not again for the same settings)."""
+        if self.refilterer is None or settings is None or settings == self._submitted:
+            return
+        self._submitted = settings
+        self.refilterer.submit(settings)
+        self.ab_plots.show_runs(self.refilterer.current, self.refilterer.ghost,
+                                self.prepared.start_ms if self.prepared else None)
+
+    def settings_changed(self, settings: ekf.EKFSettings) -> None:
+        """The filter's settings changed (this panel, calibration, tuning, a session): show
+        them and re-run the session with them."""
+        if settings is None:
+            return
+        if settings != self.settings_panel.settings:
+            self.settings_panel.set_settings(settings)
+        self.submit(settings)
+
+    def redraw(self) -> None:
+        if self.refilterer is not None and self.prepared is not None:
+            self.ab_plots.show_runs(self.refilterer.current, self.refilterer.ghost,
+                                    self.prepared.start_ms)
+
+    def _on_error(self, error: BaseException) -> None:
+        # from the refilter thread: a queued call to show it
+        QtCore.QMetaObject.invokeMethod(self.log_label, "setText",
+                                        QtCore.Qt.ConnectionType.QueuedConnection,
+                                        QtCore.Q_ARG(str, f"re-filter failed: {error}"))
+
+    def close_runs(self) -> None:
+        """Stop the background runs (the refilter thread, a tuning search)."""
+        if self.tuning_panel is not None and self.tuning_panel.job is not None:
+            self.tuning_panel.job.cancel()
+            self.tuning_panel.job.wait(5.0)
+        if self.refilterer is not None:
+            self.refilterer.close()
+            self.refilterer = None
+        if self.ab_view is not None:
+            self.ab_page.layout().removeWidget(self.ab_view)
+            self.ab_view.deleteLater()
+            self.ab_view = None
+
+    def difference_deg(self) -> np.ndarray:
+        """The angle between the current run and the ghost per row (empty without both)."""
+        current = self.refilterer.current if self.refilterer else None
+        ghost = self.refilterer.ghost if self.refilterer else None
+        if current is None or ghost is None:
+            return np.empty(0)
+        return angle_between_runs_deg(current, ghost)
