@@ -94,6 +94,7 @@ def test_yours_runs_beside_ours_and_leaves_ours_alone(tmp_path):
     ("raises", "raises.py:11 in update: ValueError", 1.51),
     ("nan", "q is not finite", 1.51),
     ("shape", "q has shape (3,)", 1.0),
+    ("endless", "in step: UserCodeTimeout: step() ran for more than 1 s", 1.51),
 ])
 def test_an_error_pauses_only_your_filter(tmp_path, name, message, at):
     log = _log(tmp_path)

@@ -152,6 +152,53 @@ def test_an_exception_pauses_the_filter_with_file_line_and_message(tmp_path):
     assert len(rows) == 300 and np.all(rows.quat[-1] == [1.0, 0, 0, 0])
 
 
+def test_an_endless_loop_is_stopped_at_its_line_and_nothing_else_is_hit(tmp_path):
+    import time
+
+    from app.engine.user_watchdog import times_fired
+    fired = times_fired()
+    estimator = UserFilterEstimator(write_filter(tmp_path, "endless"))
+    estimator.step_limit_s = 0.2
+    started = time.monotonic()
+    rows = run_offline(_samples(3.0), estimator)
+    assert time.monotonic() - started < 5.0
+    problem = estimator.problem
+    assert problem.kind == "exception" and problem.line in (6, 7) and problem.function == "step"
+    assert problem.message.startswith(f"endless.py:{problem.line} in step: UserCodeTimeout: "
+                                      "step() ran for more than 0.2 s and was stopped")
+    assert problem.t_s == pytest.approx(1.51) and len(rows) == 300
+    assert times_fired() == fired + 1
+    # the watchdog does not fire again into this thread once the call is over
+    deadline = time.monotonic() + 0.6
+    while time.monotonic() < deadline:
+        sum(range(1000))
+    assert times_fired() == fired + 1
+
+
+def test_a_file_or_constructor_that_never_returns_is_stopped(tmp_path, monkeypatch):
+    import app.engine.user_code as user_code
+    monkeypatch.setattr(user_code, "LOAD_LIMIT_S", 0.2)
+    body = """
+        while True:
+            pass
+    """
+    with pytest.raises(UserFilterError) as raised:
+        load_code(write_filter(tmp_path, "hangs", body))
+    assert "loading the file ran for more than 0.2 s" in raised.value.problem.message
+    assert raised.value.problem.line in (2, 3)
+    body = """
+        class Filter:
+            def __init__(self):
+                while True:
+                    pass
+            def step(self, t, gyr, acc, mag):
+                return [1.0, 0, 0, 0]
+    """
+    estimator = UserFilterEstimator(write_filter(tmp_path, "hangs_init", body))
+    assert "Filter() ran for more than 0.2 s" in estimator.problem.message
+    assert estimator.paused
+
+
 @pytest.mark.parametrize("name, expected", [
     ("nan", "q is not finite"),
     ("shape", "q has shape (3,), expected 4 numbers (w, x, y, z)"),

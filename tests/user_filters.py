@@ -49,6 +49,15 @@ FILTERS = {
             def step(self, t, gyr, acc, mag):
                 return [1.2, 0.0, 0.0, 0.0]
     """,
+    "endless": """
+        class Filter:
+            def step(self, t, gyr, acc, mag):
+                if t > 1.5:
+                    q = [1.0, 0.0, 0.0, 0.0]
+                    while q[0] > 0:            # never false: an endless loop
+                        q[0] = q[0] * 1.0
+                return [1.0, 0.0, 0.0, 0.0]
+    """,
     "slow": """
         import time
         class Filter:

@@ -33,6 +33,9 @@ from typing import Any, Callable
 import numpy as np
 
 from app.engine.snapshot import INNOVATION_SENSORS, UserProblem
+from app.engine.user_watchdog import UserCodeTimeout, guard
+
+LOAD_LIMIT_S = 10.0          # executing the file, Filter(): imports may take a while
 
 #: The course's functions (tasks 4, 6, 9 and the normalisation): a stub that raises
 #: NotImplementedError is skipped, returning its (x, P) unchanged.
@@ -176,9 +179,12 @@ def load_code(path: str | Path) -> FilterCode:
     # Tracebacks show the lines that ran, even if the file on disk changes again.
     linecache.cache[str(path)] = (len(text), None, text.splitlines(True), str(path))
     sys.modules[name] = module      # dataclasses and pickling look the module up by name
+    watch = guard(LOAD_LIMIT_S, "loading the file")
     try:
-        exec(compile(source, str(path), "exec"), module.__dict__)
-    except Exception as error:      # noqa: BLE001 (anything the user's module does on import)
+        with watch:
+            exec(compile(source, str(path), "exec"), module.__dict__)
+    except (Exception, UserCodeTimeout) as error:   # noqa: BLE001 (anything it does on import)
+        watch.disarm()
         sys.modules.pop(name, None)
         raise UserFilterError(problem_from_exception(error, path, kind="load")) from None
     cls = module.__dict__.get("Filter")
@@ -204,12 +210,16 @@ def unload_code(code: FilterCode) -> None:
 def instantiate(code: FilterCode, settings: dict[str, Any]) -> Any:
     """A new Filter (with settings when its constructor takes them); UserFilterError if it
     raises."""
+    watch = guard(LOAD_LIMIT_S, "Filter()")
     try:
-        return code.filter_class(settings=settings) if code.takes_settings else code.filter_class()
+        with watch:
+            return (code.filter_class(settings=settings) if code.takes_settings
+                    else code.filter_class())
     except NotImplementedError as error:
         raise UserFilterError(problem_from_exception(
             error, code.path, kind="exception", during="Filter() is not written yet")) from None
-    except Exception as error:      # noqa: BLE001
+    except (Exception, UserCodeTimeout) as error:      # noqa: BLE001
+        watch.disarm()
         raise UserFilterError(problem_from_exception(error, code.path)) from None
 
 

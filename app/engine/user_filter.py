@@ -16,7 +16,9 @@ The contract, from the user's side::
 Errors never escape: an exception in the user's code or a return value that breaks the contract
 *pauses* the filter (:attr:`UserFilterEstimator.problem` says where and what; loading the file
 again un-pauses it); ``NotImplementedError`` means "not written yet": that step (or that sample)
-is skipped and noted. Time in the user's code is measured per call.
+is skipped and noted. Time in the user's code is measured per call; a call that does not come
+back within ``step_limit_s`` (an endless loop) is stopped where it is and pauses the filter like
+an exception (app.engine.user_watchdog).
 
 The user's code runs in this process with this process's rights: it is the user's own program.
 """
@@ -42,6 +44,7 @@ from app.engine.snapshot import UserProblem
 from app.engine.user_code import (BadOutput, FilterCode, Output, UserFilterError, instantiate,
                                   is_filter_file, load_code, output_problem, parse_output,
                                   problem_from_exception)
+from app.engine.user_watchdog import DEFAULT_LIMIT_S, UserCodeTimeout, guard
 
 __all__ = ["UserFilterEstimator", "UserFilterError", "filter_settings", "is_filter_file",
            "make_estimator"]
@@ -101,6 +104,8 @@ class UserFilterEstimator:
         self.seconds = 0.0
         self.time_per_call_s = math.nan
         self._heading = 0.0
+        self.step_limit_s = DEFAULT_LIMIT_S
+        self._guard = guard(self.step_limit_s, "step()")
         self._start()
 
     # ---- the user's object --------------------------------------------------------------------
@@ -229,8 +234,16 @@ class UserFilterEstimator:
                 _vector(acc) if acc is not None and on["acc"] else None,
                 _vector(mag) if mag is not None and on["mag"] else None)
         start = time.perf_counter()
+        if self._guard.limit_s != self.step_limit_s:
+            self._guard = guard(self.step_limit_s, "step()")
         try:
-            result = self.filter.step(t, *args)
+            with self._guard:
+                result = self.filter.step(t, *args)
+        except UserCodeTimeout as error:
+            self._guard.disarm()
+            self._timed(start)
+            self.problem = problem_from_exception(error, self.code.path, t)
+            return
         except NotImplementedError as error:
             self._timed(start)
             where = problem_from_exception(error, self.code.path, t)
