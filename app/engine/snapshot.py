@@ -132,5 +132,14 @@ class Snapshot:
     t0_ms: int | None = None                  # the session's start on the phone's clock
     plot: PlotChunk = field(default_factory=PlotChunk)
     health: StreamHealth = field(default_factory=StreamHealth)
-    replay: dict[str, Any] | None = None      # {"position_s", "duration_s", "speed", "paused", "loop"} when replaying
+    # when replaying: position_s, duration_s, speed, paused, loop, finished, name, line, lines,
+    # following_timeline, has_timeline, session_file, indexed, index_progress, index_seconds
+    replay: dict[str, Any] | None = None
     failures: list[EngineFailure] = field(default_factory=list)   # the latest, oldest first
+    # the markers of the session shown (app.engine.session.Marker), oldest first
+    markers: tuple = ()
+    # a recording in progress (or the last one): folder, elapsed_s, bytes, lines, error, active
+    recording: dict[str, Any] | None = None
+    # a replay's whole session for the plots, once indexed (app.engine.session_index.SessionPlot;
+    # shared, never changed once handed out)
+    session_plot: Any = None
