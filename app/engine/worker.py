@@ -195,6 +195,8 @@ class Engine:
         # monotonic time since which the source has had nothing for the engine (None: busy)
         self.waiting_since: float | None = None
         self._other_samples = 0
+        self._applied = 0                    # commands applied so far
+        self._marks: list[threading.Event] = []   # wait_idle's, set at the next publish
         if recorder is not None:
             self._attach_recording(SessionRecording(recorder.directory, self._runner,
                                                     recorder=recorder, estimates=estimates,
@@ -321,7 +323,8 @@ class Engine:
 
     def _pass(self) -> None:
         """Read what the source has, process it (at most MAX_BYTES_PER_PASS of chunks, the rest
-        waits in the backlog) and publish."""
+        waits in the backlog) and publish (at once after a command)."""
+        applied = self._applied
         self._apply_commands()
         if self._replay is not None and self._replay.poll():
             self._resync()
@@ -333,7 +336,7 @@ class Engine:
             self.waiting_since = None
         elif self.waiting_since is None:
             self.waiting_since = time.monotonic()
-        changed = self._process(items)
+        changed = self._process(items) or self._applied != applied
         now = time.perf_counter()
         if changed or now - self._last_publish >= PUBLISH_IDLE_S:
             self._publish(now)
@@ -553,6 +556,7 @@ class Engine:
                 command = self._commands.get_nowait()
             except queue.Empty:
                 return moved
+            self._applied += 1
             moved = self._apply(command) or moved
 
     def _apply(self, command: Any) -> bool:
@@ -588,7 +592,7 @@ class Engine:
         elif isinstance(command, CONNECTION_COMMANDS):
             self.source.control(command)
         elif isinstance(command, _Mark):
-            command.event.set()
+            self._marks.append(command.event)        # set once published
         else:
             self._health.warn("command", f"unknown command {command!r}", force=True)
         return False
@@ -830,6 +834,9 @@ class Engine:
                 self.latencies_s.append(published - t_host)
                 self.latency_arrivals_s.append(t_host)
         self._last_publish = now
+        for mark in self._marks:
+            mark.set()
+        self._marks = []
         if self.recording is not None and self.recording.active:
             self.recording.recorder.set_stats(stats_dict(snapshot.health))
 
