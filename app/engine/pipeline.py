@@ -64,6 +64,8 @@ class Pipeline:
         self.on_cut = on_cut or (lambda rows, piece: None)
         self.on_event = on_event or (lambda kind, **data: None)
         self.on_parsed: Callable[[ParsedArrays], None] | None = None
+        # every ordered sample fed to the estimators, (t_ms, tag, values) (exports)
+        self.on_ordered: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None
         self.t0_ms: int | None = None        # the session's start: plots count time from it
         self.fed = 0                         # samples fed to the estimators in this pass
         self.fed_total = 0                   # ... ever (never restored)
@@ -109,6 +111,8 @@ class Pipeline:
     def _feed_runner(self, t_ms: np.ndarray, tag: np.ndarray, values: np.ndarray) -> None:
         """Samples to the estimators, the recorded timeline's events applied between them at
         their sample positions."""
+        if self.on_ordered is not None:
+            self.on_ordered(t_ms, tag, values)
         events = self.timeline
         start = 0
         count = len(t_ms)

@@ -22,7 +22,7 @@ from app.engine.config import ConfigError, SourceOptions, load_settings, make_so
 from app.engine.worker import Engine
 
 GUI_SWITCH_INTERVAL_S = 0.0002
-HEADLESS_COMMANDS = "filter, evaluate, calibrate, simulate, send, serve"
+HEADLESS_COMMANDS = "filter, evaluate, calibrate, simulate, send, serve, export"
 
 
 @dataclass
@@ -35,6 +35,9 @@ class WindowOptions:
     screenshot: str | None = None
     exit_after: float | None = None
     size: tuple[int, int] | None = None
+    record: str | None = None              # record from the start into this folder
+    record_max_mb: float | None = None
+    record_min_free_mb: float | None = None
 
 
 def build_engine(options: WindowOptions) -> Engine:
@@ -92,8 +95,8 @@ def run_gui(options: WindowOptions) -> int:
     """Open the window; returns the exit status once it closes. ConfigError for bad options."""
     if options.screenshot and options.exit_after is None:
         raise ConfigError("--screenshot needs --exit-after S")
-    check_display()
     engine = build_engine(options)   # before Qt: a bad path is a one-line error, no window
+    check_display()
     log_path = log_to_file()
 
     from PySide6 import QtCore
@@ -118,6 +121,10 @@ def run_gui(options: WindowOptions) -> int:
     except OSError as error:            # e.g. the port is taken
         engine.stop()
         raise ConfigError(f"cannot start the source: {error.strerror or error}") from None
+    if options.record:
+        from app.engine.commands import StartRecording
+        engine.send(StartRecording(options.record, options.record_max_mb,
+                                   options.record_min_free_mb))
     window = None
     try:
         window = MainWindow(engine, settings=settings, log_path=log_path)
