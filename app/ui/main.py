@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from app import paths
-from app.engine.config import ConfigError, SourceOptions, load_settings, make_source
+from app.engine.config import ConfigError, SourceOptions, load_settings, make_source, open_replay
 from app.engine.worker import Engine
 
 GUI_SWITCH_INTERVAL_S = 0.0002
@@ -44,6 +44,14 @@ def build_engine(options: WindowOptions) -> Engine:
     """An (unstarted) engine for the options; ConfigError for a bad path or setting."""
     return Engine(make_source(options.source), settings=load_settings(options.settings),
                   limits=options.source.limits)
+
+
+def replay_engine_factory(options: WindowOptions):
+    """File → Open and drops: an engine replaying a path with the window's settings."""
+    def build(path: str) -> Engine:
+        return Engine(open_replay(path, limits=options.source.limits),
+                      settings=load_settings(options.settings), limits=options.source.limits)
+    return build
 
 
 def check_display() -> None:
@@ -127,7 +135,8 @@ def run_gui(options: WindowOptions) -> int:
                                    options.record_min_free_mb))
     window = None
     try:
-        window = MainWindow(engine, settings=settings, log_path=log_path)
+        window = MainWindow(engine, settings=settings, log_path=log_path,
+                            engine_factory=replay_engine_factory(options))
         if options.size is not None:
             window.resize(*options.size)
             window.arrange_default_layout()
