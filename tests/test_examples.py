@@ -22,7 +22,7 @@ QUICK_ARGS = {"headless_engine.py": ["--seconds", "1.5"],
               "compare_estimators.py": ["--seconds", "20"],
               "embed_phone_view.py": ["--exit-after", "0.5"]}
 BENCHMARKS = [("speed.py", []), ("accuracy.py", ["--only", "ours-default,ours-course"]),
-              ("live.py", ["--skip-no-loss"]), ("chaos.py", [])]
+              ("live.py", ["--skip-no-loss"]), ("chaos.py", []), ("session.py", [])]
 
 
 def _run(script: Path, args: list[str], env: dict[str, str] | None = None,

@@ -119,21 +119,70 @@ def unpack_snapshot(packed: PackedSnapshot) -> dict[str, Any]:
     return {"estimator": packed.estimator, "settings": packed.settings, "state": state}
 
 
+@dataclass(frozen=True)
+class PackedGroup:
+    """The comparison filters' snapshots of one checkpoint: one layout, their vectors as the
+    rows of one matrix, their names, sensors and running errors (squared (k, 3), count (k,),
+    latest (k, 3))."""
+
+    names: tuple
+    sensors: tuple
+    estimators: tuple            # each snapshot's estimator name
+    settings: Any
+    layout: tuple
+    matrix: np.ndarray
+    squared: np.ndarray
+    count: np.ndarray
+    latest: np.ndarray
+
+
 def pack_runner(snapshot: dict[str, Any]) -> dict[str, Any]:
-    """An EstimatorRunner.snapshot() with its estimator snapshots packed."""
+    """An EstimatorRunner.snapshot() with its estimator snapshots packed (the comparisons in
+    one PackedGroup when they share a layout, as the 7 sensor combinations do)."""
     out = dict(snapshot)
     out["main"] = pack_snapshot(snapshot["main"])
-    out["comparisons"] = [(name, sensors, pack_snapshot(estimator), errors)
-                          for name, sensors, estimator, errors in snapshot["comparisons"]]
+    packed = [pack_snapshot(estimator) for _, _, estimator, _ in snapshot["comparisons"]]
+    if packed and all(p.layout is packed[0].layout and not p.others for p in packed) \
+            and all(p.settings is packed[0].settings for p in packed):
+        errors = [e for _, _, _, e in snapshot["comparisons"]]
+        out["comparisons"] = PackedGroup(
+            tuple(c[0] for c in snapshot["comparisons"]),
+            tuple(tuple(c[1]) for c in snapshot["comparisons"]),
+            tuple(p.estimator for p in packed), packed[0].settings, packed[0].layout,
+            np.stack([p.vector for p in packed]),
+            np.array([np.asarray(e[0], float) for e in errors]),
+            np.array([int(e[1]) for e in errors]),
+            np.array([np.asarray(e[2], float) for e in errors]))
+    else:
+        out["comparisons"] = [(name, sensors, p, errors) for (name, sensors, _, errors), p
+                              in zip(snapshot["comparisons"], packed)]
     return out
 
 
 def unpack_runner(packed: dict[str, Any]) -> dict[str, Any]:
     out = dict(packed)
     out["main"] = unpack_snapshot(packed["main"])
-    out["comparisons"] = [(name, sensors, unpack_snapshot(estimator), errors)
-                          for name, sensors, estimator, errors in packed["comparisons"]]
+    group = packed["comparisons"]
+    if isinstance(group, PackedGroup):
+        out["comparisons"] = [
+            (name, sensors, unpack_snapshot(PackedSnapshot(estimator, group.settings,
+                                                           group.layout, vector)),
+             (squared, int(count), latest))
+            for name, sensors, estimator, vector, squared, count, latest in zip(
+                group.names, group.sensors, group.estimators, group.matrix, group.squared,
+                group.count, group.latest)]
+    else:
+        out["comparisons"] = [(name, sensors, unpack_snapshot(estimator), errors)
+                              for name, sensors, estimator, errors in group]
     return out
+
+
+def comparison_vectors(packed_runner: dict[str, Any]) -> list[np.ndarray]:
+    """The comparison filters' state vectors of a packed runner snapshot (tests)."""
+    group = packed_runner["comparisons"]
+    if isinstance(group, PackedGroup):
+        return list(group.matrix)
+    return [estimator.vector for _, _, estimator, _ in group]
 
 
 @dataclass
@@ -188,7 +237,7 @@ class CheckpointStore:
         for checkpoint in self._checkpoints:
             runner = checkpoint.runner
             total += runner["main"].vector.nbytes + 200
-            total += sum(c[2].vector.nbytes + 400 for c in runner["comparisons"])
+            total += sum(v.nbytes + 100 for v in comparison_vectors(runner))
             total += sum(a.nbytes for a in checkpoint.orderer.values()
                          if isinstance(a, np.ndarray))
         return total

@@ -20,7 +20,6 @@ copy), the checkpoints about 30 MB with the 7 comparison filters (8 estimators x
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 from dataclasses import dataclass, field
@@ -60,6 +59,33 @@ def plot_columns(piece: PlotChunk) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     return out
 
 
+class _Growing:
+    """Rows appended to arrays that double when full: no list of pieces to join at the end
+    (an hour is 3,600 pieces per stream; the doubled arrays' unused tail is never touched, so
+    it costs address space, not memory)."""
+
+    def __init__(self, width: int) -> None:
+        self.t = np.empty(1 << 14)
+        self.values = np.empty((1 << 14, width), np.float32)
+        self.size = 0
+
+    def add(self, t: np.ndarray, values: np.ndarray) -> None:
+        end = self.size + len(t)
+        if end > len(self.t):
+            capacity = max(end, 2 * len(self.t))
+            grown_t = np.empty(capacity)
+            grown_values = np.empty((capacity, self.values.shape[1]), np.float32)
+            grown_t[:self.size] = self.t[:self.size]
+            grown_values[:self.size] = self.values[:self.size]
+            self.t, self.values = grown_t, grown_values
+        self.t[self.size:end] = t
+        self.values[self.size:end] = values
+        self.size = end
+
+
+STREAM_WIDTHS = {"acc": 5, "gyr": 4, "mag": 5, "own": 3, "phone": 3, "error": 3}
+
+
 @dataclass
 class SessionPlot:
     """The whole session's plot samples (see :func:`plot_columns`), in seconds since its start.
@@ -68,27 +94,23 @@ class SessionPlot:
 
     streams: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     valid: bool = True
-    _pieces: dict[str, list] = field(default_factory=lambda: {s: [] for s in PLOT_STREAMS})
-    _last: dict[str, float] = field(default_factory=lambda: {s: -math.inf for s in PLOT_STREAMS})
+    _growing: dict[str, _Growing] = field(
+        default_factory=lambda: {s: _Growing(w) for s, w in STREAM_WIDTHS.items()})
 
     def add(self, piece: PlotChunk) -> None:
         for name, (t, values) in plot_columns(piece).items():
             if not len(t):
                 continue
-            if t[0] < self._last[name] - 1e-9 or np.any(np.diff(t) < 0):
+            growing = self._growing[name]
+            if (growing.size and t[0] < growing.t[growing.size - 1] - 1e-9) \
+                    or np.any(np.diff(t) < 0):
                 self.valid = False
-            self._last[name] = float(t[-1])
-            self._pieces[name].append((t, values))
+            growing.add(t, values)
 
     def finish(self) -> None:
-        for name, parts in self._pieces.items():
-            if parts:
-                self.streams[name] = (np.concatenate([t for t, _ in parts]),
-                                      np.concatenate([v for _, v in parts]))
-            else:
-                width = 5 if name in ("acc", "mag") else 4 if name == "gyr" else 3
-                self.streams[name] = (np.empty(0), np.empty((0, width), np.float32))
-        self._pieces = {}
+        for name, growing in self._growing.items():
+            self.streams[name] = (growing.t[:growing.size], growing.values[:growing.size])
+        self._growing = {}
 
     @property
     def end_s(self) -> float:
@@ -130,6 +152,7 @@ class SessionIndex:
         self.end_t_ms: int | None = None
         self._cancel = threading.Event()
         self._thread: threading.Thread | None = None
+        self._started = time.perf_counter()
 
     def start(self) -> SessionIndex:
         self._thread = threading.Thread(target=self._run, name="session-index", daemon=True)
@@ -145,15 +168,15 @@ class SessionIndex:
         return self.complete
 
     def _run(self) -> None:
-        started = time.perf_counter()
         try:
             self.build()
         except Exception as error:   # noqa: BLE001 (reported; seeks fall back to replaying)
             self.error = f"{type(error).__name__}: {error}"
-        self.elapsed_s = time.perf_counter() - started
+        self.elapsed_s = time.perf_counter() - self._started
 
     def build(self) -> None:
         """Run the whole replay through a pipeline of the set-up (in this thread)."""
+        self._started = time.perf_counter()
         setup = self.setup
         runner = EstimatorRunner(setup.estimator, setup.settings, comparisons=False,
                                  collect_plot=True)
@@ -176,6 +199,7 @@ class SessionIndex:
         self.plot.add(pipeline.take_output()[1])
         self.end_t_ms = runner.latest_t_ms
         self.plot.finish()
+        self.elapsed_s = time.perf_counter() - self._started
         self.complete = True
 
     def checkpoint_before(self, line: int) -> Checkpoint | None:

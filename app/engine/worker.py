@@ -55,12 +55,13 @@ from app.engine.commands import (AddMarker, AlignHeading, ReplayControl, ResetFi
 from app.engine.config import ConfigError, megabytes
 from app.engine.estimates import EstimatesWriter
 from app.engine.health import HealthTracker, stats_dict
+from app.engine.markers import Markers
 from app.engine.pipeline import Pipeline
 from app.engine.recording import SessionRecording
 from app.engine.replay import ReplayManager
 from app.engine.runner import SENSORS, EstimatorRunner, Rows
-from app.engine.session import (Marker, SessionInfo, default_session_folder, read_session,
-                                session_json_for, utc_now)
+from app.engine.session import (SessionInfo, default_session_folder, read_session,
+                                session_json_for)
 from app.engine.snapshot import (Comparison, EngineFailure, FilterStatus, PlotChunk, Snapshot,
                                  StreamHealth)
 from app.stream import fastparse, ordering
@@ -163,8 +164,7 @@ class Engine:
         self.recording: SessionRecording | None = None
         self.last_recording: Path | None = None
         self._initial_recording = (recorder, estimates)
-        self._markers: list[Marker] = []
-        self._marker_ids = 0
+        self._markers = Markers()
         self._replay: ReplayManager | None = None
         self._session = session if session is not None else session_for_source(source)
         self._index = bool(index)
@@ -197,6 +197,9 @@ class Engine:
         self._other_samples = 0
         self._applied = 0                    # commands applied so far
         self._marks: list[threading.Event] = []   # wait_idle's, set at the next publish
+        self._seek: tuple[int, int] | None = None   # a seek's target and start line
+        # seeks done: (perf_counter when the state reached the target, lines replayed)
+        self.seeks: deque[tuple[float, int]] = deque(maxlen=1000)
         if recorder is not None:
             self._attach_recording(SessionRecording(recorder.directory, self._runner,
                                                     recorder=recorder, estimates=estimates,
@@ -443,6 +446,9 @@ class Engine:
         damaged_before = parser.stats.damaged + parser.stats.too_long
         data = chunks[0].data if len(chunks) == 1 else b"".join(c.data for c in chunks)
         pipeline.feed_bytes(data)
+        if self._seek is not None and getattr(self._replay_source(), "_index", -1) \
+                >= self._seek[0] and not self._backlog:
+            self._seek_done()
         sequence = pipeline.orderer.sequence
         for chunk in chunks:
             self._pending_host_times.append((chunk.t_host, sequence))
@@ -469,6 +475,9 @@ class Engine:
         if kind == "connected":
             if replay is not None:
                 self._begin_pass(replay)
+                if getattr(replay, "torn_lines", 0):
+                    pipeline.parser._count_bad("damaged", "torn last line (the recording was "
+                                               "cut off)", "torn last line")
             else:
                 self._replay_off()
                 pipeline.restart()
@@ -506,7 +515,7 @@ class Engine:
             manager = self._replay = ReplayManager(
                 source, session, {"limits": self.limits, "orderer_options": self._orderer_options},
                 index=self._index)
-            self._markers = list(manager.markers)
+            self._markers.replace(manager.markers)
         manager.apply(self.pipeline, manager.begin(self.pipeline))
         self._pending_host_times.clear()
 
@@ -521,7 +530,7 @@ class Engine:
         if self._replay is not None:
             self._replay.stop()
             self._replay = None
-            self._markers = []
+            self._markers.replace([])
 
     def _seek_line(self, target: int) -> bool:
         """Go to line `target` of the replay: restore the latest checkpoint before it, replay
@@ -537,7 +546,16 @@ class Engine:
         manager.apply(self.pipeline, checkpoint)
         source.jump(checkpoint.line, target)
         self._connection_state = "replaying"
+        self._seek = (target, checkpoint.line)
+        if checkpoint.line >= target:
+            self._seek_done()
         return True
+
+    def _seek_done(self) -> None:
+        """A seek reached its target: (when, lines replayed) for the benchmarks."""
+        target, start = self._seek
+        self._seek = None
+        self.seeks.append((time.perf_counter(), target - start))
 
     def _resync(self) -> None:
         """The index of a changed set-up is ready: be where it says at the current line."""
@@ -730,42 +748,16 @@ class Engine:
     # -- markers ---------------------------------------------------------------------------------
 
     def _add_marker(self, label: str) -> None:
-        t_ms, t0 = self._runner.latest_t_ms, self.pipeline.t0_ms
-        t_s = None if t_ms is None or t0 is None else (t_ms - t0) / 1000.0
-        number = max((m.id for m in self._markers), default=0) + 1
-        marker = Marker(number, t_ms, t_s, str(label or ""), utc_now())
-        self._markers.append(marker)
-        where = "–" if t_s is None else f"{t_s:.1f} s"
-        saved = self._save_markers(marker, new=True)
-        self._health.warn("marker", f"marker {marker.title} at {where}{saved}", force=True)
+        replay = self._replay if self._replay_source() is not None else None
+        note = self._markers.add(label, self._runner.latest_t_ms, self.pipeline.t0_ms,
+                                 self.recording, replay, self.pipeline.fed_total)
+        self._health.warn("marker", note, force=True)
 
     def _set_marker_label(self, number: int, label: str) -> None:
-        for index, marker in enumerate(self._markers):
-            if marker.id == number:
-                self._markers[index] = dataclasses.replace(marker, label=str(label or ""))
-                self._save_markers(self._markers[index], new=False)
-                return
-
-    def _save_markers(self, marker: Marker, new: bool) -> str:
-        """Into the recording and the replayed session; a note for the status line."""
-        notes = ""
-        recording = self.recording
-        if recording is not None and recording.active:
-            if new:
-                recording.add_marker(marker, self.pipeline.fed_total)
-            else:
-                recording.update_marker(marker)
-        manager = self._replay if self._replay_source() is not None else None
-        if manager is not None:
-            manager.markers = list(self._markers)
-            if manager.session is None and (recording is None or not recording.active):
-                notes = " (a phone's log has no session.json: not saved)"
-            problem = manager.save_markers()
-            if problem:
-                self._health.warn("markers", problem, force=True)
-        elif recording is None or not recording.active:
-            notes = " (not recording: not saved)"
-        return notes
+        replay = self._replay if self._replay_source() is not None else None
+        note = self._markers.set_label(number, label, self.recording, replay)
+        if note and "(" in note:
+            self._health.warn("markers", note.strip(" ()"), force=True)
 
     # -- output ----------------------------------------------------------------------------------
 
@@ -816,7 +808,7 @@ class Engine:
                          for c in runner.comparisons],
             comparison_estimator=runner.comparison_estimator, t0_ms=self.pipeline.t0_ms,
             health=self._stream_health(now, info), replay=replay,
-            failures=list(self.failures), markers=tuple(self._markers),
+            failures=list(self.failures), markers=tuple(self._markers.items),
             recording=self.recording.status() if self.recording is not None
             else self._last_recording_status,
             session_plot=manager.plot if manager is not None else None)

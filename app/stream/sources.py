@@ -283,12 +283,26 @@ class LineReplaySource(Source):
 
 
 class LogFileSource(LineReplaySource):
-    """A log file (.txt or .txt.gz; the phone's or our raw.txt) replayed like a phone."""
+    """A log file (.txt or .txt.gz; the phone's or our raw.txt) replayed like a phone.
+
+    A recording's raw.txt (a session.json beside it) always ends with a whole line; one that
+    does not was cut by a crash: its torn last line is left out (it could parse to a wrong
+    value) and counted (:attr:`torn_lines`)."""
 
     def __init__(self, path: str | Path, speed: float = 1.0, loop: bool = False,
                  paused: bool = False) -> None:
         path = Path(path)
-        super().__init__(read_log_bytes(path), path.name, speed, loop, paused)
+        data = read_log_bytes(path, add_newline=False)
+        self.torn_lines = 0
+        if not data.endswith(b"\n"):
+            if path.with_name("session.json").is_file():
+                data = data[:data.rfind(b"\n") + 1]
+                self.torn_lines = 1
+                if not data:
+                    raise LogError(f"{path}: no whole line (a recording cut at its start)")
+            else:
+                data += b"\n"
+        super().__init__(data, path.name, speed, loop, paused)
         self.path = path
 
 
