@@ -547,6 +547,8 @@ class Engine:
         source.jump(checkpoint.line, target)
         self._connection_state = "replaying"
         self._seek = (target, checkpoint.line)
+        # the lines replayed up to the target were not watched: a recording skips them
+        self.pipeline.set_raw_sinks(None, None)
         if checkpoint.line >= target:
             self._seek_done()
         return True
@@ -554,8 +556,15 @@ class Engine:
     def _seek_done(self) -> None:
         """A seek reached its target: (when, lines replayed) for the benchmarks."""
         target, start = self._seek
-        self._seek = None
         self.seeks.append((time.perf_counter(), target - start))
+        rows, piece = self.pipeline.take_output()   # the re-sync: plotted, not recorded
+        self._distribute(rows)
+        self._seek = None
+        with self._lock:
+            self._plot.add(piece)
+        if self.recording is not None and self.recording.active:
+            recorder = self.recording.recorder
+            self.pipeline.set_raw_sinks(recorder.write_line, recorder.write_block)
 
     def _resync(self) -> None:
         """The index of a changed set-up is ready: be where it says at the current line."""
@@ -771,7 +780,9 @@ class Engine:
         if self.record_rows and len(rows):
             self.rows_log.append(rows)
         warning = None
-        if self.recording is not None:
+        if self._seek is not None:
+            pass            # a seek's re-sync: the rows up to its target were not shown
+        elif self.recording is not None:
             warning = self.recording.write_rows(rows)
         elif self._estimates_only is not None:
             self._estimates_only.write(rows)

@@ -302,7 +302,10 @@ class LogFileSource(LineReplaySource):
                     raise LogError(f"{path}: no whole line (a recording cut at its start)")
             else:
                 data += b"\n"
-        super().__init__(data, path.name, speed, loop, paused)
+        # a recording is named by its folder (its raw.txt says nothing)
+        name = path.parent.name if self.torn_lines or path.with_name("session.json").is_file() \
+            and path.name == "raw.txt" else path.name
+        super().__init__(data, name, speed, loop, paused)
         self.path = path
 
 
