@@ -164,3 +164,23 @@ def test_a_folder_that_cannot_be_made_is_one_message_and_the_stream_goes_on(line
 def _write(path: Path, lines: list[bytes]) -> Path:
     path.write_bytes(b"".join(lines))
     return path
+
+
+def test_the_window_records_from_the_start_with_record_dir(lines, tmp_path):
+    """`orientation-lab --replay LOG --record DIR`: a real window process (offscreen) records
+    what it plays, verbatim."""
+    import os
+    import subprocess
+    import sys
+    log = _write(tmp_path / "log.txt", lines[:1500])
+    folder = tmp_path / "rec"
+    env = dict(os.environ, QT_QPA_PLATFORM="offscreen", ORIENTATION_LAB_DATA=str(tmp_path))
+    result = subprocess.run([sys.executable, "-m", "app", "--replay", str(log), "--speed", "0",
+                             "--record", str(folder), "--port", "0", "--exit-after", "4"],
+                            cwd=Path(__file__).resolve().parents[1], env=env,
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert (folder / "raw.txt").read_bytes() == log.read_bytes()
+    session = read_session(folder / "session.json")
+    assert session.data["stopped_utc"] and session.start_state is None
+    assert len(recorded_rows(folder)) > 400
