@@ -159,6 +159,7 @@ def test_a_folder_that_cannot_be_made_is_one_message_and_the_stream_goes_on(line
     assert any(w.startswith("cannot record") and str(blocker) in w
                for w in snapshot.health.warnings)
     assert snapshot.health.lines_total == 800
+    assert snapshot.recording["active"] is False and str(blocker) in snapshot.recording["error"]
 
 
 def _write(path: Path, lines: list[bytes]) -> Path:

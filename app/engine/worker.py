@@ -204,8 +204,8 @@ class Engine:
             self._attach_recording(SessionRecording(recorder.directory, self._runner,
                                                     recorder=recorder, estimates=estimates,
                                                     source=source.kind))
-        elif estimates is not None:     # estimates without raw.txt (tests)
-            self._attach_recording(None, estimates)
+        elif estimates is not None:
+            raise ValueError("estimates.csv belongs to a recording: give its recorder too")
 
     # -- compatibility ---------------------------------------------------------------------------
 
@@ -219,11 +219,7 @@ class Engine:
 
     @property
     def estimates(self) -> EstimatesWriter | None:
-        if self.recording is not None:
-            return self.recording.estimates
-        return self._estimates_only
-
-    _estimates_only: EstimatesWriter | None = None
+        return self.recording.estimates if self.recording is not None else None
 
     @property
     def samples_processed(self) -> int:
@@ -255,7 +251,7 @@ class Engine:
         self.source.stop()
         if self._replay is not None:
             self._replay.stop()
-        if self.recording is not None or self._estimates_only is not None:
+        if self.recording is not None:
             try:
                 self.pipeline.end_of_stream(partial_line_damaged=False)
                 self._take_output()
@@ -346,8 +342,6 @@ class Engine:
         if self.recording is not None:
             self.recording.tick()
             self._check_recording()
-        elif self._estimates_only is not None:
-            self._estimates_only.flush()
 
     def _process(self, items: list[Chunk | SourceEvent]) -> bool:
         changed = False
@@ -691,31 +685,28 @@ class Engine:
 
     # -- recording -------------------------------------------------------------------------------
 
-    def _attach_recording(self, recording: SessionRecording | None,
-                          estimates: EstimatesWriter | None = None) -> None:
+    def _attach_recording(self, recording: SessionRecording) -> None:
         self.recording = recording
-        self._estimates_only = estimates
         self._recording_reported = False
-        if recording is not None:
-            recorder = recording.recorder
-            self.pipeline.set_raw_sinks(recorder.write_line, recorder.write_block)
-            self.last_recording = recording.folder
+        recorder = recording.recorder
+        self.pipeline.set_raw_sinks(recorder.write_line, recorder.write_block)
+        self.last_recording = recording.folder
 
     def _start_recording(self, command: StartRecording) -> None:
         if self.recording is not None and self.recording.active:
             self._health.warn("recording", f"already recording into {self.recording.folder}",
                               force=True)
             return
+        folder = Path(command.folder) if command.folder else None
         try:
-            folder = new_session_folder(Path(command.folder) if command.folder
-                                        else default_session_folder())
+            folder = new_session_folder(folder or default_session_folder())
             max_bytes = DEFAULT_MAX_BYTES if command.max_mb is None else megabytes(command.max_mb)
             min_free = DEFAULT_MIN_FREE_BYTES if command.min_free_mb is None \
                 else megabytes(command.min_free_mb)
             pipeline = self.pipeline
             running = pipeline.fed_total > 0 or pipeline.orderer.pending > 0
             # the rows so far belong to before the recording
-            self._take_output()
+            self._flush_output()
             recording = SessionRecording(
                 folder, self._runner, fed_at_start=pipeline.fed_total,
                 start_state=pipeline.start_state() if running else None,
@@ -723,6 +714,9 @@ class Engine:
                 max_bytes=max_bytes, min_free_bytes=min_free)
         except (ConfigError, OSError) as error:
             self._health.warn("recording", f"cannot record: {error}", force=True)
+            self._last_recording_status = {"folder": str(folder or ""), "elapsed_s": 0.0,
+                                           "bytes": 0, "lines": 0, "error": f"cannot record: "
+                                           f"{error}", "active": False, "at": time.time()}
             return
         self._attach_recording(recording)
         self._record_event("recording", folder=str(folder))
@@ -733,7 +727,7 @@ class Engine:
             self._health.warn("recording", "not recording", force=True)
             return
         folder = self.recording.folder
-        self._take_output()          # the rows up to now go into estimates.csv
+        self._flush_output()         # the rows up to now go into estimates.csv
         self._close_recording()
         self._health.warn("recording", f"recording saved in {folder}", force=True)
 
@@ -743,9 +737,6 @@ class Engine:
         if recording is not None:
             self._last_recording_status = {**recording.status(), "active": False}
             recording.close(stats_dict(self._latest.health))
-        if self._estimates_only is not None:
-            self._estimates_only.close()
-            self._estimates_only = None
 
     _last_recording_status: dict[str, Any] | None = None
 
@@ -784,10 +775,14 @@ class Engine:
             pass            # a seek's re-sync: the rows up to its target were not shown
         elif self.recording is not None:
             warning = self.recording.write_rows(rows)
-        elif self._estimates_only is not None:
-            self._estimates_only.write(rows)
         if warning:
             self._health.warn("estimates", warning, force=True)
+
+    def _flush_output(self) -> None:
+        """The output so far to its consumers now (rows, and the plots at the next poll)."""
+        piece = self._take_output()
+        with self._lock:
+            self._plot.add(piece)
 
     def _take_output(self) -> PlotChunk:
         """The rows since the last call to their consumers (rows_log, estimates.csv); the plot

@@ -284,8 +284,9 @@ class SessionControls(QtCore.QObject):
             return
         folder = str(recording.get("folder", ""))
         error = recording.get("error")
-        if error and folder not in self._errors_shown:
-            self._errors_shown.add(folder)
+        key = f"{folder}|{error}|{recording.get('at', '')}"
+        if error and key not in self._errors_shown:
+            self._errors_shown.add(key)
             self._complain("Recording stopped",
                            f"{error}\n\nThe stream and the estimates go on; what was recorded "
                            f"until then is in {folder}.")

@@ -305,7 +305,7 @@ class TransportBar(QtWidgets.QFrame):
             return
         error = recording.get("error")
         if error:
-            text = f"recording stopped: {error}"
+            text = error if error.startswith("cannot record") else f"recording stopped: {error}"
             style = "color: #c01818; font-weight: bold;"
         elif active:
             text = (f"REC {clock_text(recording.get('elapsed_s', 0.0))[:-2]} · "
