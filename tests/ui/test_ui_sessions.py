@@ -122,13 +122,16 @@ def test_m_drops_a_marker_and_asks_for_a_label(window, fake_engine, qtbot):
     assert fake_engine.commands[-1] == AddMarker()
     box = window.sessions.marker_box
     assert box.isVisible() and "Marker 1" in box.title.text()
-    qtbot.keyClicks(box.field, "lift off")
+    qtbot.keyClicks(box.field, "mm lift off")     # typing M (or arrows) in the box is text
+    qtbot.keyClick(box.field, QtCore.Qt.Key.Key_Left)
     qtbot.keyClick(box.field, QtCore.Qt.Key.Key_Return)
-    assert fake_engine.commands[-1] == SetMarkerLabel(1, "lift off") and not box.isVisible()
+    assert fake_engine.commands[-1] == SetMarkerLabel(1, "mm lift off") and not box.isVisible()
+    assert len(fake_engine.commands_of(AddMarker)) == 1
+    assert not fake_engine.commands_of(ReplayControl)
     _press(qtbot, window, "M")
     qtbot.keyClick(window.sessions.marker_box.field, QtCore.Qt.Key.Key_Escape)
     assert not window.sessions.marker_box.isVisible()
-    assert fake_engine.commands_of(SetMarkerLabel) == [SetMarkerLabel(1, "lift off")]
+    assert fake_engine.commands_of(SetMarkerLabel) == [SetMarkerLabel(1, "mm lift off")]
 
 
 def test_record_button_and_shortcut_show_the_recording(window, fake_engine, qtbot):
