@@ -156,3 +156,69 @@ def test_seek_on_a_real_log_with_late_blocks(realphone_dir):
             assert engine.wait_idle()
             target = source.line_at(position)
             assert_same_state(engine, reference_state(source.data[:source.starts[target]]))
+
+
+def _session(tmp_path, lines, timeline):
+    import json
+    folder = tmp_path / "session"
+    folder.mkdir()
+    (folder / "raw.txt").write_bytes(b"".join(lines))
+    (folder / "session.json").write_text(json.dumps({"format": 2, "timeline": timeline}))
+    return folder
+
+
+def reference_with(data: bytes, setup: Setup):
+    pipeline = Pipeline(EstimatorRunner(collect_plot=True))
+    pipeline.restore(pipeline.initial_checkpoint(setup))
+    pipeline.timeline = setup.timeline
+    pipeline.feed_bytes(data)
+    pipeline.take_output()
+    return pipeline
+
+
+def test_seek_in_a_session_applies_its_recorded_timeline(lines, tmp_path):
+    timeline = [{"kind": "sensor", "sensor": "mag", "enabled": False, "t_ms": None,
+                 "sample": 3500},
+                {"kind": "estimator", "name": "course", "t_ms": None, "sample": 6000}]
+    folder = _session(tmp_path, lines, timeline)
+    source = LogFileSource(folder / "raw.txt", paused=True)
+    with Engine(source, comparisons=True) as engine:
+        replay = wait_indexed(engine)
+        assert replay["following_timeline"] and replay["has_timeline"]
+        setup = engine._replay.setup
+        assert [e["kind"] for e in setup.timeline] == ["sensor", "estimator"]
+        for position in (25.0, 8.0, 2.0):            # after both events, between, before
+            engine.send(ReplayControl(seek_s=position))
+            assert engine.wait_idle()
+            target = source.line_at(position)
+            assert_same_state(engine, reference_with(source.data[:source.starts[target]], setup))
+        engine.send(ReplayControl(seek_s=25.0))
+        assert engine.wait_idle()
+        status = engine.snapshot_now().status
+        assert status.estimator == "course" and status.sensors_enabled["mag"] is False
+
+
+def test_a_user_change_while_replaying_applies_from_the_start_once_indexed(lines, tmp_path):
+    from app.engine.commands import SetSensorEnabled
+    folder = _session(tmp_path, lines, [{"kind": "sensor", "sensor": "mag", "enabled": False,
+                                         "t_ms": None, "sample": 3500}])
+    source = LogFileSource(folder / "raw.txt", paused=True)
+    with Engine(source, comparisons=False) as engine:
+        wait_indexed(engine)
+        engine.send(ReplayControl(seek_s=15.0))
+        assert engine.wait_idle()
+        engine.send(SetSensorEnabled("acc", False))          # the user's own set-up now
+        assert engine.wait_idle()                            # applied: indexing again
+        deadline = time.monotonic() + 30
+        while engine._replay.resync or not engine.snapshot_now().replay["indexed"]:
+            assert time.monotonic() < deadline
+            time.sleep(0.02)
+        assert engine.wait_idle()
+        replay = engine.snapshot_now().replay
+        assert not replay["following_timeline"]
+        assert any("recorded timeline off" in w for w in engine.snapshot_now().health.warnings)
+        # mag stays as it was at the change (out), acc out, both from the start; no timeline
+        setup = Setup("ekf", ("gyr",), None, comparisons=False)
+        target = source.line_at(15.0)
+        assert source.line_index == target
+        assert_same_state(engine, reference_with(source.data[:source.starts[target]], setup))
