@@ -17,17 +17,17 @@ $(PY):
 WARM := @echo "compiling the filter kernels (first time only)..." && $(PY) -c "import app.engine.warmup as w; w.warm_up()"
 
 $(STAMP_RUN): pyproject.toml | $(PY)
-	$(PY) -m pip install -q -e .
+	$(PY) -m pip install -q -e '.[mat]'
 	$(WARM)
 	touch $@
 
 $(STAMP_TEST): pyproject.toml | $(PY)
-	$(PY) -m pip install -q -e '.[test]'
+	$(PY) -m pip install -q -e '.[test,mat]'
 	$(WARM)
 	touch $@ $(STAMP_RUN)
 
 $(STAMP_BENCH): pyproject.toml | $(PY)
-	$(PY) -m pip install -q -e '.[test,bench]'
+	$(PY) -m pip install -q -e '.[test,mat,bench]'
 	touch $@ $(STAMP_TEST) $(STAMP_RUN)
 
 venv: $(STAMP_RUN)

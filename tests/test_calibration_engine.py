@@ -297,7 +297,8 @@ def test_applied_profile_is_recorded_in_the_session(tmp_path, sim_log):
             assert time.monotonic() < deadline
             time.sleep(0.05)
     session = json.loads((tmp_path / "session" / "session.json").read_text())
-    assert session["calibration"]["name"] == "Pixel 7 (desk)"
+    assert session["calibration"]["profile"]["name"] == "Pixel 7 (desk)"
+    assert session["calibration"]["mag_hard_iron"] == OFFSET.tolist()
     assert session["settings"]["mag_hard_iron"] == OFFSET.tolist()
     event = [e for e in session["timeline"] if e["kind"] == "settings"][0]
     assert event["profile"] == "Pixel 7 (desk)" and event["source"] == "calibration"

@@ -24,7 +24,7 @@ QUICK_ARGS = {"headless_engine.py": ["--seconds", "1.5"],
               "course_ekf.py": ["--seconds", "10"]}
 BENCHMARKS = [("speed.py", []), ("accuracy.py", ["--only", "ours-default,ours-course"]),
               ("live.py", ["--skip-no-loss"]), ("chaos.py", []), ("tuning.py", []),
-              ("plugin.py", [])]
+              ("plugin.py", []), ("session.py", [])]
 
 
 def _run(script: Path, args: list[str], env: dict[str, str] | None = None,

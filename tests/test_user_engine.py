@@ -258,3 +258,36 @@ def test_the_re_run_reads_a_log_as_the_engine_feeds_it(realphone_dir):
     live = [np.concatenate([f[i] for f in fed]) for i in range(3)]
     assert np.array_equal(live[0], t_ms) and np.array_equal(live[1], tag)
     assert np.array_equal(live[2], values, equal_nan=True)
+
+
+def test_after_a_seek_yours_is_where_playing_would_have_brought_it(tmp_path):
+    """A seek restores our estimators from a checkpoint; yours is not in a checkpoint, so it
+    re-runs the log up to there: after the seek it is where playing through would have brought
+    it (the same as running it over the whole log offline)."""
+    log = _log(tmp_path, seconds=4.0, rate_hz=100.0)
+    user = write_filter(tmp_path, "integrating", """
+        import numpy as np
+        class Filter:
+            def __init__(self):
+                self.q = np.array([1.0, 0.0, 0.0, 0.0])
+                self.t = None
+            def step(self, t, gyr, acc, mag):
+                if gyr is not None and self.t is not None:
+                    half = 0.5 * (t - self.t) * np.asarray(gyr)
+                    w, v = self.q[0], self.q[1:]
+                    self.q = np.concatenate([[w - v @ half], w * half + v + np.cross(half, v)])
+                    self.q /= np.linalg.norm(self.q)
+                self.t = t
+                return self.q
+    """)
+    offline = UserFilterEstimator(user)
+    filter_log(open_log(log), offline)
+    engine = Engine(LogFileSource(log, speed=2), comparisons=False, user_filter=user)
+    with engine:
+        _wait(engine, lambda s: _running(s) and s.replay and s.replay["position_s"] > 3.0)
+        engine.send(ReplayControl(seek_s=1.0))
+        _wait(engine, lambda s: s.replay and s.replay["position_s"] < 2.0)
+        final = _wait(engine, lambda s: _finished(s) and _running(s) and s.user.steps > 250)
+    assert final.user.used_fraction == 1.0            # nothing decimated
+    assert final.user.quat == pytest.approx(offline.quat, abs=1e-12)
+    assert "after the seek" in final.user.message

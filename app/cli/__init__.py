@@ -37,7 +37,9 @@ def open_window(args: argparse.Namespace) -> int:
     return run_gui(WindowOptions(source=source_options(args), settings=args.settings,
                                  screenshot=args.screenshot, exit_after=args.exit_after,
                                  size=args.window_size, filter=args.filter,
-                                 forward=args.forward))
+                                 forward=args.forward, record=args.record,
+                                 record_max_mb=args.record_max_mb / 2**20,
+                                 record_min_free_mb=args.record_min_free_mb / 2**20))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

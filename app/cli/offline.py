@@ -158,6 +158,17 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---- export -------------------------------------------------------------------------------------
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from app.engine.export import export_session
+    separator = args.separator or ("semicolon" if args.decimal_comma else "comma")
+    print(export_session(args.session, args.format, args.output, args.from_marker,
+                         args.to_marker, args.from_s, args.to_s, separator,
+                         args.decimal_comma))
+    return 0
+
+
 # ---- registration -------------------------------------------------------------------------------
 
 def _log_filter_options(parser: argparse.ArgumentParser, several: bool) -> None:
@@ -190,6 +201,28 @@ def add_commands(sub) -> None:
     options.add_intervals(e)
     options.add_skip(e)
     e.set_defaults(func=cmd_evaluate)
+
+    x = sub.add_parser("export", help="export a session: CSV, the phone's text format, MATLAB .mat",
+                       description="Replay a recorded session (or a phone's log) as the window "
+                                   "does and write its measurements and estimates.")
+    x.add_argument("session", help="a recorded session folder, its raw.txt or session.json, or "
+                                   "a log saved on the phone")
+    x.add_argument("--format", required=True, choices=("csv", "log", "mat"),
+                   help="csv: measurements and estimates with a header of units; log: the "
+                        "phone's text format (the course's MATLAB reader, `send`); mat: the "
+                        "course kit's meas and xhat structs (needs scipy)")
+    x.add_argument("-o", "--output", required=True, metavar="OUT", help="the file to write")
+    x.add_argument("--from-marker", metavar="A", help="start at marker A (number or label)")
+    x.add_argument("--to-marker", metavar="B", help="end at marker B (number or label)")
+    x.add_argument("--from", dest="from_s", type=options.NON_NEGATIVE, metavar="S",
+                   help="start S seconds after the session's start")
+    x.add_argument("--to", dest="to_s", type=options.NON_NEGATIVE, metavar="S",
+                   help="end S seconds after the session's start")
+    x.add_argument("--separator", default=None, choices=("comma", "semicolon", "tab"),
+                   help="CSV field separator (default comma; semicolon with --decimal-comma)")
+    x.add_argument("--decimal-comma", action="store_true",
+                   help="CSV numbers with a decimal comma (needs --separator semicolon or tab)")
+    x.set_defaults(func=cmd_export)
 
     s = sub.add_parser("simulate", help="write a simulated phone log with ORI = the true "
                                         "orientation")

@@ -159,8 +159,9 @@ def add_sensors(parser: argparse.ArgumentParser) -> None:
 
 def add_record(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--record", metavar="DIR",
-                        help="record the session into DIR (raw.txt, session.json, "
-                             "estimates.csv); a folder holding a session already: DIR-2, ...")
+                        help="record from the start into DIR (raw.txt, session.json, "
+                             "estimates.csv); a folder holding a session already: DIR-2, ... "
+                             "(the window: Ctrl+Shift+R starts and stops recording at any time)")
     parser.add_argument("--record-max-mb", type=MEGABYTES, default=config.megabytes(2048),
                         metavar="MB", help="stop recording when raw.txt reaches MB (default "
                                            "2048; 0 = no limit)")
@@ -175,9 +176,11 @@ def add_window(parser: argparse.ArgumentParser) -> None:
     add_listen(group)
     group.add_argument("--demo", action="store_true",
                        help="play the built-in demo session (still listening for the phone)")
-    group.add_argument("--replay", metavar="LOG",
-                       help="play a phone log, a recorded session folder or its session.json")
+    group.add_argument("--replay", metavar="PATH",
+                       help="play a recorded session (its folder, raw.txt or session.json) or a "
+                            "log saved on the phone")
     add_speed_loop(group)
+    add_record(group)
     add_settings(group)
     add_limits(group)
     add_filter(group)

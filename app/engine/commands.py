@@ -16,7 +16,8 @@ from app.stream.events import (AcceptConnection, IgnoreConnection, ReplayControl
 
 __all__ = ["SetSensorEnabled", "SetEstimator", "SetSettings", "ResetFilter", "AlignHeading",
            "SetComparisonsEnabled", "ReplayControl", "AcceptConnection", "IgnoreConnection",
-           "SetAllowedNetworks", "LoadUserFilter", "UnloadUserFilter", "SetConsistencyEnabled"]
+           "SetAllowedNetworks", "LoadUserFilter", "UnloadUserFilter", "SetConsistencyEnabled",
+           "StartRecording", "StopRecording", "AddMarker", "SetMarkerLabel", "SetFollowTimeline"]
 
 
 @dataclass(frozen=True)
@@ -79,5 +80,43 @@ class SetConsistencyEnabled:
     """Publish our EKF's innovations for the consistency view (costs a little per sample, so
     only while the view is open). Your filter's innovations are published whenever it returns
     them."""
+
+    enabled: bool
+
+
+@dataclass(frozen=True)
+class StartRecording:
+    """Record from now on into `folder` (None: a new folder named by date and time in the
+    user's data folder, sessions/); a folder that holds a session already: DIR-2, ...
+    max_mb / min_free_mb: the recorder's limits (None: its defaults; 0: no limit)."""
+
+    folder: str | None = None
+    max_mb: float | None = None
+    min_free_mb: float | None = None
+
+
+@dataclass(frozen=True)
+class StopRecording:
+    pass
+
+
+@dataclass(frozen=True)
+class AddMarker:
+    """A marker at the latest sample (saved in the recording's, or the replayed session's,
+    session.json)."""
+
+    label: str = ""
+
+
+@dataclass(frozen=True)
+class SetMarkerLabel:
+    id: int
+    label: str
+
+
+@dataclass(frozen=True)
+class SetFollowTimeline:
+    """Replaying a recorded session: apply its recorded sensor switches, settings and estimator
+    changes (True, the default) or the window's own choices from the start (False)."""
 
     enabled: bool

@@ -13,7 +13,6 @@ heading (about world up) and inclination (tilt), in degrees.
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,57 +59,89 @@ class ErrorRows:
 
 
 class SameInstant:
-    """Our estimate at each ORI sample's time, interpolated between the estimates around it."""
+    """Our estimate at each ORI sample's time, interpolated between the estimates around it.
+
+    One or several series of estimates at the same times (the 7 comparison filters share their
+    times): quaternions (n, 4), or (k, n, 4) for k series, compared in one vectorised call. The
+    ORI samples waiting for our next estimate are kept in numpy arrays: no Python work per
+    sample."""
 
     def __init__(self) -> None:
         self.reset()
 
     def reset(self) -> None:
         self._last_t: int | None = None          # our latest estimate
-        self._last_q: np.ndarray | None = None
-        self._pending_t: deque[int] = deque()
-        self._pending_q: deque[np.ndarray] = deque()
+        self._last_q: np.ndarray | None = None   # (k, 4)
+        self._pending_t = np.empty(0, np.int64)
+        self._pending_q = np.empty((0, 4))
+
+    def snapshot(self) -> tuple:
+        """The state (copies), for :meth:`restore`: a replay's checkpoints."""
+        return (self._last_t, None if self._last_q is None else self._last_q.copy(),
+                self._pending_t.copy(), self._pending_q.copy())
+
+    def restore(self, state) -> None:
+        last_t, last_q, pending_t, pending_q = state
+        self._last_t = last_t
+        self._last_q = None if last_q is None else np.array(last_q, float).reshape(-1, 4)
+        self._pending_t = np.array(pending_t, np.int64).reshape(-1)
+        self._pending_q = np.array(pending_q, float).reshape(-1, 4)
 
     def add_phone(self, t_ms: np.ndarray, quat: np.ndarray) -> None:
         """ORI samples (in time order) to compare once our estimates around them exist."""
-        for t, q in zip(np.asarray(t_ms).tolist(), np.asarray(quat, float)):
-            self._pending_t.append(int(t))
-            self._pending_q.append(q)
-        while len(self._pending_t) > MAX_PENDING:
-            self._pending_t.popleft()
-            self._pending_q.popleft()
+        t_ms = np.asarray(t_ms, np.int64).reshape(-1)
+        if not len(t_ms):
+            return
+        quat = np.asarray(quat, float)[:, :4]
+        if len(self._pending_t):
+            t_ms = np.concatenate((self._pending_t, t_ms))
+            quat = np.concatenate((self._pending_q, quat))
+        self._pending_t = t_ms[-MAX_PENDING:]
+        self._pending_q = quat[-MAX_PENDING:]
 
     def add_estimates(self, t_ms: np.ndarray, quat: np.ndarray) -> ErrorRows:
-        """Our estimates (distinct increasing times): the errors of the ORI samples they resolve."""
+        """Our estimates (distinct increasing times; quat (n, 4) or (k, n, 4)): the errors of
+        the ORI samples they resolve (error_deg (m, 3), or (k, m, 3) for k series)."""
         t_ms = np.asarray(t_ms, np.int64)
-        if len(t_ms) == 0:
-            return ErrorRows.empty()
         quat = np.asarray(quat, float)
-        if self._last_t is not None:
+        series = quat.ndim == 3
+        quat3 = quat if series else quat[None]
+        if len(t_ms) == 0:
+            return _no_errors(len(quat3) if series else None)
+        if self._last_t is not None and len(self._last_q) == len(quat3):
             times = np.concatenate(([self._last_t], t_ms))
-            quats = np.vstack([self._last_q[None], quat])
+            quats = np.concatenate([self._last_q[:, None], quat3], axis=1)
         else:
-            times, quats = t_ms, quat
-        self._last_t, self._last_q = int(t_ms[-1]), quat[-1].copy()
-        ready = 0
-        while ready < len(self._pending_t) and self._pending_t[ready] <= times[-1]:
-            ready += 1
+            times, quats = t_ms, quat3
+        self._last_t, self._last_q = int(t_ms[-1]), quat3[:, -1].copy()
+        pending = self._pending_t
+        # pending ORI times never decrease: the ready ones are a prefix
+        ready = int(np.searchsorted(pending, times[-1], side="right")) if len(pending) else 0
         if ready == 0:
-            return ErrorRows.empty()
-        ori_t = np.array([self._pending_t.popleft() for _ in range(ready)], np.int64)
-        ori_q = np.array([self._pending_q.popleft() for _ in range(ready)])
+            return _no_errors(len(quat3) if series else None)
+        ori_t, ori_q = pending[:ready], self._pending_q[:ready]
+        self._pending_t, self._pending_q = pending[ready:], self._pending_q[ready:]
         after = np.searchsorted(times, ori_t, side="left")
         exact = times[after] == ori_t
         before = np.maximum(after - 1, 0)
         gap = times[after] - times[before]
         usable = exact | ((after > 0) & (gap <= MAX_GAP_MS))
         if not usable.any():
-            return ErrorRows.empty()
+            return _no_errors(len(quat3) if series else None)
         fraction = np.where(exact, 1.0, (ori_t - times[before]) / np.maximum(gap, 1))
-        own = slerp_rows(quats[before], quats[after], fraction)
         chosen = np.flatnonzero(usable)
-        total, heading, inclination = error_angles_deg(own[chosen], ori_q[chosen])
-        return ErrorRows(ori_t[chosen], np.column_stack([total, heading, inclination]))
+        k, m = len(quat3), len(chosen)
+        own = slerp_rows(quats[:, before[chosen]].reshape(k * m, 4),
+                         quats[:, after[chosen]].reshape(k * m, 4), np.tile(fraction[chosen], k))
+        total, heading, inclination = error_angles_deg(own, np.tile(ori_q[chosen], (k, 1)))
+        errors = np.column_stack([total, heading, inclination]).reshape(k, m, 3)
+        return ErrorRows(ori_t[chosen], errors if series else errors[0])
+
+
+def _no_errors(series: int | None) -> ErrorRows:
+    if series is None:
+        return ErrorRows.empty()
+    return ErrorRows(np.empty(0, np.int64), np.empty((series, 0, 3)))
 
 
 @dataclass
@@ -126,12 +157,16 @@ class ErrorSums:
         self.latest = np.full(3, math.nan) if self.latest is None else self.latest
 
     def add(self, errors: ErrorRows) -> None:
-        if len(errors):
-            finite = np.isfinite(errors.error_deg).all(axis=1)
-            values = errors.error_deg[finite]
+        self.add_errors(errors.error_deg)
+
+    def add_errors(self, error_deg: np.ndarray) -> None:
+        """(m, 3) errors [deg]."""
+        if len(error_deg):
+            finite = np.isfinite(error_deg).all(axis=1)
+            values = error_deg[finite]
             self.squared += np.sum(values * values, axis=0)
             self.count += len(values)
-            self.latest = errors.error_deg[-1].copy()
+            self.latest = error_deg[-1].copy()
 
     def rmse(self) -> np.ndarray:
         """(total, heading, inclination) RMSE [deg]; NaN before the first comparison."""

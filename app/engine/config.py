@@ -21,6 +21,7 @@ from app.engine import profiles
 from app.engine.errors import ConfigError   # defined apart (profiles raise it too)
 from app.engine.user_code import UserFilterError, is_filter_file
 from app.engine.user_filter import make_estimator as _make_estimator
+from app.stream.fastparse import FastLineParser
 from app.stream.lines import LogError
 from app.stream.logfile import LogData, read_log
 from app.stream.protocol import DEFAULT_LIMITS, Limits
@@ -33,9 +34,9 @@ DEFAULT_TAKEOVER_S = 3.0
 
 __all__ = ["ConfigError", "DEFAULT_HOST", "DEFAULT_PORT", "SENSORS", "SourceOptions",
            "load_settings", "estimator_names", "sensor_list", "port_number", "replay_speed",
-           "make_source", "open_log", "resolve_log_path", "read_intervals", "sensor_limits",
-           "allowed_network", "allowed_networks", "recording_folder", "megabytes",
-           "filter_file", "forward_target", "make_estimator"]
+           "make_source", "open_log", "open_replay", "resolve_log_path", "read_intervals",
+           "sensor_limits", "allowed_network", "allowed_networks", "recording_folder",
+           "megabytes", "filter_file", "forward_target", "make_estimator"]
 
 
 # ---- filter settings, estimators, sensors ------------------------------------------------------
@@ -220,8 +221,8 @@ def resolve_log_path(path: str | Path) -> Path:
         raw = path / "raw.txt"
         if raw.is_file():
             return raw
-        raise ConfigError(f"{path}: a folder without raw.txt (expected a log file or a recorded "
-                          "session folder)")
+        raise ConfigError(f"{path}: a folder without raw.txt (expected a recorded session "
+                          "folder or a log file)")
     if path.name == "session.json" and path.is_file():
         try:
             raw_name = json.loads(path.read_text()).get("raw_file", "raw.txt")
@@ -229,8 +230,34 @@ def resolve_log_path(path: str | Path) -> Path:
             raise ConfigError(f"{path}: not a readable session file ({error})") from None
         return path.with_name(str(raw_name))
     if not path.exists():
-        raise ConfigError(f"{path}: no such file")
+        raise ConfigError(f"{path}: no such file or folder")
     return path
+
+
+REPLAY_EXPECTED = ("expected a recorded session folder, its raw.txt or session.json, or a log "
+                   "saved by the Sensor Fusion app, lines like 12345<TAB>ACC<TAB>x<TAB>y<TAB>z")
+_PROBE_BYTES = 1 << 18
+
+
+def open_replay(path: str | Path, speed: float = 1.0, loop: bool = False,
+                paused: bool = False, limits: Limits = DEFAULT_LIMITS) -> LogFileSource:
+    """The replay of a session folder, its raw.txt or session.json, or a phone's log; the one
+    resolution for --replay, File → Open and a file dropped on the window. ConfigError (one
+    line naming the file and what was expected) for anything else."""
+    raw = resolve_log_path(path)
+    try:
+        source = LogFileSource(raw, speed=replay_speed(speed), loop=bool(loop), paused=paused)
+    except LogError as error:
+        raise ConfigError(f"{error}; {REPLAY_EXPECTED}") from None
+    except OSError as error:
+        raise ConfigError(f"cannot read {raw}: {error.strerror or error}") from None
+    probe = FastLineParser(limits=limits)
+    probe.feed_arrays(source.data[:_PROBE_BYTES])
+    if probe.stats.good == 0:
+        probe.finish_arrays()
+    if probe.stats.good == 0:
+        raise ConfigError(f"{raw}: not a phone log or recorded session; {REPLAY_EXPECTED}")
+    return source
 
 
 def open_log(path: str | Path, limits: Limits = DEFAULT_LIMITS) -> LogData:
@@ -294,8 +321,8 @@ def make_source(options: SourceOptions) -> Source:
 
     try:
         if options.replay:
-            return LogFileSource(resolve_log_path(options.replay), speed=speed,
-                                 loop=bool(options.loop))
+            return open_replay(options.replay, speed, bool(options.loop),
+                               limits=options.limits)
         if options.demo:
             return DemoOrPhoneSource(demo_source(speed), phone())
     except LogError as error:

@@ -96,12 +96,12 @@ class Rows:
 @dataclass
 class ComparisonState:
     """One comparison estimator (a sensor combination) and its running error against the
-    phone's own estimate, compared at the phone's time stamps."""
+    phone's own estimate, compared at the phone's time stamps (the runner compares the 7 in
+    one call: they share their times)."""
 
     name: str
     sensors: tuple[str, ...]
     estimator: ekf.Estimator
-    same_instant: SameInstant = field(default_factory=SameInstant)
     errors: ErrorSums = field(default_factory=ErrorSums)
 
 
@@ -154,13 +154,14 @@ class _RowsResult:
     """Per estimator row: quat (R, 4), flags (R, 3) after the row (acc_rejected, mag_rejected,
     at_rest), and the acc/mag rejected flag right after the row's ACC/MAG sample."""
 
-    __slots__ = ("quat", "flags", "acc_rejected", "mag_rejected")
+    __slots__ = ("quat", "flags", "acc_rejected", "mag_rejected", "cov")
 
-    def __init__(self, quat, flags, acc_rejected, mag_rejected) -> None:
+    def __init__(self, quat, flags, acc_rejected, mag_rejected, cov=None) -> None:
         self.quat = quat
         self.flags = flags
         self.acc_rejected = acc_rejected
         self.mag_rejected = mag_rejected
+        self.cov = cov          # (R, 4, 4) covariance of q after each row (collect_cov only)
 
 
 def _run_rows(estimator: ekf.Estimator, t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
@@ -171,6 +172,41 @@ def _run_rows(estimator: ekf.Estimator, t_s: np.ndarray, gyr: np.ndarray, acc: n
     result = estimator.run_batch(t_s, gyr, acc, mag)
     flags = np.stack([result.acc_rejected, result.mag_rejected, result.at_rest], axis=1)
     return _RowsResult(result.quat, flags, result.acc_rejected, result.mag_rejected)
+
+
+def _step_rows(estimator: ekf.Estimator, t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
+               mag: np.ndarray) -> _RowsResult:
+    """What _run_rows gives (step is the filter run_batch runs), plus the covariance of q
+    after each row: one Python step per row, for exports that need P (xhat.P)."""
+    n = len(t_s)
+    quat = np.empty((n, 4))
+    flags = np.zeros((n, 3), bool)
+    cov = np.full((n, 4, 4), np.nan)
+    present = [~np.isnan(column).any(axis=1) for column in (gyr, acc, mag)]
+    for k in range(n):
+        estimator.step(float(t_s[k]), *(column[k] if has[k] else None
+                                         for column, has in zip((gyr, acc, mag), present)))
+        quat[k] = estimator.quat
+        status = estimator.flags
+        flags[k] = (status.acc_rejected, status.mag_rejected, status.at_rest)
+        covariance = estimator.cov
+        if covariance is not None:
+            cov[k] = np.asarray(covariance)[:4, :4]
+    return _RowsResult(quat, flags, flags[:, 0].copy(), flags[:, 1].copy(), cov)
+
+
+
+def _restored(current: ekf.Estimator, snapshot: dict, name: str, settings: ekf.EKFSettings,
+              sensors: tuple[str, ...] = SENSORS) -> ekf.Estimator:
+    """`current` restored from `snapshot`, or a new estimator of `name` when `current` cannot
+    take it (another kind)."""
+    try:
+        current.restore(snapshot)
+        return current
+    except ValueError:
+        estimator = ekf.make_estimator(name, settings, sensors)
+        estimator.restore(snapshot)
+        return estimator
 
 
 class _ChunkLayout:
@@ -236,7 +272,8 @@ class EstimatorRunner:
     def __init__(self, estimator: str | ekf.Estimator = "ekf",
                  settings: ekf.EKFSettings | None = None,
                  sensors: Iterable[str] = SENSORS, comparisons: bool = False,
-                 collect_plot: bool = False, comparison_estimator: str = "ekf") -> None:
+                 collect_plot: bool = False, comparison_estimator: str = "ekf",
+                 collect_cov: bool = False) -> None:
         self.settings = settings if settings is not None else ekf.PRESETS["default"]
         self._mag_correction = magcal.settings_correction(self.settings)
         self._sensors = tuple(s for s in SENSORS if s in tuple(sensors))
@@ -247,8 +284,10 @@ class EstimatorRunner:
         self.probe: InnovationProbe | None = None
         self.samples_fed = 0                      # filter-tag samples fed so far
         self.collect_plot = collect_plot
+        self.collect_cov = collect_cov
         self.comparison_estimator = comparison_estimator
         self.comparisons: list[ComparisonState] = []
+        self._comparisons_same_instant = SameInstant()   # the 7 comparisons, as one
         if comparisons:
             self.set_comparisons_enabled(True)
         self.phone_quat: tuple[float, float, float, float] | None = None
@@ -307,8 +346,8 @@ class EstimatorRunner:
         self._main_same_instant.reset()
         for comparison in self.comparisons:
             comparison.estimator.reset()
-            comparison.same_instant.reset()
             comparison.errors.clear()
+        self._comparisons_same_instant.reset()
         if self.user is not None:
             self.user.reset()
 
@@ -334,6 +373,7 @@ class EstimatorRunner:
         if not enabled:
             self.comparisons = []
         elif not self.comparisons:
+            self._comparisons_same_instant.reset()
             self.comparisons = [
                 ComparisonState(combination_name(combo), combo,
                                 ekf.make_estimator(self.comparison_estimator, self.settings, combo))
@@ -359,6 +399,54 @@ class EstimatorRunner:
                 self.innovations.add(t, YOURS, sensor, nu, S, accepted)
         return self.innovations.take()
 
+    # -- snapshots ----------------------------------------------------------------------------
+
+    def snapshot(self) -> dict:
+        """Everything the runner and its estimators keep (copies), to continue later from exactly
+        here with :meth:`restore` (a replay's checkpoints). Each estimator's own snapshot() is
+        used; outputs not yet taken (rows, errors, plot samples) are not part of it."""
+        return {
+            "estimator": self.estimator_name, "settings": self.settings,
+            "main": self.main.snapshot(), "main_same_instant": self._main_same_instant.snapshot(),
+            "comparison_estimator": self.comparison_estimator,
+            "comparisons": [(c.name, c.sensors, c.estimator.snapshot(),
+                             (c.errors.squared.copy(), c.errors.count, c.errors.latest.copy()))
+                            for c in self.comparisons],
+            "comparisons_same_instant": self._comparisons_same_instant.snapshot(),
+            "phone_quat": self.phone_quat, "latest_t_ms": self.latest_t_ms,
+            "row_t": self._row_t, "row_has_sample": self._row_has_sample,
+        }
+
+    def restore(self, snapshot: dict) -> None:
+        """Continue from a :meth:`snapshot` (estimators of another kind are made anew first);
+        the outputs not yet taken are dropped."""
+        self.settings = snapshot["settings"]
+        self.estimator_name = snapshot["estimator"]
+        self.main = _restored(self.main, snapshot["main"], self.estimator_name, self.settings)
+        self._main_same_instant.restore(snapshot["main_same_instant"])
+        self.comparison_estimator = snapshot["comparison_estimator"]
+        old = {c.name: c for c in self.comparisons}
+        comparisons = []
+        for name, sensors, estimator, (squared, count, latest) in snapshot["comparisons"]:
+            state = old.get(name) or ComparisonState(
+                name, tuple(sensors), ekf.make_estimator(self.comparison_estimator,
+                                                         self.settings, tuple(sensors)))
+            state.estimator = _restored(state.estimator, estimator, self.comparison_estimator,
+                                        self.settings, tuple(sensors))
+            state.errors = ErrorSums(squared.copy(), int(count), latest.copy())
+            comparisons.append(state)
+        self.comparisons = comparisons
+        self._comparisons_same_instant.restore(snapshot["comparisons_same_instant"])
+        phone = snapshot["phone_quat"]
+        self.phone_quat = None if phone is None else tuple(float(v) for v in phone)
+        self.latest_t_ms = snapshot["latest_t_ms"]
+        self._row_t = snapshot["row_t"]
+        self._row_has_sample = snapshot["row_has_sample"]
+        self.take_rows()
+        self._errors = []
+        self._phone_samples = []
+        self._reset_plot()
+
     # -- samples ------------------------------------------------------------------------------
 
     def feed_many(self, samples: Iterable[Sample]) -> None:
@@ -381,6 +469,7 @@ class EstimatorRunner:
             layout.own_sample[0] |= self._row_has_sample
         # the state before this chunk: what times without a row of their own show
         before = self._state_before()
+        cov_before = self._main_cov() if self.collect_cov else None
         t_s = layout.row_t.astype(np.float64) / 1000.0
         gyr, acc, mag = layout.columns
         if self._mag_correction is not None:
@@ -388,17 +477,21 @@ class EstimatorRunner:
             # here, once, for every estimator; the plot samples stay as the phone sent them.
             mag = magcal.correct(mag, *self._mag_correction)
         probed = self.probe.capture(self.main) if self.probe is not None else None
-        result = _run_rows(self.main, t_s, gyr, acc, mag)
+        result = (_step_rows if self.collect_cov else _run_rows)(self.main, t_s, gyr, acc, mag)
         if probed is not None and layout.n_rows:
             self.probe.replay(probed, t_s, gyr, acc, mag)
-        compared = [c.estimator.run_batch(t_s, gyr, acc, mag).quat if layout.n_rows
-                    else np.empty((0, 4)) for c in self.comparisons]
+        # (k, R, 4): the comparisons' estimates after every row
+        compared = np.stack([c.estimator.run_batch(t_s, gyr, acc, mag).quat if layout.n_rows
+                             else np.empty((0, 4)) for c in self.comparisons]) \
+            if self.comparisons else None
         users = None if self.user is None else self.user.run_rows(t_s, gyr, acc, mag)
         ori = np.flatnonzero(tag == 3)
         if len(ori):
             self._add_phone(t_ms[ori], values[ori])
             self.phone_quat = tuple(values[ori[-1]].tolist())
         self._commit_groups(layout, result, compared, before, users)
+        if self.collect_cov:
+            self._commit_covariances(layout, result, cov_before)
         if self.collect_plot:
             self._collect_plot(layout, result)
         self.samples_fed += len(t_ms)
@@ -409,8 +502,8 @@ class EstimatorRunner:
     def _add_phone(self, t_ms: np.ndarray, quat: np.ndarray) -> None:
         quat = np.asarray(quat, float)
         self._main_same_instant.add_phone(t_ms, quat)
-        for comparison in self.comparisons:
-            comparison.same_instant.add_phone(t_ms, quat)
+        if self.comparisons:
+            self._comparisons_same_instant.add_phone(t_ms, quat)
         if self.user is not None:
             self.user.same_instant.add_phone(t_ms, quat)
         if self.collect_plot:
@@ -420,11 +513,13 @@ class EstimatorRunner:
         status = self.main.flags
         flags = (status.acc_rejected, status.mag_rejected, status.at_rest)
         phone = self.phone_quat if self.phone_quat is not None else _NAN4
+        compare = np.stack([c.estimator.quat for c in self.comparisons]) \
+            if self.comparisons else None
         user = None if self.user is None else self.user.latest.copy()
-        return self.main.quat, flags, [c.estimator.quat for c in self.comparisons], phone, user
+        return self.main.quat, flags, compare, phone, user
 
     def _commit_groups(self, layout: _ChunkLayout, result: _RowsResult,
-                       compared: list[np.ndarray], before: tuple,
+                       compared: np.ndarray | None, before: tuple,
                        users: np.ndarray | None = None) -> None:
         """Rows of the distinct times completed in this chunk (the last one stays open until a
         later time arrives)."""
@@ -444,17 +539,44 @@ class EstimatorRunner:
                          np.array(phone_before))
         t_rows = layout.t_ms[layout.group_last[:done]]
         own = layout.own_sample[:done]
+        rows_compared = None
+        if compared is not None:
+            chosen = np.flatnonzero(own)
+            rows_compared = np.where(has_row[None, chosen, None],
+                                     0.0 if empty else compared[:, index[chosen]],
+                                     compare_before[:, None, :])
         user = None
         if users is not None:
             user = np.where(has_row[:, None], np.nan if empty else users[index],
                             np.asarray(user_before if user_before is not None else _NAN4))
-        self._compare(t_rows[own], quat[own],
-                      [np.where(has_row[:, None], 0.0 if empty else q[index], previous)[own]
-                       for q, previous in zip(compared, compare_before)],
+        self._compare(t_rows[own], quat[own], rows_compared,
                       None if user is None else user[own])
         self._add_rows(t_rows, quat, phone, flags, own, user)
 
-    def _compare(self, t_ms: np.ndarray, quat: np.ndarray, compared: list[np.ndarray],
+    def _main_cov(self) -> np.ndarray:
+        cov = self.main.cov
+        return np.full((4, 4), np.nan) if cov is None else np.array(cov, float)[:4, :4]
+
+    def _commit_covariances(self, layout: _ChunkLayout, result: _RowsResult,
+                            before: np.ndarray) -> None:
+        """collect_cov: the covariance of q at each row committed by _commit_groups."""
+        done = len(layout.group_last) - 1
+        if done <= 0:
+            return
+        has_row = layout.group_row[:done] >= 0
+        if not layout.n_rows:
+            self._covs.append(np.broadcast_to(before, (done, 4, 4)).copy())
+            return
+        index = np.where(has_row, layout.group_row[:done], 0)
+        self._covs.append(np.where(has_row[:, None, None], result.cov[index], before))
+
+    def take_covariances(self) -> np.ndarray:
+        """collect_cov: (N, 4, 4) covariance of q of the rows committed since the previous call
+        (call it before take_rows, which it matches row for row)."""
+        covs, self._covs = self._covs, []
+        return np.concatenate(covs) if covs else np.empty((0, 4, 4))
+
+    def _compare(self, t_ms: np.ndarray, quat: np.ndarray, compared: np.ndarray | None,
                  user: np.ndarray | None = None) -> None:
         """Committed estimates (sensor times only) against the ORI samples they bracket."""
         if not len(t_ms):
@@ -462,8 +584,11 @@ class EstimatorRunner:
         errors = self._main_same_instant.add_estimates(t_ms, quat)
         if len(errors):
             self._errors.append(errors)
-        for comparison, rows in zip(self.comparisons, compared):
-            comparison.errors.add(comparison.same_instant.add_estimates(t_ms, rows))
+        if compared is not None and self.comparisons:
+            resolved = self._comparisons_same_instant.add_estimates(t_ms, compared)
+            if len(resolved):
+                for comparison, error_deg in zip(self.comparisons, resolved.error_deg):
+                    comparison.errors.add_errors(error_deg)
         if user is not None and self.user is not None:
             finite = np.isfinite(user).all(axis=1)      # NaN: your filter has no estimate there
             user_errors = self.user.same_instant.add_estimates(t_ms[finite], user[finite])
@@ -502,6 +627,7 @@ class EstimatorRunner:
 
     def _reset_rows(self) -> None:
         self._rows: list[tuple[np.ndarray, ...]] = []
+        self._covs: list[np.ndarray] = []
 
     def _add_rows(self, t_ms: np.ndarray, quat: np.ndarray, phone: np.ndarray,
                   flags: np.ndarray, has_sample: np.ndarray,
@@ -524,7 +650,10 @@ class EstimatorRunner:
         user = None if self.user is None else self.user.latest.copy().reshape(1, 4)
         if self._row_has_sample:
             self._compare(t, q.reshape(1, 4),
-                          [c.estimator.quat.reshape(1, 4) for c in self.comparisons], user)
+                          np.stack([c.estimator.quat.reshape(1, 4) for c in self.comparisons])
+                          if self.comparisons else None, user)
+        if self.collect_cov:
+            self._covs.append(self._main_cov()[None])
         self._add_rows(t, q.reshape(1, 4),
                        np.array([phone if phone is not None else _NAN4], np.float64),
                        np.array([[status.acc_rejected, status.mag_rejected, status.at_rest]],

@@ -9,6 +9,7 @@ clock in milliseconds (after clock alignment). Angles in degrees unless the name
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -226,6 +227,42 @@ class Snapshot:
     t0_ms: int | None = None                  # the session's start on the phone's clock
     plot: PlotChunk = field(default_factory=PlotChunk)
     health: StreamHealth = field(default_factory=StreamHealth)
-    replay: dict[str, Any] | None = None      # {"position_s", "duration_s", "speed", "paused", "loop"} when replaying
+    # when replaying: position_s, duration_s, speed, paused, loop, finished, name, line, lines,
+    # following_timeline, has_timeline, session_file, indexed, index_progress, index_seconds
+    replay: dict[str, Any] | None = None
     failures: list[EngineFailure] = field(default_factory=list)   # the latest, oldest first
     user: UserFilterStatus | None = None      # your filter (YOURS), when one is loaded
+    # the markers of the session shown (app.engine.session.Marker), oldest first
+    markers: tuple = ()
+    # a recording in progress (or the last one): folder, elapsed_s, bytes, lines, error, active
+    recording: dict[str, Any] | None = None
+    # a replay's whole session for the plots, once indexed (app.engine.session_index.SessionPlot;
+    # shared, never changed once handed out)
+    session_plot: Any = None
+
+
+class PlotBuffer:
+    """PlotChunk pieces waiting for the next poll, bounded by a number of estimate rows."""
+
+    def __init__(self, max_rows: int) -> None:
+        self.max_rows = max_rows
+        self.pieces: deque[PlotChunk] = deque()
+        self.rows = 0
+
+    def add(self, piece: PlotChunk) -> None:
+        self.pieces.append(piece)
+        self.rows += max(len(piece.t_est), len(piece.t_acc), len(piece.t_gyr))
+        while self.rows > self.max_rows and len(self.pieces) > 1:
+            old = self.pieces.popleft()
+            self.rows -= max(len(old.t_est), len(old.t_acc), len(old.t_gyr))
+
+    def take(self) -> PlotChunk:
+        pieces = list(self.pieces)
+        self.pieces.clear()
+        self.rows = 0
+        if not pieces:
+            return PlotChunk()
+        if len(pieces) == 1:
+            return pieces[0]
+        return PlotChunk(**{name: np.concatenate([getattr(p, name) for p in pieces])
+                            for name in PlotChunk.__dataclass_fields__})

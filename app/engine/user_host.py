@@ -13,8 +13,12 @@ filter is resumed. What happens to the session so far:
 * a live phone: the new code continues from now (there is nothing to re-run it on; the
   session recordings issue brings checkpoints) and the status says so.
 
-After a seek the re-sync lines are run in the background the same way, so the user's filter is
-never decimated by a seek. Commands arriving during a catch-up change only the sensor switches.
+After a seek the same happens: the engine restores a checkpoint of its own estimators before the
+target (app.engine.replay), and your filter, which is not part of a checkpoint (it is your
+object), re-runs the log from the pass's start up to that checkpoint in the background, then the
+re-sync lines, so it is exactly where playing would have brought it and is never decimated by a
+seek. A new pass of a replay (a loop) starts your filter afresh, as it starts ours. Commands
+arriving during a catch-up change only the sensor switches.
 """
 
 from __future__ import annotations
@@ -161,13 +165,17 @@ class UserFilterHost:
     """Owns the user's filter for one engine (all methods are called from the engine thread).
 
     record(kind, **data) writes a session timeline entry (the recorder's, through the engine);
-    realtime: the lane decimates a filter slower than the stream.
+    realtime: the lane decimates a filter slower than the stream; position(): the samples fed
+    to the estimators in the current pass (a replay's position; default: counted here from the
+    last restart).
     """
 
     def __init__(self, runner: EstimatorRunner, source: Source,
                  record: Callable[..., None] | None = None, realtime: bool = True,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic,
+                 position: Callable[[], int] | None = None) -> None:
         self.runner = runner
+        self._position = position
         self.source = source
         self._record = record or (lambda kind, **data: None)
         self.realtime = realtime
@@ -219,7 +227,7 @@ class UserFilterHost:
     def _start(self, estimator: UserFilterEstimator, action: str) -> None:
         done = self._done = "reloaded" if action == "reload" else "loaded"
         log = replay_path(self.source)
-        samples = self.runner.samples_fed - self._base
+        samples = self._samples()
         if log is not None and samples > 0:
             self.job = CatchUp(self.lane, estimator, log, samples, self.runner.settings,
                                self._log_arrays)
@@ -254,17 +262,48 @@ class UserFilterHost:
 
     # -- the engine's events ---------------------------------------------------------------------
 
+    def _samples(self) -> int:
+        """Samples fed to the estimators in this pass so far."""
+        if self._position is not None:
+            return int(self._position())
+        return self.runner.samples_fed - self._base
+
     def on_restart(self, kind: str) -> None:
         """After the engine restarted the stream ("connected", "loop", "seek"): samples are
-        counted from here; after a seek the re-sync lines are run in the background."""
+        counted from here; a new pass of a replay starts your filter afresh; after a seek the
+        re-sync lines are run in the background."""
         self._base = self.runner.samples_fed
         lane = self.lane
+        if kind in ("loop", "seek") and lane is not None and self.job is None:
+            lane.reset()
         if kind != "seek" or lane is None or self.job is not None:
             return
         estimator = lane.estimator
         if estimator is not None and not estimator.paused:
             self.job = CatchUp(lane, estimator, None, 0, self.runner.settings, self._log_arrays)
             self.job.start()
+
+    def on_seek(self) -> None:
+        """A replay jumped: the engine restored a checkpoint before the target and is about to
+        replay the lines from there. Your filter re-runs the log from the pass's start up to
+        the checkpoint in the background with a fresh object, then the lines after it (buffered
+        meanwhile), as after a reload."""
+        if self.lane is None or self.code is None:
+            return
+        self._cancel_job()
+        estimator = UserFilterEstimator(self.code, self.runner.settings)
+        estimator.collect_innovations = True
+        log = replay_path(self.source)
+        samples = self._samples()
+        if log is None or samples <= 0:
+            self.lane.replace(estimator)
+            self.lane.reset_errors()
+            return
+        self.job = CatchUp(self.lane, estimator, log, samples, self.runner.settings,
+                           self._log_arrays)
+        self.job.start()
+        self._done = "after the seek"
+        self.message = "after the seek: re-running the replay up to there with your filter"
 
     def tick(self) -> None:
         """Between two passes: reload a saved file, finish a catch-up."""

@@ -20,6 +20,11 @@ window shows with a "copy details" button and `serve` prints) and the engine goe
 next batch; after MAX_FAILURES failures within FAILURE_WINDOW_S it stops cleanly instead
 (source closed, state "stopped", the reason published).
 
+Replays (:mod:`app.engine.replay`): every pass starts from the same state; a background index
+keeps a checkpoint every second of data, so a seek restores the nearest one before its target
+and replays at most one second; a recorded session's timeline is applied at its sample
+positions. Recording (:mod:`app.engine.recording`) starts and stops with commands at any time.
+
 The engine thread works chunk by chunk: everything the source has is parsed in one compiled call
 (:class:`~app.stream.fastparse.FastLineParser`), ordered in one (:class:`~app.stream.ordering.TimeOrderer`)
 and run through each estimator in one (:meth:`~app.engine.runner.EstimatorRunner.feed_arrays`); the
@@ -30,74 +35,54 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import queue
 import threading
 import time
 import traceback
 from collections import deque
+from collections.abc import Iterable
 from datetime import datetime, timezone
 from pathlib import Path
-from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
 
 import ekf
-from app.engine.commands import (AlignHeading, LoadUserFilter, ReplayControl, ResetFilter,
-                                 SetComparisonsEnabled, SetConsistencyEnabled, SetEstimator,
-                                 SetSensorEnabled, SetSettings, UnloadUserFilter)
-from app.stream.events import CONNECTION_COMMANDS
+from app.engine.commands import (AddMarker, AlignHeading, LoadUserFilter, ReplayControl,
+                                 ResetFilter, SetComparisonsEnabled, SetConsistencyEnabled,
+                                 SetEstimator, SetFollowTimeline, SetMarkerLabel,
+                                 SetSensorEnabled, SetSettings, StartRecording, StopRecording,
+                                 UnloadUserFilter)
+from app.engine.config import ConfigError, megabytes
 from app.engine.estimates import EstimatesWriter
+from app.engine.health import HealthTracker, stats_dict
+from app.engine.markers import Markers
+from app.engine.pipeline import Pipeline
+from app.engine.recording import SessionRecording
+from app.engine.replay import ReplayManager, session_for_source
 from app.engine.runner import SENSORS, EstimatorRunner, Rows
-from app.engine.snapshot import (Comparison, EngineFailure, FilterStatus, PlotChunk, Snapshot,
-                                 StreamHealth)
+from app.engine.session import SessionInfo, default_session_folder
+from app.engine.snapshot import (Comparison, EngineFailure, FilterStatus, PlotBuffer, PlotChunk,
+                                 Snapshot, StreamHealth)
 from app.engine.user_code import is_filter_file
 from app.engine.user_host import UserFilterHost
 from app.stream import fastparse, ordering
-from app.stream.events import Chunk, SourceEvent
+from app.stream.events import CONNECTION_COMMANDS, Chunk, SourceEvent
 from app.stream.fastparse import ParsedArrays
 from app.stream.forwarder import LineForwarder
-from app.stream.ordering import OrderedArrays, TimeOrderer
-from app.stream.protocol import DEFAULT_LIMITS, FILTER_TAGS, Limits
-from app.stream.recorder import Recorder
-from app.stream.sources import Source
+from app.stream.protocol import DEFAULT_LIMITS, Limits
+from app.stream.recorder import DEFAULT_MAX_BYTES, DEFAULT_MIN_FREE_BYTES, Recorder, \
+    new_session_folder
+from app.stream.sources import DemoOrPhoneSource, LineReplaySource, Source
 
 log = logging.getLogger("orientation_lab.engine")
 
-RATE_WINDOW_MS = 2000          # per-tag rates are measured over this much phone time
 MAX_BYTES_PER_PASS = 1 << 20    # received bytes processed between two publishes (~25k lines)
 PUBLISH_IDLE_S = 0.25          # publish health at least this often without data
-WARNING_INTERVAL_S = 5.0       # one warning of a kind per this many seconds
 MAX_FAILURES = 5               # this many failures within FAILURE_WINDOW_S stop the engine
 FAILURE_WINDOW_S = 10.0
-
-
-class _PlotBuffer:
-    """PlotChunk pieces waiting for the next poll, bounded by a number of estimate rows."""
-
-    def __init__(self, max_rows: int) -> None:
-        self.max_rows = max_rows
-        self.pieces: deque[PlotChunk] = deque()
-        self.rows = 0
-
-    def add(self, piece: PlotChunk) -> None:
-        self.pieces.append(piece)
-        self.rows += max(len(piece.t_est), len(piece.t_acc), len(piece.t_gyr))
-        while self.rows > self.max_rows and len(self.pieces) > 1:
-            old = self.pieces.popleft()
-            self.rows -= max(len(old.t_est), len(old.t_acc), len(old.t_gyr))
-
-    def take(self) -> PlotChunk:
-        pieces = list(self.pieces)
-        self.pieces.clear()
-        self.rows = 0
-        if not pieces:
-            return PlotChunk()
-        if len(pieces) == 1:
-            return pieces[0]
-        return PlotChunk(**{name: np.concatenate([getattr(p, name) for p in pieces])
-                            for name in PlotChunk.__dataclass_fields__})
+# commands that change a replay's set-up (the index is built again for it)
+SETUP_COMMANDS = (SetSensorEnabled, SetEstimator, SetSettings, SetComparisonsEnabled)
 
 
 class Engine:
@@ -106,11 +91,13 @@ class Engine:
     source: any :class:`app.stream.sources.Source`; settings: ekf.EKFSettings (None: default
     preset); estimator: name from ekf.ESTIMATORS; comparisons: run the 7 EKF sensor
     combinations too; recorder: an :class:`app.stream.recorder.Recorder` that gets every received
-    known-tag line; estimates: an :class:`~app.engine.estimates.EstimatesWriter` that gets every
-    estimate row (a recording's estimates.csv); record_rows: keep every estimate row in
-    :attr:`rows_log` (tests/benchmarks: unbounded memory); limits: the physical bounds a sample
-    must respect (others are damaged lines); user_filter: a user's filter file run beside the
-    main estimator (YOURS, :mod:`app.engine.user_host`); forwarder: a
+    known-tag line from the start; estimates: an :class:`~app.engine.estimates.EstimatesWriter`
+    that gets every estimate row (the recording's estimates.csv); record_rows: keep every
+    estimate row in :attr:`rows_log` (tests/benchmarks: unbounded memory); limits: the physical
+    bounds a sample must respect (others are damaged lines); session: the session.json of a
+    replayed recording (default: found beside the replayed raw.txt); index: build a replay's
+    index (checkpoints, whole-session plots) in the background; user_filter: a user's filter
+    file run beside the main estimator (YOURS, :mod:`app.engine.user_host`); forwarder: a
     :class:`~app.stream.forwarder.LineForwarder` that gets a copy of every line from the phone.
     """
 
@@ -120,14 +107,13 @@ class Engine:
                  estimates: EstimatesWriter | None = None, record_rows: bool = False,
                  max_plot_rows: int = 60_000,
                  orderer_options: dict[str, Any] | None = None,
-                 limits: Limits = DEFAULT_LIMITS, user_filter: str | Path | None = None,
+                 limits: Limits = DEFAULT_LIMITS, session: SessionInfo | None = None,
+                 index: bool = True, user_filter: str | Path | None = None,
                  forwarder: LineForwarder | None = None) -> None:
         if estimator not in ekf.ESTIMATORS and not is_filter_file(estimator):
             raise ValueError(f"unknown estimator {estimator!r}; choose from "
                              f"{', '.join(ekf.ESTIMATORS)}")
         self.source = source
-        self.recorder = recorder
-        self.estimates = estimates
         self.record_rows = record_rows
         self.limits = limits
         self.rows_log: list[Rows] = []
@@ -135,23 +121,27 @@ class Engine:
         self._orderer_options = dict(orderer_options or {})
         self._runner = EstimatorRunner(estimator, settings, sensors, comparisons,
                                        collect_plot=True)
-        self._parser = self._new_parser()
-        self._orderer = TimeOrderer(**self._orderer_options)
+        self.pipeline = Pipeline(self._runner, limits, self._orderer_options,
+                                 on_cut=self._on_cut, on_event=self._record_event)
+        self.pipeline.on_parsed = self._on_parsed
+        self.recording: SessionRecording | None = None
+        self.last_recording: Path | None = None
+        self._initial_recording = (recorder, estimates)
+        self._markers = Markers()
+        self._replay: ReplayManager | None = None
+        self._session = session if session is not None else session_for_source(source)
+        self._index = bool(index)
         self._commands: queue.SimpleQueue = queue.SimpleQueue()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
-        self._plot = _PlotBuffer(max_plot_rows)
+        self._plot = PlotBuffer(max_plot_rows)
         self._seq = 0
         self._polled_seq = -1
         self._latest = Snapshot()
         self._connection_state = "waiting"
         self._peer: str | None = None
-        self._warnings: deque[str] = deque(maxlen=5)
-        self._warned_at: dict[str, float] = {}
-        self._tag_times: dict[str, deque[int]] = {}
-        self._line_rate_marks: deque[tuple[float, int]] = deque()
-        self._t0_ms: int | None = None     # the session's start: plots count time from it
+        self._health = HealthTracker()
         self._last_publish = 0.0
         self._backlog: list[Chunk | SourceEvent] = []   # read but not yet processed
         # (chunk arrival time, orderer sequence after it): a chunk's estimates are out once
@@ -167,14 +157,42 @@ class Engine:
         self._failure_times: deque[float] = deque(maxlen=MAX_FAILURES)
         # monotonic time since which the source has had nothing for the engine (None: busy)
         self.waiting_since: float | None = None
-        self.samples_processed = 0
-        self._parser_retired = [0, 0, 0, 0, 0]   # counts of parsers replaced by a seek
-        self._reasons_retired: dict[str, int] = {}
-        self._order_retired = 0
+        self._other_samples = 0
+        self._applied = 0                    # commands applied so far
+        self._marks: list[threading.Event] = []   # wait_idle's, set at the next publish
+        self._seek: tuple[int, int] | None = None   # a seek's target and start line
+        # seeks done: (perf_counter when the state reached the target, lines replayed)
+        self.seeks: deque[tuple[float, int]] = deque(maxlen=1000)
+        if recorder is not None:
+            self._attach_recording(SessionRecording(recorder.directory, self._runner,
+                                                    recorder=recorder, estimates=estimates,
+                                                    source=source.kind))
+        elif estimates is not None:
+            raise ValueError("estimates.csv belongs to a recording: give its recorder too")
         self.forwarder = forwarder
-        self._user = UserFilterHost(self._runner, source, record=self._record_event)
+        self._user = UserFilterHost(self._runner, source, record=self._record_event,
+                                    position=lambda: self.pipeline.fed)
         if user_filter is not None:
             self._user.load(user_filter)
+
+    # -- compatibility ---------------------------------------------------------------------------
+
+    @property
+    def _parser(self) -> fastparse.FastLineParser:
+        return self.pipeline.parser
+
+    @property
+    def recorder(self) -> Recorder | None:
+        return self.recording.recorder if self.recording is not None else None
+
+    @property
+    def estimates(self) -> EstimatesWriter | None:
+        return self.recording.estimates if self.recording is not None else None
+
+    @property
+    def samples_processed(self) -> int:
+        """Samples through the estimators (and other tags' samples) so far."""
+        return self.pipeline.fed_total + self._other_samples
 
     # -- lifecycle --------------------------------------------------------------------------------
 
@@ -192,7 +210,7 @@ class Engine:
         self._thread.start()
 
     def stop(self) -> None:
-        """Stop the thread, the source, the recorder and the estimates file. Idempotent.
+        """Stop the thread, the source, the index, the recording. Idempotent.
 
         The row of the latest time is committed first, so a recording's estimates.csv ends
         where `orientation-lab filter` on its raw.txt ends."""
@@ -204,17 +222,15 @@ class Engine:
         self._user.stop()
         if self.forwarder is not None:
             self.forwarder.stop()
-        if self.estimates is not None:
+        if self._replay is not None:
+            self._replay.stop()
+        if self.recording is not None:
             try:
-                self._end_of_stream(partial_line_damaged=False)
-                self.estimates.write(self._runner.take_rows())
+                self.pipeline.end_of_stream(partial_line_damaged=False)
+                self._take_output()
             except Exception as error:   # the thread is gone: nothing else would report it
                 self._on_failure(error)
-            self.estimates.close()
-            self.estimates = None
-        if self.recorder is not None and not self.recorder.closed:
-            self.recorder.set_stats(self._stats_dict())
-            self.recorder.close()
+            self._close_recording()
 
     def __enter__(self) -> Engine:
         self.start()
@@ -251,14 +267,22 @@ class Engine:
     def _copy_latest(self, plot: PlotChunk) -> Snapshot:
         return dataclasses.replace(self._latest, seq=self._seq, plot=plot)
 
-    # -- engine thread ----------------------------------------------------------------------------
+    def wait_idle(self, timeout: float = 30.0) -> bool:
+        """Tests: wait until every command sent has been applied and the source has had
+        nothing more for a moment."""
+        deadline = time.monotonic() + timeout
+        marker = threading.Event()
+        self.send(_Mark(marker))
+        if not marker.wait(timeout):
+            return False
+        while time.monotonic() < deadline:
+            since = self.waiting_since
+            if since is not None and time.monotonic() - since > 0.1 and not self._backlog:
+                return True
+            time.sleep(0.01)
+        return False
 
-    def _new_parser(self) -> fastparse.FastLineParser:
-        if self.recorder is None:
-            return fastparse.FastLineParser(limits=self.limits)
-        return fastparse.FastLineParser(raw_sink=self.recorder.write_line,
-                                        raw_block_sink=self.recorder.write_block,
-                                        limits=self.limits)
+    # -- engine thread ----------------------------------------------------------------------------
 
     def _run(self) -> None:
         while not self._stop.is_set():
@@ -271,9 +295,12 @@ class Engine:
 
     def _pass(self) -> None:
         """Read what the source has, process it (at most MAX_BYTES_PER_PASS of chunks, the rest
-        waits in the backlog) and publish."""
+        waits in the backlog) and publish (at once after a command)."""
+        applied = self._applied
         self._apply_commands()
         self._user.tick()
+        if self._replay is not None and self._replay.poll():
+            self._resync()
         if self._backlog:
             items, self._backlog = self._backlog, []
         else:
@@ -282,6 +309,15 @@ class Engine:
             self.waiting_since = None
         elif self.waiting_since is None:
             self.waiting_since = time.monotonic()
+        changed = self._process(items) or self._applied != applied
+        now = time.perf_counter()
+        if changed or now - self._last_publish >= PUBLISH_IDLE_S:
+            self._publish(now)
+        if self.recording is not None:
+            self.recording.tick()
+            self._check_recording()
+
+    def _process(self, items: list[Chunk | SourceEvent]) -> bool:
         changed = False
         chunks: list[Chunk] = []
         size = 0
@@ -296,37 +332,34 @@ class Engine:
                 self._backlog = items[index + 1:]
                 break
             if chunks:
-                self._apply_commands()
+                if self._apply_commands():
+                    return True            # a seek dropped what was read
                 self._on_chunks(chunks)
                 chunks = []
-            self._apply_commands()
+            if self._apply_commands():
+                return True
             self._on_event(item)
             changed = True
         if chunks:
-            self._apply_commands()
+            if self._apply_commands():
+                return True
             self._on_chunks(chunks)
             changed = True
-        now = time.perf_counter()
-        if changed or now - self._last_publish >= PUBLISH_IDLE_S:
-            self._publish(now)
-        if self.recorder is not None:
-            self.recorder.tick()
-            self._check_recording()
-        if self.estimates is not None:
-            self.estimates.flush()
+        return changed
 
     def _check_recording(self) -> None:
         """A recording that stopped (write error, size or free-space limit) is reported once;
         its estimates.csv stops with it (the session ends there)."""
-        recorder = self.recorder
-        if recorder is None or recorder.error is None or self._recording_reported:
+        recording = self.recording
+        if recording is None or recording.error is None or self._recording_reported:
             return
         self._recording_reported = True
-        log.error("recording stopped: %s", recorder.error)
-        self._warn("recording", f"recording stopped: {recorder.error}", force=True)
-        if self.estimates is not None:
-            self.estimates.close()
-            self.estimates = None
+        log.error("recording stopped: %s", recording.error)
+        self._health.warn("recording", f"recording stopped: {recording.error} (the stream and "
+                                       "the estimates go on)", force=True)
+        if recording.estimates is not None:
+            recording.estimates.close()
+            recording.estimates = None
 
     def _on_failure(self, error: BaseException) -> bool:
         """Log and publish a failure; True when there were too many to go on."""
@@ -348,7 +381,7 @@ class Engine:
         log.error("engine failure %d%s: %s\n%s", failure.number,
                   " (engine stopped)" if fatal else " (going on with the next batch)",
                   message, details)
-        self._warn("failure", f"engine error: {message}", force=True)
+        self._health.warn("failure", f"engine error: {message}", force=True)
         try:
             self._publish(time.perf_counter())
         except Exception:   # the failure may be in publishing itself: it is logged above
@@ -370,166 +403,194 @@ class Engine:
             self._latest.failures = list(self.failures)
             self._seq += 1
 
-    def _feed(self, ordered: OrderedArrays) -> None:
-        if not len(ordered.session_starts):
-            if len(ordered):
-                self._runner.feed_arrays(ordered.t_ms, ordered.tag, ordered.values)
-                self.samples_processed += len(ordered)
-            return
-        # A clock that does not continue the previous stream's: nothing carries over (the
-        # session may start while its first samples are still held: nothing released yet), and
-        # the plots count time from the new session's start.
-        for new, piece in ordered.pieces():
-            if new:
-                self._record_event("session", reason="the clock does not continue")
-                self._runner.finish()
-                self._start_session()
-                self._runner.new_session()
-            self._runner.feed_arrays(ordered.t_ms[piece], ordered.tag[piece],
-                                     ordered.values[piece])
-        self.samples_processed += len(ordered)
-
-    def _parsed(self, parsed: ParsedArrays) -> None:
-        """Parsed samples (in line order) -> rates, orderer, estimators."""
-        self._track_rates(parsed)
-        self.samples_processed += len(parsed.other)   # other tags pass the orderer untouched
-        if len(parsed.t_ms):
-            self._feed(self._orderer.push_arrays(parsed.t_ms, parsed.tag, parsed.values))
+    def _on_parsed(self, parsed: ParsedArrays) -> None:
+        self._health.track(parsed)
+        self._other_samples += len(parsed.other)   # other tags pass the orderer untouched
 
     def _on_chunks(self, chunks: list[Chunk]) -> None:
         """Consecutive chunks of one stream, parsed and filtered as one."""
-        parser = self._parser
+        pipeline = self.pipeline
+        parser = pipeline.parser
         damaged_before = parser.stats.damaged + parser.stats.too_long
         data = chunks[0].data if len(chunks) == 1 else b"".join(c.data for c in chunks)
         if self.forwarder is not None and self.source.kind == "tcp":
             for chunk in chunks:
                 self.forwarder.feed(chunk.data, chunk.connection)
-        self._parsed(parser.feed_arrays(data))
-        sequence = self._orderer.sequence
+        pipeline.feed_bytes(data)
+        if self._seek is not None and getattr(self._replay_source(), "_index", -1) \
+                >= self._seek[0] and not self._backlog:
+            self._seek_done()
+        sequence = pipeline.orderer.sequence
         for chunk in chunks:
             self._pending_host_times.append((chunk.t_host, sequence))
         if parser.stats.damaged + parser.stats.too_long > damaged_before:
             message = parser.stats.bad_examples[-1][2] if parser.stats.bad_examples else ""
-            self._warn("damaged", f"damaged line skipped ({message})")
+            self._health.warn("damaged", f"damaged line skipped ({message})")
+
+    # -- events ------------------------------------------------------------------------------------
+
+    def _replay_source(self) -> LineReplaySource | None:
+        """The replay being played (the demo until a phone takes over), else None."""
+        source = self.source
+        if isinstance(source, DemoOrPhoneSource):
+            source = None if source.phone_active else source.demo
+        return source if isinstance(source, LineReplaySource) else None
 
     def _on_event(self, event: SourceEvent) -> None:
         kind = event.kind
+        pipeline = self.pipeline
+        replay = self._replay_source()
         if kind in ("connected", "loop", "seek"):
-            self._end_of_stream(partial_line_damaged=kind == "connected")
-            self._start_session()
+            pipeline.end_of_stream(partial_line_damaged=kind == "connected")
+            pipeline.cut()
         if kind == "connected":
-            self._feed(self._orderer.restart_arrays())
+            if replay is not None:
+                self._begin_pass(replay)
+                if getattr(replay, "torn_lines", 0):
+                    pipeline.parser._count_bad("damaged", "torn last line (the recording was "
+                                               "cut off)", "torn last line")
+            else:
+                self._replay_off()
+                pipeline.restart()
             self._connection_state = "replaying" if self.source.kind != "tcp" else "connected"
             self._peer = event.peer
             self._record_event("connected", peer=event.peer)
             self._user.on_restart(kind)
+            if self.recording is not None and self.source.kind == "tcp":
+                self.recording.set_peer(event.peer)
         elif kind == "disconnected":
-            self._end_of_stream(partial_line_damaged=True)
+            pipeline.end_of_stream(partial_line_damaged=True)
             self._connection_state = "disconnected"
-            self._warn("disconnected", f"phone disconnected ({event.detail})")
+            self._health.warn("disconnected", f"phone disconnected ({event.detail})")
             self._record_event("disconnected", peer=event.peer, reason=event.detail)
-        elif kind == "loop":
-            self._feed(self._orderer.restart_arrays(continue_time=True))
-            self._user.on_restart(kind)
-        elif kind == "seek":
-            # Re-run the filter from the start of the log up to the target (the source sends
-            # those lines unpaced): the estimate there is exactly what playing would give.
-            self._runner.take_rows()
-            self._runner.take_plot_samples()
-            self._runner.reset()
-            self._runner.phone_quat = None
-            self._retire_parser()
-            self._order_retired += self._orderer.stats.out_of_order
-            self._orderer = TimeOrderer(**self._orderer_options)
-            # everything the old orderer held was released by _end_of_stream
-            self._pending_host_times = deque(((t_host, -1) for t_host, _ in
-                                              self._pending_host_times), maxlen=100_000)
+        elif kind in ("loop", "seek"):
+            # Every pass of a replay starts from the same state: each loop shows the same
+            # estimates, and a source's own seek re-runs its lines from the start.
+            if replay is not None:
+                self._begin_pass(replay)
+            else:
+                pipeline.restart(continue_time=kind == "loop")
             self._user.on_restart(kind)
         elif kind == "finished":
-            self._end_of_stream(partial_line_damaged=False)
+            pipeline.end_of_stream(partial_line_damaged=False)
             self._connection_state = "finished"
         elif kind == "error":
-            self._warn("error", event.detail, force=True)
+            self._health.warn("error", event.detail, force=True)
         elif kind == "closed":
-            self._warn("closed", event.detail)
+            self._health.warn("closed", event.detail)
 
-    def _start_session(self) -> None:
-        """A new connection, a replay's loop or seek: what the old session produced goes out
-        (to the next poll) with its own time origin, and the next samples set a new one."""
-        piece = self._take_output()
+    def _begin_pass(self, source: LineReplaySource) -> None:
+        manager = self._replay
+        if manager is None or manager.source is not source:
+            if manager is not None:
+                manager.stop()
+            session = self._session if self._session_matches(source) else None
+            manager = self._replay = ReplayManager(
+                source, session, {"limits": self.limits, "orderer_options": self._orderer_options},
+                index=self._index)
+            self._markers.replace(manager.markers)
+        manager.apply(self.pipeline, manager.begin(self.pipeline))
+        self._pending_host_times.clear()
+
+    def _session_matches(self, source: LineReplaySource) -> bool:
+        session = self._session
+        path = getattr(source, "path", None)
+        return session is not None and path is not None and \
+            Path(session.path).parent == Path(path).parent
+
+    def _replay_off(self) -> None:
+        """A phone took over from the demo: no replay any more."""
+        if self._replay is not None:
+            self._replay.stop()
+            self._replay = None
+            self._markers.replace([])
+
+    def _seek_line(self, target: int) -> bool:
+        """Go to line `target` of the replay: restore the latest checkpoint before it, replay
+        the lines from there (at most a second of them once indexed). False: not a replay."""
+        source, manager = self._replay_source(), self._replay
+        if source is None or manager is None:
+            return False
+        target = max(0, min(int(target), source.line_count))
+        checkpoint = manager.checkpoint_before(target)
+        self._backlog = []                       # read at the old position: not wanted
+        self._pending_host_times.clear()
+        self.pipeline.cut()
+        manager.apply(self.pipeline, checkpoint)
+        source.jump(checkpoint.line, target)
+        self._user.on_seek()              # YOURS re-runs the log up to here in the background
+        self._connection_state = "replaying"
+        self._seek = (target, checkpoint.line)
+        # the lines replayed up to the target were not watched: a recording skips them
+        self.pipeline.set_raw_sinks(None, None)
+        if checkpoint.line >= target:
+            self._seek_done()
+        return True
+
+    def _seek_done(self) -> None:
+        """A seek reached its target: (when, lines replayed) for the benchmarks."""
+        target, start = self._seek
+        self.seeks.append((time.perf_counter(), target - start))
+        rows, piece = self.pipeline.take_output()   # the re-sync: plotted, not recorded
+        self._distribute(rows)
+        self._seek = None
         with self._lock:
             self._plot.add(piece)
-        self._t0_ms = None
+        if self.recording is not None and self.recording.active:
+            recorder = self.recording.recorder
+            self.pipeline.set_raw_sinks(recorder.write_line, recorder.write_block)
 
-    def _retire_parser(self) -> None:
-        stats = self._parser.stats
-        for index, value in enumerate((stats.lines, stats.damaged, stats.unknown,
-                                       stats.too_long, stats.good)):
-            self._parser_retired[index] += value
-        for reason, count in stats.damaged_reasons.items():
-            self._reasons_retired[reason] = self._reasons_retired.get(reason, 0) + count
-        self._parser = self._new_parser()
+    def _resync(self) -> None:
+        """The index of a changed set-up is ready: be where it says at the current line."""
+        source = self._replay_source()
+        if source is not None:
+            self._seek_line(source.line_index)
 
-    def _end_of_stream(self, partial_line_damaged: bool) -> None:
-        """The current stream ended: a partial line is dropped (a line cut by a disconnect is
-        damaged), pending samples are released, the last row is committed."""
-        parser = self._parser
-        if partial_line_damaged:
-            if parser._pending or parser._discarding:
-                kind = "too_long" if parser._discarding else "damaged"
-                parser._count_bad(kind, "line cut off by the end of the connection", "cut off")
-            parser.reset_line()
-        else:
-            self._parsed(parser.finish_arrays())
-        self._feed(self._orderer.flush_arrays())
-        self._runner.finish()
+    # -- commands ------------------------------------------------------------------------------
 
-    def _apply_commands(self) -> None:
+    def _apply_commands(self) -> bool:
+        """Apply the queued commands; True when one of them moved a replay (a seek: what was
+        read before is dropped)."""
+        moved = False
         while True:
             try:
                 command = self._commands.get_nowait()
             except queue.Empty:
-                return
-            self._apply(command)
+                return moved
+            self._applied += 1
+            moved = self._apply(command) or moved
 
-    def _apply(self, command: Any) -> None:
+    def _apply(self, command: Any) -> bool:
         runner = self._runner
-        if isinstance(command, SetSensorEnabled):
-            runner.set_sensor_enabled(command.sensor, command.enabled)
-            self._record_event("sensor", sensor=command.sensor, enabled=command.enabled)
-        elif isinstance(command, SetEstimator):
-            if command.name not in ekf.ESTIMATORS:
-                self._warn("command", f"unknown estimator {command.name!r}", force=True)
-                return
-            runner.set_estimator(command.name)
-            self._record_event("estimator", name=command.name)
-        elif isinstance(command, SetSettings):
-            runner.set_settings(command.settings)
-            if self.recorder is not None:
-                self.recorder.set_settings(command.settings)
-                if command.calibration is not None:
-                    self.recorder.set_calibration(command.calibration)
-            details = {"source": command.source} if command.source else {}
-            if command.calibration is not None:
-                details["profile"] = command.calibration.get("name")
-            self._record_event("settings", **details)
-        elif isinstance(command, ResetFilter):
+        if isinstance(command, ReplayControl):
+            return self._replay_control(command)
+        if isinstance(command, SETUP_COMMANDS):
+            if not self._apply_setup(command):
+                return False
+            return self._setup_changed()
+        if isinstance(command, ResetFilter):
             runner.reset()
             self._record_event("reset")
         elif isinstance(command, AlignHeading):
             turned = runner.align_heading()
             if turned is None:
-                self._warn("align", "align heading: no PHONE orientation (ORI) yet", force=True)
+                self._health.warn("align", "align heading: no PHONE orientation (ORI) yet",
+                                  force=True)
             else:
                 self._record_event("align_heading", turned_deg=round(turned, 2))
-                self._warn("align", f"heading aligned with PHONE: OWN turned by {turned:+.1f}° "
-                                    "about up", force=True)
-        elif isinstance(command, SetComparisonsEnabled):
-            if command.estimator is not None and command.estimator not in ekf.ESTIMATORS:
-                self._warn("command", f"unknown estimator {command.estimator!r}", force=True)
-                return
-            runner.set_comparisons_enabled(command.enabled, command.estimator)
-        elif isinstance(command, (ReplayControl, *CONNECTION_COMMANDS)):
+                self._health.warn("align", f"heading aligned with PHONE: OWN turned by "
+                                           f"{turned:+.1f}° about up", force=True)
+        elif isinstance(command, StartRecording):
+            self._start_recording(command)
+        elif isinstance(command, StopRecording):
+            self._stop_recording()
+        elif isinstance(command, AddMarker):
+            self._add_marker(command.label)
+        elif isinstance(command, SetMarkerLabel):
+            self._set_marker_label(command.id, command.label)
+        elif isinstance(command, SetFollowTimeline):
+            return self._set_follow(command.enabled)
+        elif isinstance(command, CONNECTION_COMMANDS):
             self.source.control(command)
         elif isinstance(command, LoadUserFilter):
             self._user.load(command.path)
@@ -537,89 +598,190 @@ class Engine:
             self._user.unload()
         elif isinstance(command, SetConsistencyEnabled):
             runner.set_consistency_enabled(command.enabled)
+        elif isinstance(command, _Mark):
+            self._marks.append(command.event)        # set once published
         else:
-            self._warn("command", f"unknown command {command!r}", force=True)
+            self._health.warn("command", f"unknown command {command!r}", force=True)
+        return False
+
+    def _apply_setup(self, command: Any) -> bool:
+        """A sensor switch, estimator, settings or comparisons command; False when refused."""
+        runner = self._runner
+        if isinstance(command, SetSensorEnabled):
+            runner.set_sensor_enabled(command.sensor, command.enabled)
+            self._record_event("sensor", sensor=command.sensor, enabled=command.enabled)
+        elif isinstance(command, SetEstimator):
+            if command.name not in ekf.ESTIMATORS:
+                self._health.warn("command", f"unknown estimator {command.name!r}", force=True)
+                return False
+            runner.set_estimator(command.name)
+            self._record_event("estimator", name=command.name)
+        elif isinstance(command, SetSettings):
+            runner.set_settings(command.settings)
+            details = {"source": command.source} if command.source else {}
+            if command.calibration is not None:
+                details["profile"] = command.calibration.get("name")
+            if self.recording is not None and self.recording.active:
+                self.recording.set_settings(command.settings, command.calibration,
+                                            self.pipeline.fed_total)
+            self._record_event("settings", settings=command.settings.to_dict()
+                               if hasattr(command.settings, "to_dict") else None, **details)
+        elif isinstance(command, SetComparisonsEnabled):
+            if command.estimator is not None and command.estimator not in ekf.ESTIMATORS:
+                self._health.warn("command", f"unknown estimator {command.estimator!r}",
+                                  force=True)
+                return False
+            runner.set_comparisons_enabled(command.enabled, command.estimator)
+            self._record_event("comparisons", enabled=command.enabled,
+                               estimator=runner.comparison_estimator)
+        return True
+
+    def _setup_changed(self) -> bool:
+        """Replaying: the user chose another set-up (index again, re-sync once indexed)."""
+        manager = self._replay
+        if manager is None or self._replay_source() is None:
+            return False
+        if manager.changed(self.pipeline):
+            self._health.warn("timeline", "recorded timeline off: your choices apply to the "
+                                          "whole replay (re-computing it)", force=True)
+        return False
+
+    def _set_follow(self, enabled: bool) -> bool:
+        manager = self._replay
+        if manager is None or manager.session is None:
+            self._health.warn("timeline", "only a recorded session has a timeline to follow",
+                              force=True)
+            return False
+        manager.set_follow(self.pipeline, enabled)
+        self._health.warn("timeline", "following the recorded timeline" if manager.follow
+                          else "recorded timeline off: your choices apply to the whole replay",
+                          force=True)
+        return False
+
+    def _replay_control(self, command: ReplayControl) -> bool:
+        source = self._replay_source()
+        if source is None or self._replay is None:
+            self.source.control(command)
+            return False
+        target = command.seek_line
+        if command.seek_s is not None:
+            target = source.line_at(command.seek_s)
+        step = command.step or 0
+        if step < 0:
+            target = max(0, source.line_index + step)
+        rest = dataclasses.replace(command, seek_s=None, seek_line=None,
+                                   step=step if step > 0 else None)
+        moved = target is not None and self._seek_line(target)
+        source.control(rest)
+        return moved
+
+    # -- recording -------------------------------------------------------------------------------
+
+    def _attach_recording(self, recording: SessionRecording) -> None:
+        self.recording = recording
+        self._recording_reported = False
+        recorder = recording.recorder
+        self.pipeline.set_raw_sinks(recorder.write_line, recorder.write_block)
+        self.last_recording = recording.folder
+
+    def _start_recording(self, command: StartRecording) -> None:
+        if self.recording is not None and self.recording.active:
+            self._health.warn("recording", f"already recording into {self.recording.folder}",
+                              force=True)
+            return
+        folder = Path(command.folder) if command.folder else None
+        try:
+            folder = new_session_folder(folder or default_session_folder())
+            max_bytes = DEFAULT_MAX_BYTES if command.max_mb is None else megabytes(command.max_mb)
+            min_free = DEFAULT_MIN_FREE_BYTES if command.min_free_mb is None \
+                else megabytes(command.min_free_mb)
+            pipeline = self.pipeline
+            running = pipeline.fed_total > 0 or pipeline.orderer.pending > 0
+            # the rows so far belong to before the recording
+            self._flush_output()
+            recording = SessionRecording(
+                folder, self._runner, fed_at_start=pipeline.fed_total,
+                start_state=pipeline.start_state() if running else None,
+                source=self.source.kind, peer=self._peer if self.source.kind == "tcp" else None,
+                max_bytes=max_bytes, min_free_bytes=min_free)
+        except (ConfigError, OSError) as error:
+            self._health.warn("recording", f"cannot record: {error}", force=True)
+            self._last_recording_status = {"folder": str(folder or ""), "elapsed_s": 0.0,
+                                           "bytes": 0, "lines": 0, "error": f"cannot record: "
+                                           f"{error}", "active": False, "at": time.time()}
+            return
+        self._attach_recording(recording)
+        self._record_event("recording", folder=str(folder))
+        self._health.warn("recording", f"recording into {folder}", force=True)
+
+    def _stop_recording(self) -> None:
+        if self.recording is None or not self.recording.active:
+            self._health.warn("recording", "not recording", force=True)
+            return
+        folder = self.recording.folder
+        self._flush_output()         # the rows up to now go into estimates.csv
+        self._close_recording()
+        self._health.warn("recording", f"recording saved in {folder}", force=True)
+
+    def _close_recording(self) -> None:
+        recording, self.recording = self.recording, None
+        self.pipeline.set_raw_sinks(None, None)
+        if recording is not None:
+            self._last_recording_status = {**recording.status(), "active": False}
+            recording.close(stats_dict(self._latest.health))
+
+    _last_recording_status: dict[str, Any] | None = None
 
     def _record_event(self, kind: str, **data: Any) -> None:
-        if self.recorder is not None:
-            self.recorder.add_event(kind, self._runner.latest_t_ms, **data)
+        if self.recording is not None and self.recording.active:
+            self.recording.add_event(kind, self._runner.latest_t_ms, self.pipeline.fed_total,
+                                     **data)
 
-    def _warn(self, kind: str, message: str, force: bool = False) -> None:
-        now = time.monotonic()
-        if not force and now - self._warned_at.get(kind, -math.inf) < WARNING_INTERVAL_S:
-            return
-        self._warned_at[kind] = now
-        self._warnings.append(message)
+    # -- markers ---------------------------------------------------------------------------------
 
-    def _track_rates(self, parsed: ParsedArrays) -> None:
-        """Remember each tag's own (unaligned) times, in line order, for :meth:`_rates`."""
-        times = self._tag_times
-        if parsed.other:
-            # Rare tags: keep the line order among all tags (deque creation order = first seen).
-            samples = parsed.to_samples()
-        elif len(parsed.t_ms):
-            codes = parsed.tag
-            present = sorted(set(codes.tolist()), key=lambda c: int(np.argmax(codes == c)))
-            for code in present:
-                tag = FILTER_TAGS[code]
-                queue_ = times.get(tag)
-                if queue_ is None:
-                    queue_ = times[tag] = deque()
-                queue_.extend(parsed.t_ms[codes == code].tolist())
-            return
-        else:
-            return
-        for sample in samples:
-            queue_ = times.get(sample.tag)
-            if queue_ is None:
-                queue_ = times[sample.tag] = deque()
-            queue_.append(sample.t_ms)
+    def _add_marker(self, label: str) -> None:
+        replay = self._replay if self._replay_source() is not None else None
+        note = self._markers.add(label, self._runner.latest_t_ms, self.pipeline.t0_ms,
+                                 self.recording, replay, self.pipeline.fed_total)
+        self._health.warn("marker", note, force=True)
 
-    def _rates(self) -> dict[str, float]:
-        rates = {}
-        for tag, times in self._tag_times.items():
-            if not times:
-                continue
-            newest = times[-1]
-            while times and (times[0] < newest - RATE_WINDOW_MS or times[0] > newest):
-                times.popleft()
-            if len(times) >= 2 and times[-1] > times[0]:
-                rates[tag] = round((len(times) - 1) * 1000.0 / (times[-1] - times[0]), 1)
-        return rates
+    def _set_marker_label(self, number: int, label: str) -> None:
+        replay = self._replay if self._replay_source() is not None else None
+        note = self._markers.set_label(number, label, self.recording, replay)
+        if note and "(" in note:
+            self._health.warn("markers", note.strip(" ()"), force=True)
 
-    def _lines_per_s(self, now: float, lines: int) -> float:
-        marks = self._line_rate_marks
-        marks.append((now, lines))
-        while len(marks) > 2 and now - marks[1][0] >= 1.0:
-            marks.popleft()
-        first_time, first_lines = marks[0]
-        if now - first_time <= 0:
-            return 0.0
-        return (lines - first_lines) / (now - first_time)
+    # -- output ----------------------------------------------------------------------------------
 
-    def _stats_dict(self) -> dict[str, Any]:
-        health = self._latest.health
-        return {"lines": health.lines_total, "damaged": health.damaged,
-                "damaged_reasons": dict(health.damaged_reasons),
-                "unknown": health.unknown, "too_long": health.too_long,
-                "out_of_order": health.out_of_order, "clock_quirks": list(health.clock_quirks),
-                "sessions": health.sessions, "rates_hz": dict(health.rates_hz),
-                "connections_closed": dict(health.connections_closed)}
+    def _on_cut(self, rows: Rows, piece: PlotChunk) -> None:
+        """A session's output with its own time origin (pipeline.cut)."""
+        self._distribute(rows)
+        with self._lock:
+            self._plot.add(piece)
+
+    def _distribute(self, rows: Rows) -> None:
+        if self.record_rows and len(rows):
+            self.rows_log.append(rows)
+        warning = None
+        if self._seek is not None:
+            pass            # a seek's re-sync: the rows up to its target were not shown
+        elif self.recording is not None:
+            warning = self.recording.write_rows(rows)
+        if warning:
+            self._health.warn("estimates", warning, force=True)
+
+    def _flush_output(self) -> None:
+        """The output so far to its consumers now (rows, and the plots at the next poll)."""
+        piece = self._take_output()
+        with self._lock:
+            self._plot.add(piece)
 
     def _take_output(self) -> PlotChunk:
         """The rows since the last call to their consumers (rows_log, estimates.csv); the plot
         samples as a PlotChunk in the current session's time."""
-        runner = self._runner
-        rows = runner.take_rows()
-        if self.record_rows and len(rows):
-            self.rows_log.append(rows)
-        if self.estimates is not None:
-            self.estimates.write(rows)
-            if self.estimates.error is not None:
-                self._warn("estimates", f"estimates.csv stopped: {self.estimates.error}",
-                           force=True)
-                self.estimates = None
-        return self._plot_piece(rows, runner.take_plot_samples())
+        rows, piece = self.pipeline.take_output()
+        self._distribute(rows)
+        return piece
 
     def _publish(self, now: float) -> None:
         """Hand the rows and plot samples since the last publish to their consumers and make a
@@ -630,6 +792,10 @@ class Engine:
         cov = main.cov
         info = self.source.info()
         phone = runner.phone_quat
+        replay = info.get("replay")
+        manager = self._replay if self._replay_source() is not None else None
+        if replay is not None and manager is not None:
+            replay = {**replay, **manager.info()}
         comparisons = [Comparison(c.name, c.estimator.quat, tuple(c.errors.rmse().tolist()),
                                   tuple(c.errors.latest.tolist()), c.errors.count)
                        for c in runner.comparisons]
@@ -641,9 +807,13 @@ class Engine:
             own_cov=None if cov is None else np.array(cov)[:4, :4],
             phone_quat=None if phone is None else np.array(phone),
             status=self._filter_status(), comparisons=comparisons,
-            comparison_estimator=runner.comparison_estimator, t0_ms=self._t0_ms,
-            health=self._health(now, info), replay=info.get("replay"),
-            failures=list(self.failures), user=self._user.status())
+            comparison_estimator=runner.comparison_estimator, t0_ms=self.pipeline.t0_ms,
+            health=self._stream_health(now, info), replay=replay,
+            failures=list(self.failures), markers=tuple(self._markers.items),
+            user=self._user.status(),
+            recording=self.recording.status() if self.recording is not None
+            else self._last_recording_status,
+            session_plot=manager.plot if manager is not None else None)
         published = time.perf_counter()
         with self._lock:
             self._plot.add(piece)
@@ -652,60 +822,17 @@ class Engine:
             snapshot.seq = self._seq
         pending = self._pending_host_times
         if pending:
-            oldest = self._orderer.oldest_pending_sequence
+            oldest = self.pipeline.orderer.oldest_pending_sequence
             while pending and pending[0][1] < oldest:
                 t_host = pending.popleft()[0]
                 self.latencies_s.append(published - t_host)
                 self.latency_arrivals_s.append(t_host)
         self._last_publish = now
-        if self.recorder is not None:
-            self.recorder.set_stats(self._stats_dict())
-
-    def _plot_piece(self, rows: Rows, plot: dict[str, np.ndarray]) -> PlotChunk:
-        """The plot samples since the last publish, in seconds since the session's start."""
-        runner = self._runner
-        ori_t, ori_q = runner.take_phone_samples()
-        errors = runner.take_errors()
-        rows = rows.select(rows.has_sample)         # OWN at our own estimate times
-        if self._t0_ms is None:
-            firsts = [int(t[0]) for t in (rows.t_ms, plot["t_acc"], plot["t_gyr"],
-                                          plot["t_mag"], ori_t) if len(t)]
-            self._t0_ms = min(firsts) if firsts else None
-        t0 = self._t0_ms or 0
-        count = len(rows)
-        if count or len(ori_q):
-            # one call for both series (the per-call overhead dominates at live chunk sizes)
-            euler = np.degrees(ekf.quaternion.to_euler(np.concatenate([rows.quat, ori_q])))
-        else:
-            euler = np.empty((0, 3))
-
-        def seconds(t_ms: np.ndarray) -> np.ndarray:
-            return (np.asarray(t_ms, np.float64) - t0) / 1000.0
-
-        innovations = runner.take_innovations()
-        if "t_innovation" in innovations:
-            innovations["t_innovation"] = seconds(np.asarray(innovations["t_innovation"]) * 1000.0)
-        return PlotChunk(
-            **self._user_plot(rows, seconds), **innovations,
-            t_acc=seconds(plot["t_acc"]), acc=plot["acc"], acc_rejected=plot["acc_rejected"],
-            t_gyr=seconds(plot["t_gyr"]), gyr=plot["gyr"],
-            t_mag=seconds(plot["t_mag"]), mag=plot["mag"], mag_rejected=plot["mag_rejected"],
-            t_est=seconds(rows.t_ms), own_euler_deg=euler[:count],
-            t_ori=seconds(ori_t), phone_euler_deg=euler[count:],
-            t_err=seconds(errors.t_ms), error_deg=errors.error_deg)
-
-    def _user_plot(self, rows: Rows, seconds) -> dict[str, np.ndarray]:
-        """YOURS for the plots: its Euler angles (wrapped, at our estimate times, NaN where it
-        has none) and its errors against PHONE at PHONE's times."""
-        errors = self._runner.take_user_errors()
-        out = {"t_user_err": seconds(errors.t_ms), "user_error_deg": errors.error_deg}
-        if rows.user_quat is None or not len(rows):
-            return out
-        euler = np.full((len(rows), 3), np.nan)
-        finite = np.isfinite(rows.user_quat).all(axis=1)
-        if finite.any():
-            euler[finite] = np.degrees(ekf.quaternion.to_euler(rows.user_quat[finite]))
-        return {**out, "t_user": seconds(rows.t_ms), "user_euler_deg": euler}
+        for mark in self._marks:
+            mark.set()
+        self._marks = []
+        if self.recording is not None and self.recording.active:
+            self.recording.recorder.set_stats(stats_dict(snapshot.health))
 
     def _filter_status(self) -> FilterStatus:
         main = self._runner.main
@@ -713,37 +840,31 @@ class Engine:
                             diagnostics=main.diagnostics, estimator=self._runner.estimator_name,
                             initialised=main.initialised, settings=self._runner.settings)
 
-    def _health(self, now: float, info: dict[str, Any]) -> StreamHealth:
-        parse = self._parser.stats
-        retired = self._parser_retired
-        lines_total = parse.lines + retired[0]
+    def _stream_health(self, now: float, info: dict[str, Any]) -> StreamHealth:
         state = info.get("connection_state", "waiting")
         if self.source.kind == "tcp":
             state = self._connection_state if state != "waiting" else "waiting"
-        reasons = dict(self._reasons_retired)
-        for reason, count in parse.damaged_reasons.items():
-            reasons[reason] = reasons.get(reason, 0) + count
-        order = self._orderer.stats
-        return StreamHealth(
-            connection_state=state, peer=info.get("peer") or self._peer,
-            listen_addresses=list(info.get("listen_addresses") or []), port=info.get("port"),
-            rates_hz=self._rates(), lines_per_s=round(self._lines_per_s(now, lines_total), 1),
-            lines_total=lines_total, damaged=parse.damaged + retired[1],
-            unknown=parse.unknown + retired[2], too_long=parse.too_long + retired[3],
-            out_of_order=order.out_of_order + self._order_retired,
-            clock_quirks=list(order.clock_quirks), warnings=list(self._warnings),
-            damaged_reasons=reasons, sessions=order.sessions,
-            reorder_window_ms=order.window_ms, lags_ms=dict(order.lags_ms),
-            waiting_peers=list(info.get("waiting_peers") or []),
-            connections_closed=dict(info.get("connections_closed") or {}),
-            allowed=list(info.get("allowed") or []), recording=self._recording_text(),
-            forward=None if self.forwarder is None else self.forwarder.status())
+        health = self._health.health(now, info, self.pipeline.parser, self.pipeline.orderer,
+                                     self.pipeline.order_retired, state, self._peer,
+                                     self._recording_text())
+        if self.forwarder is not None:
+            health.forward = self.forwarder.status()
+        return health
 
     def _recording_text(self) -> str | None:
-        recorder = self.recorder
-        if recorder is None:
+        recording = self.recording
+        if recording is None:
+            if self._last_recording_status and self._last_recording_status.get("error"):
+                return f"recording stopped: {self._last_recording_status['error']}"
             return None
-        if recorder.error is not None:
-            return f"recording stopped: {recorder.error}"
-        return (f"recording into {recorder.directory} "
-                f"({recorder.bytes_written / 2**20:.1f} MB)")
+        if recording.error is not None:
+            return f"recording stopped: {recording.error}"
+        return (f"recording into {recording.folder} "
+                f"({recording.recorder.bytes_written / 2**20:.1f} MB)")
+
+
+@dataclasses.dataclass(frozen=True)
+class _Mark:
+    """wait_idle's command: set when the engine reaches it."""
+
+    event: threading.Event

@@ -44,7 +44,8 @@ class ReplayControl:
     speed: float | None = None    # 1 = original timing, 0 = as fast as possible
     loop: bool | None = None
     seek_s: float | None = None   # position from the start of the log, seconds
-    step: int | None = None       # advance N lines while paused
+    step: int | None = None       # advance N lines while paused (the engine: N < 0 goes back)
+    seek_line: int | None = None  # go to this line (the state after the lines before it)
 
 
 @dataclass(frozen=True)

@@ -491,6 +491,32 @@ class TimeOrderer:
         """Sequence number of the latest sample that entered the buffer."""
         return int(self._state[_SEQUENCE])
 
+    def snapshot(self) -> dict:
+        """The arrays face's whole state (copies: the packed state, the samples held, the learned
+        clock offsets), to continue later from exactly here with :meth:`restore` (a replay's
+        checkpoints). Statistics are not part of it."""
+        held = int(self._state[_HEAP_N])
+        return {"state": self._state.copy(), "keys": self._keys[:held].copy(),
+                "values": self._values[:held].copy(), "segment_id": self._segment_id,
+                "offsets": dict(self._offsets), "continue_time": self._continue_time}
+
+    def restore(self, snapshot: dict) -> None:
+        """Continue from a :meth:`snapshot` of an orderer with the same parameters (the counters
+        in :attr:`stats` follow the restored state)."""
+        state = np.asarray(snapshot["state"], np.int64)
+        held = len(snapshot["keys"])
+        if state.shape != (_STATE_SIZE,) or held > len(self._keys) or held != state[_HEAP_N]:
+            raise ValueError("not a snapshot of this orderer")
+        self._state[:] = state
+        self._keys[:held] = snapshot["keys"]
+        self._values[:held] = snapshot["values"]
+        self._segment_id = int(snapshot["segment_id"])
+        self._offsets = dict(snapshot["offsets"])
+        self.stats.offsets_ms = self._offsets
+        self._continue_time = bool(snapshot["continue_time"])
+        self._payloads.clear()
+        self._sync()
+
     # -- Sample face ---------------------------------------------------------------------------
 
     def push(self, sample: Sample) -> list[Sample]:

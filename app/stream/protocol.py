@@ -333,6 +333,15 @@ class LineParser:
         self._discarding = False
         self._ori4_seen = False
 
+    def line_state(self) -> tuple[bytes, bool, bool]:
+        """What the parser keeps between two feeds (a partial line, discarding a long one, a
+        4-value ORI seen), for :meth:`restore_line_state` (a replay's checkpoints)."""
+        return self._pending, self._discarding, self._ori4_seen
+
+    def restore_line_state(self, state: tuple[bytes, bool, bool]) -> None:
+        self._pending, self._discarding, self._ori4_seen = bytes(state[0]), bool(state[1]), \
+            bool(state[2])
+
     def feed(self, data: bytes) -> list[Sample]:
         """Parse the complete lines in pending + data; keep the unfinished tail (bounded)."""
         self.stats.bytes += len(data)

@@ -14,10 +14,12 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ekf.simulate import simulate
 
 from app.stream.events import CONNECTION_COMMANDS, Chunk, SourceEvent
-from app.stream.lines import LogError, pacing_times, read_lines
+from app.stream.lines import LogError, line_starts, pacing_array, read_log_bytes
 from app.stream.netinfo import lan_ipv4_addresses
 from app.stream.protocol import DEFAULT_LIMITS, Limits, Sample, format_line
 from app.stream.tcp_server import DEFAULT_PORT, TcpServer
@@ -102,18 +104,29 @@ class LineReplaySource(Source):
     """Replays protocol lines with their original timing, scaled by ``speed`` (0: as fast as
     possible), optionally looping; pause, step, seek and speed changes via :meth:`control`.
 
+    The lines live in one bytes buffer with their offsets (an hour at 100 Hz is 1.3 million
+    lines: a list of that many bytes objects would cost more than the text itself), each with
+    the time it is due (:func:`~app.stream.lines.pacing_array`).
+
     Events: "connected" at start, "loop" when wrapping around, "seek" before lines that start
-    again from the beginning (the consumer resets its filter: the lines up to the seek target
-    then come unpaced so the filter is re-synced), "finished" at the end.
+    again from the beginning after :meth:`seek` (the consumer resets its filter: the lines up to
+    the seek target then come unpaced so the filter is re-synced), "finished" at the end.
+    :meth:`jump` is the engine's seek: it restored its state at line `start` itself (a
+    checkpoint) and gets the lines from there, unpaced up to the target.
     """
 
     kind = "replay"
 
-    def __init__(self, lines: list[bytes], name: str, speed: float = 1.0, loop: bool = False,
-                 paused: bool = False) -> None:
+    def __init__(self, lines: list[bytes] | bytes, name: str, speed: float = 1.0,
+                 loop: bool = False, paused: bool = False) -> None:
         self.name = name
-        self._lines = lines
-        self._pace = pacing_times(lines)
+        if not isinstance(lines, bytes):
+            lines = b"".join(line if line.endswith(b"\n") else line + b"\n" for line in lines)
+        elif lines and not lines.endswith(b"\n"):
+            lines = lines + b"\n"
+        self.data = lines
+        self.starts = line_starts(lines)
+        self.pace = pacing_array(lines, self.starts)
         self.speed = max(0.0, float(speed))
         self.loop = bool(loop)
         self.paused = bool(paused)
@@ -130,15 +143,33 @@ class LineReplaySource(Source):
         self.loops = 0
 
     @property
+    def line_count(self) -> int:
+        return len(self.pace)
+
+    @property
+    def line_index(self) -> int:
+        """The next line to go out (the target while re-syncing after a seek)."""
+        return max(self._index, self._fast_until)
+
+    def line(self, index: int) -> bytes:
+        return self.data[self.starts[index]:self.starts[index + 1]]
+
+    def lines_between(self, first: int, last: int) -> bytes:
+        """Lines first..last-1 as one bytes object."""
+        return self.data[self.starts[first]:self.starts[last]]
+
+    @property
     def duration_s(self) -> float:
-        return self._pace[-1] if self._pace else 0.0
+        return float(self.pace[-1]) if len(self.pace) else 0.0
 
     @property
     def position_s(self) -> float:
-        if not self._pace:
-            return 0.0
-        return self._pace[min(self._index, len(self._pace) - 1)] if self._index < len(
-            self._pace) else self.duration_s
+        index = self.line_index
+        return float(self.pace[index]) if index < len(self.pace) else self.duration_s
+
+    def line_at(self, position_s: float) -> int:
+        """The first line due at or after `position_s` (the line count past the end)."""
+        return int(np.searchsorted(self.pace, position_s, side="left"))
 
     def start(self) -> None:
         self._started = True
@@ -160,22 +191,30 @@ class LineReplaySource(Source):
             self.paused = bool(command.paused)
             self._anchor()
         if getattr(command, "step", None):
-            self._steps += int(command.step)
+            self._steps += max(0, int(command.step))
         if getattr(command, "seek_s", None) is not None:
             self.seek(float(command.seek_s))
 
     def seek(self, position_s: float) -> None:
         """Go to `position_s` from the start; the consumer re-runs the filter from the start."""
-        target = 0
-        while target < len(self._pace) and self._pace[target] < position_s:
-            target += 1
         self._connection += 1
         self._events.append(SourceEvent("seek", self._connection, self.name,
                                         f"{position_s:.3f} s", time.perf_counter()))
-        self._index = 0
+        self.jump(0, self.line_at(position_s), clear_events=False)
+
+    def jump(self, start: int, target: int, clear_events: bool = True) -> None:
+        """Go on from line `start` (the consumer's state is that after lines 0..start-1),
+        unpaced up to line `target`, then with the original timing from there."""
+        line_count = len(self.pace)
+        target = max(0, min(int(target), line_count))
+        start = max(0, min(int(start), target))
+        if clear_events:
+            self._events = [e for e in self._events if e.kind == "connected"]
+        self._index = start
         self._fast_until = target
+        self._steps = 0
         self._finished = False
-        self._anchor_pace = self._pace[target] if target < len(self._pace) else self.duration_s
+        self._anchor_pace = float(self.pace[target]) if target < line_count else self.duration_s
         self._anchor_wall = time.perf_counter()
 
     def read(self, timeout: float = 0.05) -> list[Chunk | SourceEvent]:
@@ -185,10 +224,11 @@ class LineReplaySource(Source):
             if not out:
                 time.sleep(timeout)
             return out
-        lines, pace = self._lines, self._pace
+        pace = self.pace
+        count = len(pace)
         start = self._index
         end = start
-        limit = min(len(lines), start + _MAX_LINES_PER_CHUNK)
+        limit = min(count, start + _MAX_LINES_PER_CHUNK)
         if end < self._fast_until:
             end = min(self._fast_until, limit)
         elif self.paused:
@@ -202,31 +242,35 @@ class LineReplaySource(Source):
             if since < REPLAY_MIN_INTERVAL_S and not out:
                 time.sleep(min(timeout, REPLAY_MIN_INTERVAL_S - since))
             now_pace = self._anchor_pace + (time.perf_counter() - self._anchor_wall) * self.speed
-            while end < limit and pace[end] <= now_pace:
-                end += 1
-            if end == start and end < len(lines) and not out:
+            end = max(start, min(limit, int(np.searchsorted(pace, now_pace, side="right"))))
+            if end == start and end < count and not out:
                 wait = (pace[end] - now_pace) / self.speed
                 time.sleep(max(0.0, min(timeout, wait)))
                 return out
         if end > start:
             self._last_chunk_wall = time.perf_counter()
-            out.append(Chunk(self._connection, b"".join(lines[start:end]), self._last_chunk_wall))
+            out.append(Chunk(self._connection, self.lines_between(start, end),
+                             self._last_chunk_wall))
             self._index = end
         elif self.paused and not out:
             time.sleep(timeout)
-        if self._index >= len(lines):
-            if self.loop and lines:
-                self.loops += 1
-                self._connection += 1
-                self._index = 0
-                out.append(SourceEvent("loop", self._connection, self.name, "",
-                                       time.perf_counter()))
-                self._anchor()
-            else:
-                self._finished = True
-                out.append(SourceEvent("finished", self._connection, self.name, "",
-                                       time.perf_counter()))
+        if self._index >= count:
+            self._at_end(out)
         return out
+
+    def _at_end(self, out: list[Chunk | SourceEvent]) -> None:
+        if self.loop and len(self.pace):
+            self.loops += 1
+            self._connection += 1
+            self._index = 0
+            self._fast_until = 0          # a seek's re-sync target is behind us
+            out.append(SourceEvent("loop", self._connection, self.name, "",
+                                   time.perf_counter()))
+            self._anchor()
+        else:
+            self._finished = True
+            out.append(SourceEvent("finished", self._connection, self.name, "",
+                                   time.perf_counter()))
 
     def info(self) -> dict[str, Any]:
         state = "finished" if self._finished else "replaying"
@@ -234,16 +278,34 @@ class LineReplaySource(Source):
                 "listen_addresses": [],
                 "replay": {"position_s": self.position_s, "duration_s": self.duration_s,
                            "speed": self.speed, "paused": self.paused, "loop": self.loop,
-                           "finished": self._finished, "name": self.name}}
+                           "finished": self._finished, "name": self.name,
+                           "line": self.line_index, "lines": len(self.pace)}}
 
 
 class LogFileSource(LineReplaySource):
-    """A log file (.txt or .txt.gz; the phone's or our raw.txt) replayed like a phone."""
+    """A log file (.txt or .txt.gz; the phone's or our raw.txt) replayed like a phone.
+
+    A recording's raw.txt (a session.json beside it) always ends with a whole line; one that
+    does not was cut by a crash: its torn last line is left out (it could parse to a wrong
+    value) and counted (:attr:`torn_lines`)."""
 
     def __init__(self, path: str | Path, speed: float = 1.0, loop: bool = False,
                  paused: bool = False) -> None:
         path = Path(path)
-        super().__init__(read_lines(path), path.name, speed, loop, paused)
+        data = read_log_bytes(path, add_newline=False)
+        self.torn_lines = 0
+        if not data.endswith(b"\n"):
+            if path.with_name("session.json").is_file():
+                data = data[:data.rfind(b"\n") + 1]
+                self.torn_lines = 1
+                if not data:
+                    raise LogError(f"{path}: no whole line (a recording cut at its start)")
+            else:
+                data += b"\n"
+        # a recording is named by its folder (its raw.txt says nothing)
+        name = path.parent.name if self.torn_lines or path.with_name("session.json").is_file() \
+            and path.name == "raw.txt" else path.name
+        super().__init__(data, name, speed, loop, paused)
         self.path = path
 
 

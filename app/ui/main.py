@@ -18,14 +18,14 @@ from pathlib import Path
 from typing import Any
 
 from app import paths
-from app.engine.config import ConfigError, SourceOptions, load_settings, make_source
+from app.engine.config import ConfigError, SourceOptions, load_settings, make_source, open_replay
 from app.engine.worker import Engine
 from app.stream.forwarder import LineForwarder
 from app.stream.sources import DEMO_SESSION
 
 GUI_SWITCH_INTERVAL_S = 0.0002
 HEADLESS_COMMANDS = ("filter, evaluate, calibrate, calibrate-mag, tune, simulate, send, serve, "
-                     "new-filter")
+                     "new-filter, export")
 
 
 @dataclass
@@ -42,6 +42,9 @@ class WindowOptions:
     size: tuple[int, int] | None = None
     filter: str | None = None
     forward: tuple[str, int] | None = None
+    record: str | None = None              # record from the start into this folder
+    record_max_mb: float | None = None
+    record_min_free_mb: float | None = None
 
 
 def build_engine(options: WindowOptions) -> Engine:
@@ -57,6 +60,14 @@ def session_to_tune(source: SourceOptions) -> Path | str | None:
     if source.replay:
         return source.replay
     return DEMO_SESSION if source.demo else None
+
+
+def replay_engine_factory(options: WindowOptions):
+    """File → Open and drops: an engine replaying a path with the window's settings."""
+    def build(path: str) -> Engine:
+        return Engine(open_replay(path, limits=options.source.limits),
+                      settings=load_settings(options.settings), limits=options.source.limits)
+    return build
 
 
 def check_display() -> None:
@@ -108,8 +119,8 @@ def run_gui(options: WindowOptions) -> int:
     """Open the window; returns the exit status once it closes. ConfigError for bad options."""
     if options.screenshot and options.exit_after is None:
         raise ConfigError("--screenshot needs --exit-after S")
-    check_display()
     engine = build_engine(options)   # before Qt: a bad path is a one-line error, no window
+    check_display()
     log_path = log_to_file()
 
     from PySide6 import QtCore
@@ -134,10 +145,15 @@ def run_gui(options: WindowOptions) -> int:
     except OSError as error:            # e.g. the port is taken
         engine.stop()
         raise ConfigError(f"cannot start the source: {error.strerror or error}") from None
+    if options.record:
+        from app.engine.commands import StartRecording
+        engine.send(StartRecording(options.record, options.record_max_mb,
+                                   options.record_min_free_mb))
     window = None
     try:
         window = MainWindow(engine, settings=settings, log_path=log_path,
-                            tune_log=session_to_tune(options.source))
+                            tune_log=session_to_tune(options.source),
+                            engine_factory=replay_engine_factory(options))
         if options.size is not None:
             window.resize(*options.size)
             window.arrange_default_layout()

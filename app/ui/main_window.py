@@ -33,7 +33,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 import ekf
 from app import __version__
-from app.engine.commands import SetSettings, UnloadUserFilter
+from app.engine.commands import LoadUserFilter, SetSettings, UnloadUserFilter
 from app.engine.profiles import ProfileStore
 from app.engine.snapshot import Snapshot
 from app.ui.calibration import CalibrationWorkspace
@@ -45,6 +45,7 @@ from app.ui.layouts import LayoutStore
 from app.ui.lights import LightsPanel
 from app.ui.phone_view import PhoneView, software_gl
 from app.ui.plots import PlotPanel
+from app.ui.sessions import SessionControls
 from app.ui.transport import TransportBar
 from app.ui.tune_workspace import TuneWorkspace
 from app.ui.user_filter_panel import UserFilterPanel, load_filter_dialog, new_filter_dialog
@@ -108,14 +109,17 @@ class MainWindow(QtWidgets.QMainWindow):
         tune_log: the session the Tune workspace re-filters (the replayed log, the demo);
             None: the user opens one there.
         profiles: where calibration and tuning profiles are kept (None: the data folder).
+        engine_factory: path -> a new (unstarted) engine replaying it, for File → Open and
+            drops (default: app.engine.config.open_replay with default settings).
     """
 
     def __init__(self, engine: EngineLike, settings: QtCore.QSettings | None = None,
                  use_gl: bool | None = None, frame_interval_ms: int | None = None,
                  log_path: Path | None = None, tune_log: str | Path | None = None,
-                 profiles: ProfileStore | None = None) -> None:
+                 profiles: ProfileStore | None = None, engine_factory=None) -> None:
         super().__init__()
         self.engine = engine
+        self._engine_factory = engine_factory
         self.settings = settings if settings is not None else default_settings()
         self.failure_dialog = FailureDialog(self, log_path)
         self._failures_shown = 0
@@ -149,7 +153,9 @@ class MainWindow(QtWidgets.QMainWindow):
         self.setCentralWidget(self.workspaces)
         self._build_docks()
         self._build_status_bar()
+        self.sessions = SessionControls(self, self._engine_factory)
         self._build_actions()
+        self.setAcceptDrops(True)
         self.layouts = LayoutStore(self.settings)
         self.restore_settings()
 
@@ -306,6 +312,7 @@ class MainWindow(QtWidgets.QMainWindow):
     def _build_actions(self) -> None:
         menus = self.menuBar()
         self.file_menu = menus.addMenu("&File")
+        self.sessions.build_file_menu(self.file_menu)
         self.load_filter_action = self._action(
             self.file_menu, "&Load your filter…", None, lambda: load_filter_dialog(self, self.send))
         self.new_filter_action = self._action(
@@ -316,6 +323,9 @@ class MainWindow(QtWidgets.QMainWindow):
         self.file_menu.addSeparator()
         self.quit_action = self._action(self.file_menu, "&Quit", "Ctrl+Q", self.close)
         self._build_view_menu(menus.addMenu("&View"))
+        self.replay_menu = menus.addMenu("&Replay")
+        self.replay_menu.addAction(self.pause_action)
+        self.sessions.build_replay_menu(self.replay_menu)
         self._build_filter_menu(menus.addMenu("F&ilter"))
         help_menu = menus.addMenu("&Help")
         self.about_action = self._action(help_menu, "&About", "F1", self.show_about)
@@ -420,7 +430,15 @@ class MainWindow(QtWidgets.QMainWindow):
         self.plots.set_status(snapshot.status)
         self.plots.set_time_origin(snapshot.t0_ms)
         replay = snapshot.replay
-        self.transport.update_replay(replay, "" if replay else connection_text(snapshot.health))
+        self.transport.update_replay(replay, replay.get("name", "") if replay
+                                     else connection_text(snapshot.health))
+        self.transport.update_markers(snapshot.markers)
+        self.transport.update_recording(snapshot.recording)
+        self.plots.set_session(snapshot.session_plot if replay else None)
+        if snapshot.t_ms is not None and snapshot.t0_ms is not None:
+            self.plots.set_position((snapshot.t_ms - snapshot.t0_ms) / 1000.0)
+        self.plots.set_markers(snapshot.markers)
+        self.sessions.follow(snapshot)
         self._panel_snapshot = snapshot
         if snapshot.failures and snapshot.failures[-1].number > self._failures_shown:
             latest = snapshot.failures[-1]
@@ -481,6 +499,41 @@ class MainWindow(QtWidgets.QMainWindow):
         if health.warnings and health.warnings[-1] != self._last_warning:
             self._last_warning = health.warnings[-1]
             self.statusBar().showMessage(self._last_warning, 8000)
+
+    # ---- sessions ---------------------------------------------------------------------------
+
+    def swap_engine(self, engine: EngineLike) -> None:
+        """Replace the engine (File → Open, a drop): the old one stops (its recording is
+        saved), the plots start afresh, the new one starts."""
+        yours = self.last_snapshot.user if self.last_snapshot is not None else None
+        old, self.engine = self.engine, engine
+        old.stop()
+        self.plots.set_session(None)
+        self.plots.clear()
+        self.plots.follow()
+        self.last_snapshot = None
+        self._failures_shown = 0
+        try:
+            engine.start()
+        except OSError as error:
+            self.sessions._complain("Cannot open", f"cannot start the source: "
+                                                   f"{error.strerror or error}")
+        if yours is not None and yours.path:
+            engine.send(LoadUserFilter(yours.path))     # your filter goes on with the new one
+        source = getattr(engine, "source", None)
+        self.tune.use_session(getattr(source, "path", None))
+        name = getattr(source, "name", "")
+        self.setWindowTitle(f"Orientation Lab — {name}" if name else "Orientation Lab")
+
+    def dragEnterEvent(self, event: QtGui.QDragEnterEvent) -> None:  # noqa: N802 (Qt name)
+        if self.sessions.drop_paths(event.mimeData()):
+            event.acceptProposedAction()
+
+    def dropEvent(self, event: QtGui.QDropEvent) -> None:  # noqa: N802 (Qt name)
+        paths = self.sessions.drop_paths(event.mimeData())
+        if paths:
+            event.acceptProposedAction()
+            self.sessions.open(paths[0])
 
     # ---- frame counting -------------------------------------------------------------------
 

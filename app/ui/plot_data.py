@@ -30,6 +30,17 @@ class SampleBuffer:
         self.size = 0
         self.appended = 0           # rows ever appended since the last clear
 
+    @classmethod
+    def from_arrays(cls, t: np.ndarray, values: np.ndarray) -> SampleBuffer:
+        """A read-only buffer over existing arrays (a replay's whole session: no copy)."""
+        buffer = cls.__new__(cls)
+        buffer.capacity = len(t)
+        buffer._t = t
+        buffer._values = values
+        buffer.size = len(t)
+        buffer.appended = len(t)
+        return buffer
+
     @property
     def first_index(self) -> int:
         """Running number of the oldest stored row (counts every row appended since clear)."""

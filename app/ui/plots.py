@@ -37,6 +37,8 @@ AXIS_COLORS = ((220, 50, 50), (40, 160, 60), (50, 100, 230))    # x, y, z
 NORM_COLOR = (90, 90, 90)
 REJECTED_COLOR = (225, 40, 40)
 GATE_COLOR = (200, 120, 0)
+MARKER_COLOR = (230, 120, 0)
+FIRST_PLOTS = ("acc", "yaw", "error")    # the top plot of each tab labels the markers
 ERROR_COLORS = ((130, 40, 170), (230, 120, 0), (0, 150, 150))   # total, heading, inclination
 EULER_NAMES = ("yaw", "pitch", "roll")
 # yaw is about z, pitch about y, roll about x: each in its axis' colour
@@ -234,7 +236,15 @@ class PlotPanel(QtWidgets.QWidget):
         self._setting_range = False
         self._syncing_cursor = False
         self.origin_ms: int | None = None
-        self.buffers = {key: SampleBuffer(columns) for key, columns in STREAM_COLUMNS.items()}
+        # the rolling buffers the snapshots fill; `buffers` is what is drawn: these, or a
+        # replay's whole session (set_session)
+        self.live_buffers = {key: SampleBuffer(columns)
+                             for key, columns in STREAM_COLUMNS.items()}
+        self.buffers = self.live_buffers
+        self.session = None
+        self._position: float | None = None
+        self._marker_lines: dict[str, list[pg.InfiniteLine]] = {}
+        self._markers_shown: tuple = ()
         self.plots: dict[str, pg.PlotItem] = {}
         self.curves: list[tuple[_CurveSpec, _Curve]] = []
         self.bands: dict[str, _Curve] = {}
@@ -428,7 +438,7 @@ class PlotPanel(QtWidgets.QWidget):
         present = bool(present)
         if not present:
             for key in USER_STREAMS:
-                self.buffers[key].clear()
+                self.live_buffers[key].clear()
         self.user_present = present
         for group, name in USER_TOGGLES:
             self.groups[group].toggles[name].setVisible(present)
@@ -440,7 +450,7 @@ class PlotPanel(QtWidgets.QWidget):
                              error_deg: np.ndarray) -> None:
         """YOURS re-run over the session after a reload: its curves drawn so far replaced."""
         for key, t, values in (("user", t_s, euler_deg), ("user_error", t_err_s, error_deg)):
-            buffer = self.buffers[key]
+            buffer = self.live_buffers[key]
             buffer.clear()
             t = np.asarray(t, np.float64)
             if len(t):
@@ -449,7 +459,7 @@ class PlotPanel(QtWidgets.QWidget):
 
     def _append(self, key: str, t: np.ndarray, values: np.ndarray) -> None:
         t = np.asarray(t, dtype=np.float64)
-        buffer = self.buffers[key]
+        buffer = self.live_buffers[key]
         if key in USER_STREAMS:
             # After a re-run's history the live rows may overlap it: keep only the newer ones.
             newer = t > buffer.last_time() + 1e-9
@@ -460,16 +470,62 @@ class PlotPanel(QtWidgets.QWidget):
                     t, values = t[newer], values[newer]
             if not len(t):
                 return
-        # A new session (a new connection, a replay that loops or seeks) restarts the time
-        # since the start: start the plots afresh.
+        # A new session (a new connection, a replay that loops or seeks back) restarts the
+        # time since the start: start the rolling plots afresh.
         if t[0] < buffer.last_time() - 1e-6:
-            for other in self.buffers.values():
+            for other in self.live_buffers.values():
                 other.clear()
-            self._dirty = True
+            self._dirty = self._dirty or self.session is None
         buffer.append(t, values)
-        # While paused, samples after the frozen view change nothing on screen.
-        if self.following or t[0] <= self.x_range()[1]:
+        # While paused, samples after the frozen view change nothing on screen; a replay's
+        # whole session is drawn from its own data.
+        if self.session is None and (self.following or t[0] <= self.x_range()[1]):
             self._dirty = True
+
+    def set_session(self, session) -> None:
+        """Draw a replay's whole session (app.engine.session_index.SessionPlot: its arrays,
+        not copied) instead of the rolling buffers; None: back to the rolling buffers. Paused,
+        the user scrolls and zooms over the whole recording."""
+        if session is self.session:
+            return
+        self.session = session
+        if session is None:
+            self.buffers = self.live_buffers
+            self._position = None
+        else:
+            # YOURS is not in the session's index (it is the user's code, re-run on reload):
+            # its curves stay the rolling ones.
+            self.buffers = {key: SampleBuffer.from_arrays(*session.streams[key])
+                            if key in session.streams else self.live_buffers[key]
+                            for key in STREAM_COLUMNS}
+        self._dirty = True
+
+    def set_position(self, t_s: float | None) -> None:
+        """The replay's position (s since the start): a whole session's plots follow it."""
+        if t_s != self._position:
+            self._position = t_s
+            if self.session is not None and self.following:
+                self._dirty = True
+
+    def set_markers(self, markers) -> None:
+        """Markers (app.engine.session.Marker) as labelled vertical lines in every plot."""
+        shown = tuple((m.id, m.t_s, m.title) for m in markers if m.t_s is not None)
+        if shown == self._markers_shown:
+            return
+        self._markers_shown = shown
+        pen = pg.mkPen(MARKER_COLOR, width=1, style=QtCore.Qt.PenStyle.DashLine)
+        for key, plot in self.plots.items():
+            for line in self._marker_lines.pop(key, []):
+                plot.removeItem(line)
+            lines = []
+            for number, t_s, title in shown:
+                line = pg.InfiniteLine(pos=t_s, angle=90, movable=False, pen=pen,
+                                       label=title if key in FIRST_PLOTS else None,
+                                       labelOpts={"position": 0.95, "color": MARKER_COLOR})
+                line.setToolTip(f"marker {title} at {time_text(t_s, 600.0, 1)}")
+                plot.addItem(line, ignoreBounds=True)
+                lines.append(line)
+            self._marker_lines[key] = lines
 
     def set_status(self, status: FilterStatus) -> None:
         """Draw the gate limits on the norms: g ± acc_gate and L ± mag_gate."""
@@ -560,12 +616,14 @@ class PlotPanel(QtWidgets.QWidget):
         return [self.plots[key] for key in self.groups[group].plots]
 
     def clear(self) -> None:
-        for buffer in self.buffers.values():
+        for buffer in self.live_buffers.values():
             buffer.clear()
         self._dirty = True
         self.refresh()
 
     def latest_time(self) -> float:
+        if self.session is not None and self._position is not None:
+            return self._position
         return max(buffer.last_time() for buffer in self.buffers.values())
 
     def x_range(self) -> tuple[float, float]:

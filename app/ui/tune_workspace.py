@@ -205,6 +205,18 @@ class TuneWorkspace(QtWidgets.QWidget):
         if self.pending_log is not None and self.prepared is None:
             self.set_log(self.pending_log)
 
+    def use_session(self, path: str | Path | None) -> None:
+        """The window replays another session: re-filter that one (read now if the workspace is
+        shown, else when it is next shown); None: keep the current one."""
+        if path is None:
+            return
+        self.close_runs()
+        self.prepared = None
+        self.pending_log = path
+        self.ab_plots.show_runs(None, None, None)
+        if self.isVisible():
+            QtCore.QTimer.singleShot(0, self._load_pending)
+
     def _open_dialog(self) -> None:
         path, _ = QtWidgets.QFileDialog.getOpenFileName(
             self, "Re-filter and tune on a log", "", "Logs and sessions (*.txt *.txt.gz *.json)")

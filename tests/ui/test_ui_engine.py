@@ -46,11 +46,13 @@ def test_window_on_a_real_engine_replay(make_window, small_log, qtbot):
         qtbot.waitUntil(lambda: window.lights.states()["acc"] == "off", timeout=5000)
         assert not window.controls.sensor_checkboxes["acc"].isChecked()
 
-        # Pause the plots: the view stays, the samples keep coming.
+        # Pause the plots: the view stays, the samples keep coming (into the rolling buffers;
+        # an indexed replay draws its whole session instead).
         window.plots.set_paused(True)
         frozen = window.plots.x_range()
-        size = window.plots.buffers["gyr"].size
-        qtbot.waitUntil(lambda: window.plots.buffers["gyr"].size > size + 50, timeout=15000)
+        size = window.plots.live_buffers["gyr"].appended
+        qtbot.waitUntil(lambda: window.plots.live_buffers["gyr"].appended > size + 50,
+                        timeout=15000)
         assert window.plots.x_range() == pytest.approx(frozen)
         euler = window.plots.buffers["own"].values
         assert np.isfinite(euler).all() and np.abs(euler).max() <= 180.0
@@ -60,3 +62,22 @@ def test_window_on_a_real_engine_replay(make_window, small_log, qtbot):
     assert not engine.running
     assert not window.timer.isActive()
     QtCore.QCoreApplication.processEvents()
+
+
+def test_a_replay_that_ends_offers_play_and_is_drawn_whole(make_window, small_log, qtbot):
+    from app.engine.worker import Engine
+    from app.stream.sources import LogFileSource
+
+    engine = Engine(LogFileSource(small_log, speed=0.0), comparisons=False)
+    engine.start()
+    window = make_window(engine)
+    try:
+        window.show()
+        qtbot.waitUntil(lambda: window.last_snapshot is not None and
+                        (window.last_snapshot.replay or {}).get("finished"), timeout=60000)
+        assert window.transport.play_button.text() == "Play"         # not "Pause" at the end
+        qtbot.waitUntil(lambda: window.plots.session is not None, timeout=60000)
+        assert window.plots.buffers["gyr"].last_time() == pytest.approx(20.0, abs=0.05)
+        assert window.transport.position_label.text().endswith("/ 0:20.0")
+    finally:
+        window.close()

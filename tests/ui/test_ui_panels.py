@@ -242,7 +242,7 @@ def test_transport_bar_sends_replay_commands_and_greys_out_when_live(qtbot):
                        "loop": False})
     assert bar.play_button.isEnabled() and bar.play_button.text() == "Pause"
     assert bar.slider.value() == 2500
-    assert bar.position_label.text() == "5.0 / 20.0 s"
+    assert bar.position_label.text() == "0:05.0 / 0:20.0"          # m:ss.s since the start
     assert sent == []                                 # showing the position sends nothing
     qtbot.mouseClick(bar.play_button, QtCore.Qt.MouseButton.LeftButton)
     assert sent[-1] == ReplayControl(paused=True) and bar.play_button.text() == "Play"
@@ -267,6 +267,7 @@ def test_transport_bar_sends_replay_commands_and_greys_out_when_live(qtbot):
     assert len(sent) == count
 
 
-def test_position_text_uses_minutes_on_long_logs():
-    assert position_text(5.0, 20.0) == "5.0 / 20.0 s"
+def test_position_text_is_minutes_and_seconds_since_the_start():
+    assert position_text(5.0, 20.0) == "0:05.0 / 0:20.0"
     assert position_text(75.25, 166.0) == "1:15.2 / 2:46.0"
+    assert position_text(3723.44, 3600.0 * 1.5) == "1:02:03.4 / 1:30:00.0"

@@ -1,0 +1,273 @@
+"""Bytes -> estimates: the engine's processing, one object the live engine, a replay's session
+index and the exports share (so all three give the same estimates, bit for bit).
+
+:class:`Pipeline` holds the compiled parser, the time orderer and the estimator runner, the
+session's time origin (the plots count seconds from it) and, for a replayed recording, the
+recorded timeline: sensor switches, estimator and settings changes at the sample positions
+where they happened live (``sample``: samples fed to the estimators since the recording
+started), applied at exactly those positions. Its whole state is one :class:`Checkpoint
+<app.engine.checkpoints.Checkpoint>` (:meth:`checkpoint`, :meth:`restore`).
+
+The owner gives two callbacks: ``on_cut(rows, piece)`` gets the output of a session that ended
+(a clock that does not continue: the estimators start afresh, the time origin is set again),
+``on_event(kind, **data)`` a "session" event for the recording's timeline.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+import ekf
+from app.engine.checkpoints import Checkpoint, pack_runner, unpack_runner
+from app.engine.runner import SENSORS, EstimatorRunner, Rows
+from app.engine.session import settings_from_dict
+from app.engine.snapshot import PlotChunk
+from app.stream import fastparse
+from app.stream.fastparse import ParsedArrays
+from app.stream.ordering import OrderedArrays, TimeOrderer
+from app.stream.protocol import DEFAULT_LIMITS, Limits
+
+
+@dataclass(frozen=True)
+class Setup:
+    """What a replay pass starts with: the estimator, the sensors switched in, the settings,
+    the comparisons; timeline: the recorded filter events applied on the way (empty: none);
+    start_state: a recording that started mid-stream starts from the live engine's state then
+    (session.json's start_state)."""
+
+    estimator: str = "ekf"
+    sensors: tuple[str, ...] = SENSORS
+    settings: ekf.EKFSettings | None = None
+    comparisons: bool = True
+    comparison_estimator: str = "ekf"
+    timeline: tuple = ()
+    start_state: Any = field(default=None, compare=False)
+    start_state_id: int = 0           # identifies start_state in comparisons
+
+
+class Pipeline:
+    """Parser -> orderer -> runner (see the module docstring)."""
+
+    def __init__(self, runner: EstimatorRunner, limits: Limits = DEFAULT_LIMITS,
+                 orderer_options: dict[str, Any] | None = None,
+                 on_cut: Callable[[Rows, PlotChunk], None] | None = None,
+                 on_event: Callable[..., None] | None = None) -> None:
+        self.runner = runner
+        self.limits = limits
+        self.orderer_options = dict(orderer_options or {})
+        self.parser = fastparse.FastLineParser(limits=limits)
+        self.orderer = TimeOrderer(**self.orderer_options)
+        self.on_cut = on_cut or (lambda rows, piece: None)
+        self.on_event = on_event or (lambda kind, **data: None)
+        self.on_parsed: Callable[[ParsedArrays], None] | None = None
+        # every ordered sample fed to the estimators, (t_ms, tag, values) (exports)
+        self.on_ordered: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None
+        self.t0_ms: int | None = None        # the session's start: plots count time from it
+        self.fed = 0                         # samples fed to the estimators in this pass
+        self.fed_total = 0                   # ... ever (never restored)
+        self.timeline: tuple = ()            # filter events to apply (a replayed recording)
+        self.timeline_next = 0
+        self.order_retired = 0               # out-of-order counts of restored orderer states
+
+    # -- sinks -------------------------------------------------------------------------------
+
+    def set_raw_sinks(self, line_sink=None, block_sink=None) -> None:
+        """Where every line that parses goes, verbatim (a recording's raw.txt); None: nowhere."""
+        self.parser.raw_sink = line_sink
+        self.parser.raw_block_sink = block_sink
+
+    # -- samples -----------------------------------------------------------------------------
+
+    def feed_bytes(self, data: bytes) -> None:
+        """Received bytes (any chunking) -> parser, orderer, estimators."""
+        self.parsed(self.parser.feed_arrays(data))
+
+    def parsed(self, parsed: ParsedArrays) -> None:
+        if self.on_parsed is not None:
+            self.on_parsed(parsed)
+        if len(parsed.t_ms):
+            self.feed_ordered(self.orderer.push_arrays(parsed.t_ms, parsed.tag, parsed.values))
+
+    def feed_ordered(self, ordered: OrderedArrays) -> None:
+        if not len(ordered.session_starts):
+            if len(ordered):
+                self._feed_runner(ordered.t_ms, ordered.tag, ordered.values)
+            return
+        # A clock that does not continue the previous stream's: nothing carries over (the
+        # session may start while its first samples are still held: nothing released yet), and
+        # the plots count time from the new session's start.
+        for new, piece in ordered.pieces():
+            if new:
+                self.on_event("session", reason="the clock does not continue")
+                self.runner.finish()
+                self.cut()
+                self.runner.new_session()
+            self._feed_runner(ordered.t_ms[piece], ordered.tag[piece], ordered.values[piece])
+
+    def _feed_runner(self, t_ms: np.ndarray, tag: np.ndarray, values: np.ndarray) -> None:
+        """Samples to the estimators, the recorded timeline's events applied between them at
+        their sample positions."""
+        if self.on_ordered is not None:
+            self.on_ordered(t_ms, tag, values)
+        events = self.timeline
+        start = 0
+        count = len(t_ms)
+        while self.timeline_next < len(events):
+            position = events[self.timeline_next]["sample"] - self.fed
+            if position > count - start:
+                break
+            if position > 0:
+                self.runner.feed_arrays(t_ms[start:start + position], tag[start:start + position],
+                                        values[start:start + position])
+                self.fed += position
+                self.fed_total += position
+                start += position
+            self.apply_event(events[self.timeline_next])
+            self.timeline_next += 1
+        if start < count:
+            self.runner.feed_arrays(t_ms[start:], tag[start:], values[start:])
+            self.fed += count - start
+            self.fed_total += count - start
+
+    def apply_event(self, event: dict[str, Any]) -> None:
+        """One recorded filter event (session.json timeline) applied to the estimators."""
+        runner = self.runner
+        kind = event.get("kind")
+        if kind == "sensor":
+            runner.set_sensor_enabled(event["sensor"], bool(event["enabled"]))
+        elif kind == "estimator":
+            runner.set_estimator(event["name"])
+        elif kind == "settings" and event.get("settings"):
+            runner.set_settings(settings_from_dict(event["settings"]))
+        elif kind == "reset":
+            runner.reset()
+        elif kind == "align_heading":
+            runner.align_heading()
+        elif kind == "comparisons":
+            runner.set_comparisons_enabled(bool(event.get("enabled", True)),
+                                           event.get("estimator"))
+
+    def end_of_stream(self, partial_line_damaged: bool) -> None:
+        """The current stream ended: a partial line is dropped (a line cut by a disconnect is
+        damaged), pending samples are released, the last row is committed."""
+        parser = self.parser
+        if partial_line_damaged:
+            if parser._pending or parser._discarding:
+                kind = "too_long" if parser._discarding else "damaged"
+                parser._count_bad(kind, "line cut off by the end of the connection", "cut off")
+            parser.reset_line()
+        else:
+            self.parsed(parser.finish_arrays())
+        self.feed_ordered(self.orderer.flush_arrays())
+        self.runner.finish()
+
+    def restart(self, continue_time: bool = False) -> None:
+        """A new connection: the orderer learns the clocks again."""
+        self.feed_ordered(self.orderer.restart_arrays(continue_time=continue_time))
+
+    # -- output ------------------------------------------------------------------------------
+
+    def cut(self) -> None:
+        """A session ends here: its output goes to on_cut with its time origin, and the next
+        samples set a new one."""
+        rows, piece = self.take_output()
+        self.on_cut(rows, piece)
+        self.t0_ms = None
+
+    def take_output(self) -> tuple[Rows, PlotChunk]:
+        """The rows committed since the last call and the plot samples as a PlotChunk in
+        seconds since the session's start."""
+        runner = self.runner
+        rows = runner.take_rows()
+        return rows, self.plot_piece(rows, runner.take_plot_samples())
+
+    def plot_piece(self, rows: Rows, plot: dict[str, np.ndarray]) -> PlotChunk:
+        runner = self.runner
+        ori_t, ori_q = runner.take_phone_samples()
+        errors = runner.take_errors()
+        rows = rows.select(rows.has_sample)         # OWN at our own estimate times
+        if self.t0_ms is None:
+            firsts = [int(t[0]) for t in (rows.t_ms, plot["t_acc"], plot["t_gyr"],
+                                          plot["t_mag"], ori_t) if len(t)]
+            self.t0_ms = min(firsts) if firsts else None
+        t0 = self.t0_ms or 0
+        count = len(rows)
+        if count or len(ori_q):
+            # one call for both series (the per-call overhead dominates at live chunk sizes)
+            euler = np.degrees(ekf.quaternion.to_euler(np.concatenate([rows.quat, ori_q])))
+        else:
+            euler = np.empty((0, 3))
+
+        def seconds(t_ms: np.ndarray) -> np.ndarray:
+            return (np.asarray(t_ms, np.float64) - t0) / 1000.0
+
+        innovations = runner.take_innovations()
+        if "t_innovation" in innovations:
+            innovations["t_innovation"] = seconds(np.asarray(innovations["t_innovation"]) * 1000.0)
+        return PlotChunk(
+            **self._user_plot(rows, seconds), **innovations,
+            t_acc=seconds(plot["t_acc"]), acc=plot["acc"], acc_rejected=plot["acc_rejected"],
+            t_gyr=seconds(plot["t_gyr"]), gyr=plot["gyr"],
+            t_mag=seconds(plot["t_mag"]), mag=plot["mag"], mag_rejected=plot["mag_rejected"],
+            t_est=seconds(rows.t_ms), own_euler_deg=euler[:count],
+            t_ori=seconds(ori_t), phone_euler_deg=euler[count:],
+            t_err=seconds(errors.t_ms), error_deg=errors.error_deg)
+
+    def _user_plot(self, rows: Rows, seconds) -> dict[str, np.ndarray]:
+        """YOURS for the plots: its Euler angles (wrapped, at our estimate times, NaN where it
+        has none) and its errors against PHONE at PHONE's times."""
+        errors = self.runner.take_user_errors()
+        out = {"t_user_err": seconds(errors.t_ms), "user_error_deg": errors.error_deg}
+        if rows.user_quat is None or not len(rows):
+            return out
+        euler = np.full((len(rows), 3), np.nan)
+        finite = np.isfinite(rows.user_quat).all(axis=1)
+        if finite.any():
+            euler[finite] = np.degrees(ekf.quaternion.to_euler(rows.user_quat[finite]))
+        return {**out, "t_user": seconds(rows.t_ms), "user_euler_deg": euler}
+
+    # -- state -------------------------------------------------------------------------------
+
+    def checkpoint(self, line: int) -> Checkpoint:
+        """The whole state now, as after lines 0..line-1 of a replay."""
+        return Checkpoint(line, pack_runner(self.runner.snapshot()), self.orderer.snapshot(),
+                          self.parser.line_state(), self.t0_ms, self.fed, self.timeline_next,
+                          self.runner.latest_t_ms)
+
+    def restore(self, checkpoint: Checkpoint) -> None:
+        """Go on from a checkpoint (the outputs not yet taken are dropped)."""
+        self.runner.restore(unpack_runner(checkpoint.runner))
+        self.order_retired += self.orderer.stats.out_of_order
+        self.orderer.restore(checkpoint.orderer)
+        self.order_retired -= self.orderer.stats.out_of_order
+        self.parser.restore_line_state(checkpoint.parser)
+        self.t0_ms = checkpoint.t0_ms
+        self.fed = checkpoint.fed
+        self.timeline_next = checkpoint.timeline_next
+
+    def initial_checkpoint(self, setup: Setup) -> Checkpoint:
+        """The state a replay pass of `setup` starts from, at line 0 (made with fresh objects
+        of the same options; this pipeline is not changed)."""
+        start = setup.start_state
+        if start is not None:
+            return Checkpoint(0, pack_runner(start["runner"]), start["orderer"],
+                              (b"", False, bool(start.get("ori4_seen", False))), None, 0, 0,
+                              None)
+        runner = EstimatorRunner(setup.estimator, setup.settings, setup.sensors or SENSORS,
+                                 comparisons=False,
+                                 comparison_estimator=setup.comparison_estimator)
+        for sensor in SENSORS:
+            runner.set_sensor_enabled(sensor, sensor in setup.sensors)
+        runner.set_comparisons_enabled(setup.comparisons)
+        orderer = TimeOrderer(**self.orderer_options)
+        return Checkpoint(0, pack_runner(runner.snapshot()), orderer.snapshot(),
+                          (b"", False, False), None, 0, 0, None)
+
+    def start_state(self) -> dict[str, Any]:
+        """What session.json's start_state keeps of a recording that starts now."""
+        return {"runner": self.runner.snapshot(), "orderer": self.orderer.snapshot(),
+                "ori4_seen": self.parser.line_state()[2]}

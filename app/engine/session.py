@@ -1,0 +1,211 @@
+"""Recorded sessions on disk: where they go, what session.json holds, markers.
+
+A session is a folder (DESIGN.md section 5): ``raw.txt`` (the received lines, verbatim),
+``session.json`` and ``estimates.csv``. session.json (format 2) holds, besides the recorder's
+fields (app version, UTC start and stop, raw line count, stream statistics):
+
+* ``settings`` (the filter settings at the start), ``calibration`` (their calibration part:
+  g, m0, gyroscope bias, noise covariances), ``estimator``, ``sensors`` (switched in at the
+  start) and ``comparisons`` ({"enabled", "estimator"}): the set-up the replay starts with;
+* ``host`` (this computer) and ``phone`` (the phone's address);
+* ``timeline``: what happened, in order, each entry with its ``kind``, the phone time ``t_ms``,
+  the UTC time and ``sample``, the number of samples the estimators had been fed since the
+  recording started (so a replay applies it at exactly the same point): "sensor" (sensor,
+  enabled), "estimator" (name), "settings" (settings), "reset", "align_heading",
+  "comparisons" (enabled, estimator), "marker" (id, label, t_s), and "connected",
+  "disconnected", "session" for the record;
+* ``start_state``: when the recording started while a stream was already running, the
+  engine's state at that moment (every estimator's snapshot, the samples the time orderer
+  held), so that replaying raw.txt continues exactly where the live engine was; null when
+  the recording started with the stream.
+
+Markers can be added while replaying a session: :func:`write_markers` rewrites its
+session.json with them, atomically (the recorder's write_json_atomic).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import ekf
+from app import paths
+from app.stream.recorder import new_session_folder, write_json_atomic
+
+SESSION_FORMAT = 2
+FILTER_EVENTS = ("sensor", "estimator", "settings", "reset", "align_heading", "comparisons")
+CALIBRATION_FIELDS = ("g", "m0", "gyr_bias", "gyr_noise_cov", "acc_noise_cov", "mag_noise_cov",
+                      "mag_hard_iron", "mag_soft_iron")
+
+
+@dataclass
+class Marker:
+    """A point in a session: number (1, 2, ...), label (may be empty), t_ms (the phone's
+    aligned clock), t_s (seconds since the session's start, as the plots show it)."""
+
+    id: int
+    t_ms: int | None
+    t_s: float | None
+    label: str = ""
+    utc: str = ""
+
+    @property
+    def title(self) -> str:
+        return f"{self.id}: {self.label}" if self.label else str(self.id)
+
+    def to_event(self, sample: int | None = None) -> dict[str, Any]:
+        return {"kind": "marker", "t_ms": self.t_ms, "utc": self.utc, "sample": sample,
+                "id": self.id, "label": self.label, "t_s": self.t_s}
+
+    @staticmethod
+    def from_event(event: dict[str, Any]) -> Marker:
+        return Marker(int(event.get("id") or 0), event.get("t_ms"), event.get("t_s"),
+                      str(event.get("label") or ""), str(event.get("utc") or ""))
+
+
+def utc_now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="milliseconds")
+
+
+def sessions_dir() -> Path:
+    """Where recorded sessions go by default: <the user's data folder>/sessions."""
+    return paths.data_dir() / "sessions"
+
+
+def default_session_folder(now: datetime | None = None) -> Path:
+    """A new folder for a recording, named by the local date and time (never an existing
+    session: DIR-2, DIR-3, ... then)."""
+    now = now or datetime.now()
+    return new_session_folder(sessions_dir() / now.strftime("%Y-%m-%d_%H-%M-%S"))
+
+
+# ---- the set-up a replay starts with ------------------------------------------------------------
+
+def settings_from_dict(data: dict[str, Any] | None) -> ekf.EKFSettings | None:
+    """EKFSettings from session.json (a preset itself when equal to one, so the course preset
+    keeps its name)."""
+    if not data:
+        return None
+    settings = ekf.EKFSettings.from_dict(dict(data))
+    for preset in ekf.PRESETS.values():
+        if preset == settings:
+            return preset
+    return settings
+
+
+def calibration_of(settings: ekf.EKFSettings) -> dict[str, Any]:
+    values = settings.to_dict()
+    return {name: values.get(name) for name in CALIBRATION_FIELDS}
+
+
+@dataclass
+class SessionInfo:
+    """What a recorded session's session.json says about replaying it."""
+
+    path: Path                                  # the session.json
+    data: dict[str, Any]
+    settings: ekf.EKFSettings | None = None
+    estimator: str | None = None
+    sensors: dict[str, bool] | None = None
+    comparisons: dict[str, Any] | None = None
+    timeline: list[dict[str, Any]] = field(default_factory=list)
+    start_state: dict[str, Any] | None = None
+
+    @property
+    def markers(self) -> list[Marker]:
+        return [Marker.from_event(e) for e in self.timeline if e.get("kind") == "marker"]
+
+    @property
+    def filter_events(self) -> list[dict[str, Any]]:
+        """The timeline entries a replay applies, with their sample positions, in order."""
+        return [e for e in self.timeline if e.get("kind") in FILTER_EVENTS
+                and isinstance(e.get("sample"), int)]
+
+
+def session_json_for(log_path: str | Path) -> Path | None:
+    """The session.json beside a recorded raw.txt (None for a phone's own log)."""
+    path = Path(log_path)
+    candidate = path.with_name("session.json")
+    return candidate if candidate.is_file() else None
+
+
+def read_session(path: str | Path) -> SessionInfo:
+    """A session.json; ValueError (one line) when it is not one."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as error:
+        raise ValueError(f"{path}: not a readable session file ({error})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: not a session file (expected a JSON object)")
+    try:
+        settings = settings_from_dict(data.get("settings"))
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{path}: bad settings ({error})") from None
+    timeline = [e for e in data.get("timeline") or [] if isinstance(e, dict)]
+    start = data.get("start_state")
+    return SessionInfo(path, data, settings, data.get("estimator"), data.get("sensors"),
+                       data.get("comparisons"), timeline,
+                       decode_state(start) if isinstance(start, dict) else None)
+
+
+def write_markers(session_json: str | Path, markers: list[Marker]) -> None:
+    """Replace the markers in a session.json's timeline by `markers` (in time order among the
+    other entries), atomically. OSError when it cannot be written."""
+    path = Path(session_json)
+    data = json.loads(path.read_text(encoding="utf-8"))
+    events = [e for e in data.get("timeline") or [] if e.get("kind") != "marker"]
+    events += [m.to_event() for m in markers]
+    events.sort(key=lambda e: (e.get("t_ms") is None, e.get("t_ms") or 0))
+    data["timeline"] = events
+    write_json_atomic(path, data)
+
+
+# ---- the engine's state as JSON (start_state) ---------------------------------------------------
+
+_RECORDS = {"Flags": ekf.Flags, "Diagnostics": ekf.Diagnostics}
+
+
+def encode_state(value: Any) -> Any:
+    """Snapshots (numpy arrays, settings, flag records, tuples, bytes) -> plain JSON values,
+    exactly (floats keep every bit: JSON writes their repr)."""
+    if isinstance(value, np.ndarray):
+        return {"__array__": value.ravel().tolist(), "dtype": value.dtype.str,
+                "shape": list(value.shape)}
+    if isinstance(value, ekf.EKFSettings):
+        return {"__settings__": value.to_dict()}
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {"__record__": type(value).__name__,
+                "fields": {f.name: getattr(value, f.name) for f in dataclasses.fields(value)}}
+    if isinstance(value, bytes):
+        return {"__bytes__": value.decode("latin-1")}
+    if isinstance(value, dict):
+        return {str(k): encode_state(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [encode_state(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def decode_state(value: Any) -> Any:
+    """The inverse of :func:`encode_state` (tuples come back as lists)."""
+    if isinstance(value, dict):
+        if "__array__" in value:
+            return np.array(value["__array__"], dtype=value["dtype"]).reshape(value["shape"])
+        if "__settings__" in value:
+            return settings_from_dict(value["__settings__"])
+        if "__record__" in value:
+            return _RECORDS[value["__record__"]](**value["fields"])
+        if "__bytes__" in value:
+            return value["__bytes__"].encode("latin-1")
+        return {k: decode_state(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [decode_state(v) for v in value]
+    return value

@@ -1,0 +1,187 @@
+"""Recording in the engine: through the real TCP server with the emulator (raw.txt byte for
+byte), started and stopped by commands (also mid-stream), the recorded timeline and markers in
+session.json, and determinism: replaying a recording gives exactly the estimates recorded."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import pytest
+
+from ekf.simulate import simulate
+from app.engine.commands import (AddMarker, SetEstimator, SetMarkerLabel, SetSensorEnabled,
+                                 StartRecording, StopRecording)
+from app.engine.estimates import csv_lines
+from app.engine.runner import Rows
+from app.engine.session import read_session, write_markers
+from app.engine.worker import Engine
+from app.stream.emulator import PhoneEmulator
+from app.stream.protocol import Sample, format_line
+from app.stream.sources import LogFileSource, TcpSource
+
+
+@pytest.fixture(scope="module")
+def lines() -> list[bytes]:
+    session = simulate(duration_s=24.0, rates_hz={"gyr": 100.0, "acc": 100.0, "mag": 50.0,
+                                                  "ori": 100.0}, seed=11)
+    return [(format_line(Sample(t, tag, values)) + "\n").encode()
+            for t, tag, values in session.iter_rows()]
+
+
+def wait_for(condition, timeout: float = 30.0, what: str = "condition"):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.02)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def send_in_pieces(phone: PhoneEmulator, lines: list[bytes], size: int = 613) -> None:
+    for start in range(0, len(lines), size):           # chunks cut anywhere, lines too
+        block = b"".join(lines[start:start + size])
+        phone.send(block[:-5])
+        phone.send(block[-5:])
+
+
+def replayed_rows(folder: Path) -> list[str]:
+    """Replay a recorded session (its timeline followed) as fast as possible: the estimate
+    rows as estimates.csv lines."""
+    engine = Engine(LogFileSource(folder / "raw.txt", speed=0), record_rows=True, index=False)
+    with engine:
+        wait_for(lambda: engine.snapshot_now().health.connection_state == "finished",
+                 what="the replay's end")
+    return csv_lines(Rows.concatenate(engine.rows_log))
+
+
+def recorded_rows(folder: Path) -> list[str]:
+    return (folder / "estimates.csv").read_text().splitlines()[1:]
+
+
+def test_record_from_the_start_through_tcp_and_replay_gives_the_same_estimates(lines, tmp_path):
+    folder = tmp_path / "rec"
+    engine = Engine(TcpSource("127.0.0.1", 0), comparisons=True)
+    with engine:
+        engine.send(StartRecording(str(folder)))
+        assert engine.wait_idle()
+        with PhoneEmulator("127.0.0.1", engine.source.port) as phone:
+            send_in_pieces(phone, lines[:3000])
+            wait_for(lambda: engine.snapshot_now().health.lines_total >= 3000, what="lines")
+            engine.send(SetSensorEnabled("mag", False))       # at whatever sample it lands
+            engine.send(AddMarker("turn"))
+            send_in_pieces(phone, lines[3000:5500])
+            wait_for(lambda: engine.snapshot_now().health.lines_total >= 5500, what="lines")
+            engine.send(SetEstimator("course"))
+            engine.send(SetSensorEnabled("mag", True))
+            send_in_pieces(phone, lines[5500:])
+        wait_for(lambda: engine.snapshot_now().health.connection_state == "disconnected",
+                 what="the disconnect")
+        wait_for(lambda: engine.snapshot_now().health.lines_total == len(lines), what="lines")
+        engine.send(SetMarkerLabel(1, "first turn"))
+        engine.send(StopRecording())
+        assert engine.wait_idle()
+    assert (folder / "raw.txt").read_bytes() == b"".join(lines)         # byte for byte
+    session = read_session(folder / "session.json")
+    kinds = [e["kind"] for e in session.timeline]
+    assert kinds.count("sensor") == 2 and "estimator" in kinds and "connected" in kinds
+    assert [m.label for m in session.markers] == ["first turn"]
+    assert session.start_state is None and session.estimator == "ekf"
+    assert session.data["host"]["name"] and session.data["phone"].startswith("127.0.0.1:")
+    assert session.data["calibration"]["g"] == 9.81 and session.data["stopped_utc"]
+    positions = [e["sample"] for e in session.filter_events]
+    assert positions == sorted(positions) and 0 < positions[0] < positions[-1]
+    recorded = recorded_rows(folder)
+    assert len(recorded) > 2000
+    assert replayed_rows(folder) == recorded                             # bit for bit
+
+
+def test_record_mid_stream_keeps_the_engine_state_and_replays_exactly(lines, tmp_path):
+    folder = tmp_path / "mid"
+    engine = Engine(TcpSource("127.0.0.1", 0), comparisons=True)
+    first, toggle, stop = 3000, 5000, 7000                 # of 8400 lines
+    with engine:
+        with PhoneEmulator("127.0.0.1", engine.source.port) as phone:
+            send_in_pieces(phone, lines[:first])
+            wait_for(lambda: engine.snapshot_now().health.lines_total >= first, what="lines")
+            engine.send(StartRecording(str(folder)))
+            send_in_pieces(phone, lines[first:toggle])
+            engine.send(SetSensorEnabled("acc", False))
+            send_in_pieces(phone, lines[toggle:stop])
+            wait_for(lambda: engine.snapshot_now().health.lines_total >= stop, what="lines")
+            engine.send(StopRecording())
+            assert engine.wait_idle()
+            send_in_pieces(phone, lines[stop:])
+        wait_for(lambda: engine.snapshot_now().recording["active"] is False, what="the stop")
+    raw = (folder / "raw.txt").read_bytes()
+    assert b"".join(lines).find(raw) > 0 and raw.endswith(b"\n")   # a stretch of the stream
+    session = read_session(folder / "session.json")
+    assert session.start_state is not None                         # the engine's state then
+    recorded = recorded_rows(folder)
+    replayed = replayed_rows(folder)
+    assert len(recorded) > 1000
+    # the replay also releases the samples held when the recording stopped: a few rows more
+    assert replayed[:len(recorded)] == recorded and len(replayed) - len(recorded) < 100
+
+
+def test_markers_added_while_replaying_a_session_are_saved_in_its_session_json(lines, tmp_path):
+    folder = tmp_path / "rec"
+    folder.mkdir()
+    (folder / "raw.txt").write_bytes(b"".join(lines[:2000]))
+    (folder / "session.json").write_text(json.dumps({"format": 2, "timeline": []}))
+    engine = Engine(LogFileSource(folder / "raw.txt", speed=0, paused=True), index=False)
+    with engine:
+        assert engine.wait_idle()
+        engine.send(AddMarker())
+        engine.send(SetMarkerLabel(1, "start"))
+        engine.send(AddMarker("second"))
+        assert engine.wait_idle()
+        assert [m.title for m in engine.snapshot_now().markers] == ["1: start", "2: second"]
+    markers = read_session(folder / "session.json").markers
+    assert [(m.id, m.label) for m in markers] == [(1, "start"), (2, "second")]
+    assert not (folder / "session.json.tmp").exists()
+    write_markers(folder / "session.json", markers[:1])               # round trip
+    assert [m.label for m in read_session(folder / "session.json").markers] == ["start"]
+
+
+def test_a_folder_that_cannot_be_made_is_one_message_and_the_stream_goes_on(lines, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    engine = Engine(LogFileSource(_write(tmp_path / "log.txt", lines[:800]), speed=0),
+                    index=False)
+    with engine:
+        engine.send(StartRecording(str(blocker / "rec")))
+        wait_for(lambda: engine.snapshot_now().health.connection_state == "finished",
+                 what="the end")
+        snapshot = engine.snapshot_now()
+    assert any(w.startswith("cannot record") and str(blocker) in w
+               for w in snapshot.health.warnings)
+    assert snapshot.health.lines_total == 800
+    assert snapshot.recording["active"] is False and str(blocker) in snapshot.recording["error"]
+
+
+def _write(path: Path, lines: list[bytes]) -> Path:
+    path.write_bytes(b"".join(lines))
+    return path
+
+
+def test_the_window_records_from_the_start_with_record_dir(lines, tmp_path):
+    """`orientation-lab --replay LOG --record DIR`: a real window process (offscreen) records
+    what it plays, verbatim."""
+    import os
+    import subprocess
+    import sys
+    log = _write(tmp_path / "log.txt", lines[:1500])
+    folder = tmp_path / "rec"
+    env = dict(os.environ, QT_QPA_PLATFORM="offscreen", ORIENTATION_LAB_DATA=str(tmp_path))
+    result = subprocess.run([sys.executable, "-m", "app", "--replay", str(log), "--speed", "0",
+                             "--record", str(folder), "--port", "0", "--exit-after", "4"],
+                            cwd=Path(__file__).resolve().parents[1], env=env,
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert (folder / "raw.txt").read_bytes() == log.read_bytes()
+    session = read_session(folder / "session.json")
+    assert session.data["stopped_utc"] and session.start_state is None
+    assert len(recorded_rows(folder)) > 400
