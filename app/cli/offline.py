@@ -18,7 +18,7 @@ from ekf import calibration
 from ekf.simulate import simulate
 from app.cli import options
 from app.engine import config, estimates
-from app.engine.offline import evaluate_log, filter_log
+from app.engine.offline import evaluate_log, evaluate_phone, filter_log, sibling_truth
 from app.stream.demo import write_session
 from app.stream.logfile import LogData
 
@@ -41,7 +41,10 @@ def cmd_filter(args: argparse.Namespace) -> int:
     if len(names) != 1:
         raise config.ConfigError("filter: give exactly one --estimator")
     settings = config.load_settings(args.settings)
-    rows = filter_log(read_log(args.log), names[0], settings, sensors)
+    try:
+        rows = filter_log(read_log(args.log), names[0], settings, sensors, smooth=args.smooth)
+    except ValueError as error:
+        raise config.ConfigError(f"filter: {error}") from None
     try:
         if args.output:
             with open(args.output, "w", encoding="ascii", newline="\n") as stream:
@@ -67,22 +70,38 @@ def _intervals(args: argparse.Namespace) -> tuple[list | None, str]:
     return config.read_intervals(path), f"score intervals from {path}"
 
 
+def _truth(args: argparse.Namespace) -> tuple[LogData | None, str]:
+    path = args.truth or sibling_truth(args.log)
+    if path is None:
+        return None, "the log's ORI"
+    return read_log(str(path)), f"the truth in {path}"
+
+
+def _row(name: str, s) -> str:
+    return (f"{name:<16}{s.samples:>9}{s.total_rmse_deg:>10.2f}{s.heading_rmse_deg:>11.2f}"
+            f"{s.inclination_rmse_deg:>11.2f}")
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     sensors = config.sensor_list(args.sensors)
     names = config.estimator_names(args.estimator)
     settings = config.load_settings(args.settings)
     intervals, where = _intervals(args)
     log = read_log(args.log)
+    truth, against = _truth(args)
     skip = f", after the first {args.skip:g} s" if args.skip else ""
-    print(f"{args.log}: error against ORI, {where}{skip}")
+    smooth = ", smoothed (forward EKF + backward RTS pass)" if args.smooth else ""
+    print(f"{args.log}: error against {against} at its time stamps, {where}{skip}{smooth}")
     print(f"{'estimator':<16}{'samples':>9}{'total °':>10}{'heading °':>11}{'inclin. °':>11}")
-    for name in names:
-        try:
-            s = evaluate_log(log, name, settings, sensors, intervals, args.skip)
-        except ValueError as error:
-            raise config.ConfigError(f"evaluate: {error}") from None
-        print(f"{name:<16}{s.samples:>9}{s.total_rmse_deg:>10.2f}{s.heading_rmse_deg:>11.2f}"
-              f"{s.inclination_rmse_deg:>11.2f}")
+    try:
+        for name in names:
+            s = evaluate_log(log, name, settings, sensors, intervals, args.skip, truth,
+                             smooth=args.smooth)
+            print(_row(name + (" smoothed" if args.smooth else ""), s))
+        if truth is not None:
+            print(_row("phone (ORI)", evaluate_phone(log, truth, intervals, args.skip)))
+    except ValueError as error:
+        raise config.ConfigError(f"evaluate: {error}") from None
     return 0
 
 
@@ -142,6 +161,7 @@ def _log_filter_options(parser: argparse.ArgumentParser, several: bool) -> None:
     options.add_estimator(parser, several)
     options.add_sensors(parser)
     options.add_settings(parser)
+    options.add_smooth(parser)
 
 
 def add_commands(sub) -> None:
@@ -151,10 +171,11 @@ def add_commands(sub) -> None:
                    help="output file (default: standard output)")
     f.set_defaults(func=cmd_filter)
 
-    e = sub.add_parser("evaluate", help="RMSE of the estimate against the log's ORI")
+    e = sub.add_parser("evaluate", help="RMSE of the estimate against a truth file or the log's ORI")
     _log_filter_options(e, several=True)
     e.add_argument("--intervals", metavar="FILE.json",
                    help="JSON with score_intervals_ms (default: LOG's sibling .json if present)")
+    options.add_truth(e)
     e.add_argument("--skip", type=options.NON_NEGATIVE, default=0.0, metavar="S",
                    help="ignore the first S seconds (convergence), default 0")
     e.set_defaults(func=cmd_evaluate)
