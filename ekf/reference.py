@@ -38,16 +38,49 @@ from numpy.typing import ArrayLike
 
 import ekf.quaternion as quat
 from ekf.estimator import SENSORS, EstimatorBase, ekf_name
-from ekf.outputs import (ACC_NIS_GATE, ACC_NORM_GATE, MAG_DIP_GATE, MAG_NIS_GATE, MAG_SETTLING,
-                         MAG_STRENGTH_GATE, NOT_REJECTED)
+from ekf.outputs import (ACC_CLIPPED, ACC_NIS_GATE, ACC_NORM_GATE, MAG_DIP_GATE, MAG_NIS_GATE,
+                         MAG_SETTLING, MAG_STRENGTH_GATE, NOT_REJECTED)
 from ekf.settings import EKFSettings
 from ekf.state import EKFState, reference_dip_deg
 
-__all__ = ["SENSORS", "OrientationEKF", "acc_mag_quaternion", "tilt_quaternion"]
+__all__ = ["SENSORS", "OrientationEKF", "acc_mag_quaternion", "tilt_quaternion", "usable"]
+
+# A reading is degenerate (refused, counted in Diagnostics.refused_samples) when a value is not
+# finite or beyond MAX_READING (no phone sensor reads 1e6 m/s^2, rad/s or uT), or an acc/mag
+# reading is shorter than MIN_NORM (no direction). Within these bounds every step stays finite.
+MAX_READING = 1e6
+MIN_NORM = 1e-6
+# acc_range = 0: an axis within 1 % of the largest |axis| seen, once that exceeds 1.5 g, clips.
+CLIP_MARGIN = 0.99
+CLIP_MIN_G = 1.5
+# The online hard-iron fit (mag_hard_iron_tau_s): a pair closes once the phone turned this far
+# [rad] (a smaller turn says little about the offset), or is dropped after this long [s] (the
+# gyro's relative rotation is trusted over short spans); residuals beyond this [uT] weigh less
+# (w = min(1, this / |r|): a field changing in the world meanwhile); the prior pulls the offset
+# towards zero with the weight of this many [-] pairs of a full turn.
+HARD_IRON_PAIR_ANGLE = math.radians(20.0)
+HARD_IRON_PAIR_MAX_S = 2.0
+HARD_IRON_RESIDUAL = 5.0
+HARD_IRON_PRIOR = 1.0
+# HARD_IRON_RESET_COUNT pairs in a row with residuals beyond HARD_IRON_RESET_RESIDUAL [uT]: the
+# offset itself changed (a magnet was put on the phone): the fit starts again from the new pairs.
+HARD_IRON_RESET_RESIDUAL = 20.0
+HARD_IRON_RESET_COUNT = 5
 
 
 def _as3(v: ArrayLike) -> np.ndarray:
     return np.asarray(v, dtype=float).reshape(3)
+
+
+def usable(t: float, v: np.ndarray | None, needs_direction: bool) -> bool:
+    """False for a degenerate sample (see MAX_READING, MIN_NORM): it must not enter the filter."""
+    if not math.isfinite(t):
+        return False
+    if v is None:
+        return True
+    if not all(math.isfinite(x) and abs(x) <= MAX_READING for x in v):
+        return False
+    return not needs_direction or math.sqrt(float(v @ v)) >= MIN_NORM
 
 
 def tilt_quaternion(acc: ArrayLike) -> np.ndarray:
@@ -186,6 +219,9 @@ class OrientationEKF(EstimatorBase):
         ``gyr_rate_before_sample``, from the previous sample up to t."""
         omega = _as3(gyr)
         s, st = self.settings, self._state
+        if not self._accept(t, omega, False):
+            return
+        t = self._not_before(t)
         if s.gyr_rate_before_sample and st.gyr_enabled:
             # The sample is the rate over the interval that ends now: it drives the state to t.
             if not st.omega_valid or t - st.omega_t <= s.gyr_hold_s:
@@ -207,14 +243,27 @@ class OrientationEKF(EstimatorBase):
 
     def update_acc(self, t: float, acc: ArrayLike) -> None:
         """An accelerometer sample [m/s^2, sensor frame] at time t [s]."""
-        self._advance(t)
         y = _as3(acc)
+        if not self._accept(t, y, True):
+            return
+        t = self._not_before(t)
+        self._advance(t)
         st = self._state
         st.last_acc[:] = y
         st.last_acc_valid = True
         st.last_acc_t = t
         if not st.acc_enabled:
             st.flags.used_acc = False
+            return
+        if self._clipped(y):
+            # A saturated axis: the reading is not the specific force; it enters no update,
+            # no average, no start, and it is motion for the rest detector.
+            st.flags.acc_rejected = True
+            st.flags.used_acc = False
+            st.diagnostics.acc_norm = float(np.linalg.norm(y))
+            st.diagnostics.acc_rejected_by = ACC_CLIPPED
+            st.last_motion_t = t
+            self._update_rest(t)
             return
         self._detect_rest_acc(t, y)
         if not st.initialised:
@@ -228,9 +277,17 @@ class OrientationEKF(EstimatorBase):
 
     def update_mag(self, t: float, mag: ArrayLike) -> None:
         """A magnetometer sample [uT, sensor frame] at time t [s]."""
-        self._advance(t)
         y = _as3(mag)
+        if not self._accept(t, y, True):
+            return
+        t = self._not_before(t)
+        self._advance(t)
         st = self._state
+        if self.settings.mag_hard_iron_tau_s > 0.0 and st.mag_enabled and st.initialised:
+            self._fit_hard_iron(t, y)
+            y = y - st.mag_offset
+            if float(np.linalg.norm(y)) < MIN_NORM:
+                return
         st.last_mag[:] = y
         st.last_mag_valid = True
         st.last_mag_t = t
@@ -256,8 +313,30 @@ class OrientationEKF(EstimatorBase):
             self.update_acc(t, acc)
         if mag is not None:
             self.update_mag(t, mag)
-        if gyr is None and acc is None and mag is None:
-            self._advance(t)
+        if gyr is None and acc is None and mag is None and self._accept(t, None, False):
+            self._advance(self._not_before(t))
+
+    def _accept(self, t: float, v: np.ndarray | None, needs_direction: bool) -> bool:
+        """A degenerate sample is refused and counted; the estimate stays as it was."""
+        if usable(t, v, needs_direction):
+            return True
+        self._state.diagnostics.refused_samples += 1
+        return False
+
+    def _not_before(self, t: float) -> float:
+        """A sample older than the latest counts as at the latest time (the state cannot go
+        back; an ordered stream never has one)."""
+        return t if math.isnan(self._state.t) or t >= self._state.t else self._state.t
+
+    def _clipped(self, y: np.ndarray) -> bool:
+        """Any axis at the accelerometer's range (acc_range, or the range seen in the data)."""
+        s, st = self.settings, self._state
+        largest = float(np.max(np.abs(y)))
+        st.acc_axis_max = max(st.acc_axis_max, largest)
+        if s.acc_range == 0.0:
+            return (st.acc_axis_max >= CLIP_MIN_G * s.g
+                    and largest >= CLIP_MARGIN * st.acc_axis_max)
+        return largest >= s.acc_range
 
     # ---------------------------------------------------------------------------------------
     # time update
@@ -402,10 +481,17 @@ class OrientationEKF(EstimatorBase):
         st.flags.used_acc = used
 
     def _mag_update(self, y: np.ndarray, t: float) -> None:
-        """Task 9 behind the gates of task 11 (and the dip, settling and NIS gates)."""
+        """Task 9 behind the gates of task 11 (and the dip, settling and NIS gates), with the
+        expected field learned over the first mag_reference_s and a bound on how long a
+        disturbance keeps the magnetometer out."""
         s, st = self.settings, self._state
         flags, diag = st.flags, st.diagnostics
-        norm, dip, rejected_by = self._mag_gates(y)
+        if t < st.mag_reference_until:
+            norm, dip, rejected_by = self._learn_reference(y), math.nan, NOT_REJECTED
+        else:
+            if st.mag_reference_count > 0:
+                self._finish_reference()
+            norm, dip, rejected_by = self._mag_gates(y)
         # After a rejection, readings must pass for mag_settle_s before they are used again.
         if rejected_by != NOT_REJECTED:
             st.mag_passing_since = math.nan
@@ -414,22 +500,32 @@ class OrientationEKF(EstimatorBase):
         if rejected_by == NOT_REJECTED and t - st.mag_passing_since < s.mag_settle_s:
             rejected_by = MAG_SETTLING
         diag.mag_rejected_by = rejected_by
+        R = np.asarray(s.mag_noise_cov, float)
         if rejected_by != NOT_REJECTED:
+            if math.isnan(st.mag_disturbed_since):
+                st.mag_disturbed_since = t
             if s.mag_strength_update == "accepted":
                 self._track_new_field(y, t, norm, dip)
             flags.mag_rejected = True
             flags.used_mag = False
-            return
-        st.mag_rejected_since = math.nan
-        flags.mag_rejected = False
+            bound = s.mag_max_reject_s if flags.used_gyr else min(s.mag_max_reject_s,
+                                                                  s.mag_max_reject_no_gyro_s)
+            if not t - st.mag_disturbed_since > bound:
+                return
+            # Out for longer than the bound: use the reading, trusted less, until it ends.
+            R = R * s.mag_reject_noise_scale
+        else:
+            st.mag_rejected_since = math.nan
+            st.mag_disturbed_since = math.nan
+            flags.mag_rejected = False
         if t - st.mag_updated_t < s.update_period_s:
             flags.used_mag = False
             return
+        gain_cap = self._heading_gain_cap(t - st.mag_updated_t) if flags.used_gyr else 1.0
         st.mag_updated_t = t
         q = self._x[:4]
-        R = np.asarray(s.mag_noise_cov, float)
         if s.mag_heading_only:
-            nis = self._mag_heading_update(y, R, s.mag_nis_gate)
+            nis = self._mag_heading_update(y, R, s.mag_nis_gate, gain_cap)
         else:
             m0 = st.m0
             y_hat = quat.to_matrix(q).T @ m0
@@ -445,8 +541,91 @@ class OrientationEKF(EstimatorBase):
             flags.mag_rejected = True
             flags.used_mag = False
             return
-        flags.mag_rejected = False
         flags.used_mag = True
+
+    def _fit_hard_iron(self, t: float, y: np.ndarray) -> None:
+        """mag_hard_iron_tau_s: the sensor-frame offset b_m of the magnetometer, online.
+
+        A field that is constant in the world, seen at two times i and j, obeys
+        y_j - b = Q_j^T Q_i (y_i - b) whatever it is; with A = Q_j^T Q_i that is D b = e,
+        D = I - A, e = y_j - A y_i: linear in b, observable once the phone turns. A changed
+        field in a building is constant in the world (it fits b = 0), a magnet on the phone is
+        b. Each pair (turn >= HARD_IRON_PAIR_ANGLE within HARD_IRON_PAIR_MAX_S) adds w D^T D
+        and w D^T e to sums forgotten with time constant tau, w = min(1, HARD_IRON_RESIDUAL /
+        |e - D b|); b = (M + HARD_IRON_PRIOR I)^-1 v. Residuals that stay large
+        (HARD_IRON_RESET_*) mean a new offset: the sums start again."""
+        s, st = self.settings, self._state
+        q = self._x[:4]
+        if math.isnan(st.mag_pair_t) or t - st.mag_pair_t > HARD_IRON_PAIR_MAX_S:
+            self._open_pair(t, y, q)
+            return
+        if 2.0 * math.acos(min(1.0, abs(float(q @ st.mag_pair_q)))) < HARD_IRON_PAIR_ANGLE:
+            return
+        A = quat.to_matrix(q).T @ quat.to_matrix(st.mag_pair_q)
+        D = np.eye(3) - A
+        e = y - A @ st.mag_pair_raw
+        residual = float(np.linalg.norm(e - D @ st.mag_offset))
+        w = min(1.0, HARD_IRON_RESIDUAL / residual) if residual > 0.0 else 1.0
+        forget = (math.exp(-(t - st.mag_offset_t) / s.mag_hard_iron_tau_s)
+                  if math.isfinite(st.mag_offset_t) else 0.0)
+        st.mag_offset_outliers = st.mag_offset_outliers + 1 if (
+            residual > HARD_IRON_RESET_RESIDUAL) else 0.0
+        if st.mag_offset_outliers >= HARD_IRON_RESET_COUNT:
+            forget, w, st.mag_offset_outliers = 0.0, 1.0, 0.0   # a new offset: start again
+        st.mag_offset_info[:] = forget * st.mag_offset_info + w * (D.T @ D)
+        st.mag_offset_rhs[:] = forget * st.mag_offset_rhs + w * (D.T @ e)
+        st.mag_offset_t = t
+        st.mag_offset[:] = np.linalg.solve(st.mag_offset_info + HARD_IRON_PRIOR * np.eye(3),
+                                           st.mag_offset_rhs)
+        st.diagnostics.mag_offset_norm = float(np.linalg.norm(st.mag_offset))
+        self._open_pair(t, y, q)
+
+    def _open_pair(self, t: float, y: np.ndarray, q: np.ndarray) -> None:
+        st = self._state
+        st.mag_pair_t = t
+        st.mag_pair_raw[:] = y
+        st.mag_pair_q[:] = q
+
+    def _heading_gain_cap(self, dt: float) -> float:
+        """mag_return_s: the largest fraction of a heading innovation one update may correct,
+        dt / (dt + tau) for dt since the previous update (1: no cap). Only while the gyroscope
+        drives the filter: without it the magnetometer is all the heading there is."""
+        tau = self.settings.mag_return_s
+        if tau <= 0.0:
+            return 1.0
+        return dt / (dt + tau) if math.isfinite(dt) else 1.0
+
+    def _learn_reference(self, y: np.ndarray) -> float:
+        """mag_reference_s: add a reading to the expected field's sums (world frame, strength);
+        meanwhile L_k is their mean. Returns ‖y‖."""
+        st = self._state
+        norm = float(np.linalg.norm(y))
+        st.mag_reference_sum[:] += quat.to_matrix(self._x[:4]) @ y
+        st.mag_reference_norm_sum += norm
+        st.mag_reference_count += 1.0
+        st.mag_strength = st.mag_reference_norm_sum / st.mag_reference_count
+        st.diagnostics.mag_norm = norm
+        st.diagnostics.mag_expected = st.mag_strength
+        st.diagnostics.mag_gate = self.settings.mag_gate
+        return norm
+
+    def _finish_reference(self) -> None:
+        """The end of mag_reference_s: L_k is the readings' mean strength, and m0 gets that
+        strength and the dip of their mean world-frame vector; its horizontal direction stays
+        (the heading does not move)."""
+        st = self._state
+        strength = st.mag_reference_norm_sum / st.mag_reference_count
+        mean = st.mag_reference_sum / st.mag_reference_count
+        dip = math.atan2(float(mean[2]), math.hypot(float(mean[0]), float(mean[1])))
+        horizontal = math.hypot(float(st.m0[0]), float(st.m0[1]))
+        if horizontal > 0.0:
+            scale = strength * math.cos(dip) / horizontal
+            st.m0[:] = [st.m0[0] * scale, st.m0[1] * scale, strength * math.sin(dip)]
+        st.mag_strength = strength
+        st.mag_reference_count = 0.0
+        st.mag_reference_until = -math.inf
+        st.diagnostics.mag_expected = strength
+        st.diagnostics.mag_reference_dip_deg = self._reference_dip_deg()
 
     def _mag_gates(self, y: np.ndarray) -> tuple[float, float, int]:
         """Task 11's strength gate |‖y‖ - L_k| with the AR(1) estimate L_k, then the dip gate.
@@ -477,6 +656,9 @@ class OrientationEKF(EstimatorBase):
         (strength and dip within the gates of their running mean) for mag_relearn_s: a changed
         field, not a magnet that moves with the phone."""
         s, st = self.settings, self._state
+        if s.mag_relearn_world:
+            self._track_new_field_world(y, t)
+            return
         cn, cd = st.mag_candidate_norm, st.mag_candidate_dip
         if (math.isnan(st.mag_rejected_since) or abs(norm - cn) > s.mag_gate
                 or abs(dip - cd) > s.mag_dip_gate_deg):
@@ -488,8 +670,45 @@ class OrientationEKF(EstimatorBase):
             if t - st.mag_rejected_since >= s.mag_relearn_s:
                 self._relearn_field(y)
 
+    def _track_new_field_world(self, y: np.ndarray, t: float) -> None:
+        """mag_relearn_world: the rejected readings must agree in the world frame (within
+        mag_gate of their running mean Q(q) y) while the phone turns faster than
+        mag_relearn_min_rate, for mag_relearn_s of turning: a field that changed in the building
+        stays put in the world while the phone turns, a magnet on the phone turns with it."""
+        s, st = self.settings, self._state
+        m_w = quat.to_matrix(self._x[:4]) @ y
+        cand = st.mag_candidate_world
+        if math.isnan(st.mag_rejected_since) or np.linalg.norm(m_w - cand) > s.mag_gate:
+            st.mag_rejected_since = t
+            cand[:] = m_w
+            st.mag_candidate_time = 0.0
+        else:
+            cand[:] = cand + s.mag_alpha * (m_w - cand)
+            if self._turn_rate() >= s.mag_relearn_min_rate:
+                st.mag_candidate_time += t - st.mag_candidate_t
+            if st.mag_candidate_time >= s.mag_relearn_s:
+                st.m0[:] = cand
+                if np.linalg.norm(st.mag_offset - st.mag_offset_at_reference) > s.mag_gate:
+                    # m0 was taken from readings the offset estimate did not yet correct: its
+                    # north is not north. Take north from the corrected field (the heading
+                    # updates then turn the estimate round, no faster than mag_return_s).
+                    st.m0[:] = [0.0, math.hypot(cand[0], cand[1]), cand[2]]
+                    st.mag_offset_at_reference[:] = st.mag_offset
+                st.mag_strength = float(np.linalg.norm(cand))
+                st.diagnostics.mag_reference_dip_deg = self._reference_dip_deg()
+                st.mag_rejected_since = math.nan
+        st.mag_candidate_t = t
+
+    def _turn_rate(self) -> float:
+        """‖ω − b‖ of the latest gyroscope sample driving the filter (0: none)."""
+        st = self._state
+        if not (st.omega_valid and st.gyr_enabled):
+            return 0.0
+        bias = self._x[4:7] if st.n == 7 else np.asarray(self.settings.gyr_bias, float)
+        return float(np.linalg.norm(st.omega - bias))
+
     def _mag_heading_update(self, y: np.ndarray, R: np.ndarray,
-                            gate: float = math.inf) -> float:
+                            gate: float = math.inf, gain_cap: float = 1.0) -> float:
         """Footnote 2: use only the field's horizontal direction, and only turn about up.
 
         Pseudo-measurement: the heading error psi = atan2(-m_E, m_N) of the reading rotated to
@@ -510,9 +729,17 @@ class OrientationEKF(EstimatorBase):
         # Heading noise from the field noise: sigma_psi^2 = sigma_m^2 / |m_horizontal|^2.
         r = float(np.trace(R)) / 3.0 / horizontal_sq
         P = self._P
-        S = float((H @ P @ H.T)[0, 0]) + r
-        if psi * psi / S > gate:
-            return psi * psi / S
+        HPH = float((H @ P @ H.T)[0, 0])
+        S = HPH + r
+        nis = psi * psi / S
+        if nis > gate:
+            return nis
+        if HPH * (1.0 - gain_cap) > gain_cap * r:
+            # mag_return_s: a larger r, so that at most gain_cap of psi is corrected now
+            if gain_cap <= 0.0:
+                return nis
+            r = HPH * (1.0 - gain_cap) / gain_cap
+            S = HPH + r
         K = (P @ H.T) / S
         # Keep only the component of the quaternion correction along a turn about up:
         # d q / d delta = 1/2 (0,0,0,1) ⊗ q.
@@ -524,7 +751,7 @@ class OrientationEKF(EstimatorBase):
         I_KH = np.eye(n) - K @ H
         self._P = I_KH @ P @ I_KH.T + r * (K @ K.T)
         self._normalise()
-        return innovation * innovation / S
+        return nis
 
     def _update(self, innovation: np.ndarray, H: np.ndarray, R: np.ndarray,
                 gate: float = math.inf) -> float:
@@ -645,9 +872,16 @@ class OrientationEKF(EstimatorBase):
         m_w = quat.to_matrix(self._x[:4]) @ y
         st.m0[:] = [0.0, math.hypot(m_w[0], m_w[1]), m_w[2]]
         st.m0_valid = True
+        st.mag_offset_at_reference[:] = st.mag_offset
         st.mag_strength = float(np.linalg.norm(st.m0))
         st.diagnostics.mag_expected = st.mag_strength
         st.diagnostics.mag_reference_dip_deg = self._reference_dip_deg()
+        if self.settings.mag_reference_s > 0.0:
+            # mag_reference_s: this reading starts the mean that becomes the expected field
+            st.mag_reference_until = st.t + self.settings.mag_reference_s
+            st.mag_reference_sum[:] = st.m0
+            st.mag_reference_norm_sum = st.mag_strength
+            st.mag_reference_count = 1.0
 
     def _relearn_field(self, y: np.ndarray) -> None:
         st = self._state

@@ -106,6 +106,11 @@ class EKFSettings:
         math.inf, unit="deg",
         doc="also reject a magnetometer reading whose angle to up differs from the reference "
             "dip by more than this; inf: off")
+    acc_range: float = _setting(
+        math.inf, unit="m/s²",
+        doc="an accelerometer reading with an axis at the sensor's range is clipped and never "
+            "enters an update: |axis| >= this; 0: detect the range from the data (an axis "
+            "within 1 % of the largest |axis| seen so far, once that exceeds 1.5 g); inf: off")
     acc_lowpass_s: float = _setting(
         0.0, unit="s",
         doc="time constant of a low-pass of the accelerometer that the gyroscope carries along "
@@ -119,6 +124,45 @@ class EKFSettings:
         0.0, unit="s",
         doc="after a rejection, readings must pass the gates this long before the magnetometer "
             "is used again (a magnet on the phone stays out)")
+    mag_hard_iron_tau_s: float = _setting(
+        0.0, unit="s",
+        doc="estimate the magnetometer's offset in the sensor frame (hard iron: a magnet on the "
+            "phone) online and subtract it from every reading: pairs of readings the phone turned "
+            "20° between must differ by that turn (y_j − b = Q_jᵀ Q_i (y_i − b)), a weighted "
+            "least-squares fit remembering this long; 0: off")
+    mag_reference_s: float = _setting(
+        0.0, unit="s",
+        doc="the expected field (strength L_k and the reference m0 with its dip) is the mean of "
+            "the readings over this long from the first one, used meanwhile without the gates "
+            "(0: the first reading decides)")
+    mag_max_reject_s: float = _setting(
+        math.inf, unit="s",
+        doc="a disturbance (rejected or settling readings) longer than this keeps the "
+            "magnetometer out no longer: its readings are used with R_m x "
+            "`mag_reject_noise_scale` until it ends; inf: off")
+    mag_max_reject_no_gyro_s: float = _setting(
+        math.inf, unit="s",
+        doc="the same bound while no gyroscope drives the time update (nothing else holds the "
+            "heading then)")
+    mag_reject_noise_scale: float = _setting(
+        10.0, unit="-",
+        doc="R_m is multiplied by this for readings used past the rejection bound")
+    mag_relearn_world: bool = _setting(
+        False, unit="-",
+        doc="true: re-learning compares the rejected readings in the world frame (Q(q) y_m: a "
+            "changed field in a building stays put, a magnet on the phone turns with it), counts "
+            "time only while the phone turns faster than `mag_relearn_min_rate`, and takes the "
+            "new m0 as the readings' world vector (no heading jump); false: strength and dip")
+    mag_relearn_min_rate: float = _setting(
+        0.0, unit="rad/s",
+        doc="with `mag_relearn_world`: rejected readings count towards re-learning only while "
+            "‖ω − b‖ is at least this (VQF: 20°/s)")
+    mag_return_s: float = _setting(
+        0.0, unit="s",
+        doc="the heading follows the magnetometer no faster than this time constant: each "
+            "heading update corrects at most dt/(dt + this) of the innovation (dt since the "
+            "previous update), so the estimate comes back from a disturbance without a jump "
+            "(0: off)")
     update_period_s: float = _setting(
         0.0, unit="s",
         doc="run the low-passed accelerometer, magnetometer and zero-rate updates at most this "
@@ -254,6 +298,14 @@ DEFAULT = EKFSettings(
     mag_strength_update="accepted",
     mag_relearn_s=20.0,
     update_period_s=0.05,
+    acc_range=0.0,
+    mag_reference_s=1.0,
+    mag_max_reject_s=10.0,
+    mag_max_reject_no_gyro_s=5.0,
+    mag_relearn_world=True,
+    mag_relearn_min_rate=math.radians(20.0),
+    mag_return_s=1.0,
+    mag_hard_iron_tau_s=60.0,
 )
 
 PRESETS: dict[str, EKFSettings] = {"default": DEFAULT, "course": COURSE}
