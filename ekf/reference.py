@@ -56,12 +56,10 @@ CLIP_MIN_G = 1.5
 # The online hard-iron fit (mag_hard_iron_tau_s): a pair closes once the phone turned this far
 # [rad] (a smaller turn says little about the offset), or is dropped after this long [s] (the
 # gyro's relative rotation is trusted over short spans); residuals beyond this [uT] weigh less
-# (w = min(1, this / |r|): a field changing in the world meanwhile); the prior pulls the offset
-# towards zero with the weight of this many [-] pairs of a full turn.
+# (w = min(1, this / |r|): a field changing in the world meanwhile).
 HARD_IRON_PAIR_ANGLE = math.radians(20.0)
 HARD_IRON_PAIR_MAX_S = 2.0
 HARD_IRON_RESIDUAL = 5.0
-HARD_IRON_PRIOR = 1.0
 # HARD_IRON_RESET_COUNT pairs in a row with residuals beyond HARD_IRON_RESET_RESIDUAL [uT]: the
 # offset itself changed (a magnet was put on the phone): the fit starts again from the new pairs.
 HARD_IRON_RESET_RESIDUAL = 20.0
@@ -552,7 +550,7 @@ class OrientationEKF(EstimatorBase):
         field in a building is constant in the world (it fits b = 0), a magnet on the phone is
         b. Each pair (turn >= HARD_IRON_PAIR_ANGLE within HARD_IRON_PAIR_MAX_S) adds w D^T D
         and w D^T e to sums forgotten with time constant tau, w = min(1, HARD_IRON_RESIDUAL /
-        |e - D b|); b = (M + HARD_IRON_PRIOR I)^-1 v. Residuals that stay large
+        |e - D b|); b = (M + mag_hard_iron_prior I)^-1 v. Residuals that stay large
         (HARD_IRON_RESET_*) mean a new offset: the sums start again."""
         s, st = self.settings, self._state
         q = self._x[:4]
@@ -575,7 +573,7 @@ class OrientationEKF(EstimatorBase):
         st.mag_offset_info[:] = forget * st.mag_offset_info + w * (D.T @ D)
         st.mag_offset_rhs[:] = forget * st.mag_offset_rhs + w * (D.T @ e)
         st.mag_offset_t = t
-        st.mag_offset[:] = np.linalg.solve(st.mag_offset_info + HARD_IRON_PRIOR * np.eye(3),
+        st.mag_offset[:] = np.linalg.solve(st.mag_offset_info + s.mag_hard_iron_prior * np.eye(3),
                                            st.mag_offset_rhs)
         st.diagnostics.mag_offset_norm = float(np.linalg.norm(st.mag_offset))
         self._open_pair(t, y, q)

@@ -130,6 +130,11 @@ class EKFSettings:
             "phone) online and subtract it from every reading: pairs of readings the phone turned "
             "20° between must differ by that turn (y_j − b = Q_jᵀ Q_i (y_i − b)), a weighted "
             "least-squares fit remembering this long; 0: off")
+    mag_hard_iron_prior: float = _setting(
+        1.0, unit="-",
+        doc="weight of the prior b_m = 0 in that fit, in pairs of a full turn's worth: small "
+            "offsets (a field that is not quite uniform) stay near zero, a magnet's hundreds of "
+            "µT do not")
     mag_reference_s: float = _setting(
         0.0, unit="s",
         doc="the expected field (strength L_k and the reference m0 with its dip) is the mean of "

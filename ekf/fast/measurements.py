@@ -21,7 +21,6 @@ _NAN = math.nan
 _PAIR_ANGLE = math.radians(20.0)
 _PAIR_MAX_S = 2.0
 _RESIDUAL = 5.0
-_PRIOR = 1.0
 _RESET_RESIDUAL = 20.0
 _RESET_COUNT = 5.0
 
@@ -91,12 +90,13 @@ def _fit_hard_iron(s, c, t, y0, y1, y2):
         s[V + r] = forget * s[V + r] + w * dte
     s[S.mag_offset_t] = t
     # b = (M + prior I)^-1 v by the adjugate (M symmetric positive semi-definite)
-    a00 = s[M] + _PRIOR
+    prior = c[C.mag_hard_iron_prior]
+    a00 = s[M] + prior
     a01 = s[M + 1]
     a02 = s[M + 2]
-    a11 = s[M + 4] + _PRIOR
+    a11 = s[M + 4] + prior
     a12 = s[M + 5]
-    a22 = s[M + 8] + _PRIOR
+    a22 = s[M + 8] + prior
     c00 = a11 * a22 - a12 * a12
     c01 = a02 * a12 - a01 * a22
     c02 = a01 * a12 - a02 * a11

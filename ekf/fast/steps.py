@@ -342,6 +342,39 @@ def _run_batch(s, c, t, gyr, acc, mag, out_q, out_flags, out_bias):
 
 
 @jit
+def _run_batch_record(s, c, t, gyr, acc, mag, out_q, out_flags, out_x, out_P, out_xp, out_Pp,
+                      out_omega, out_T):
+    """_run_batch for the smoother (c[C.record_prediction] = 1): per row also x and P after
+    the row, x and P after the row's time update (before its measurements), the gyroscope
+    sample that drove it and its T (-1: the row had no time update)."""
+    for k in range(t.shape[0]):
+        s[S.work_pred_T] = -1.0
+        present = 0
+        if not (math.isnan(gyr[k, 0]) or math.isnan(gyr[k, 1]) or math.isnan(gyr[k, 2])):
+            present |= GYR
+        if not (math.isnan(acc[k, 0]) or math.isnan(acc[k, 1]) or math.isnan(acc[k, 2])):
+            present |= ACC
+        if not (math.isnan(mag[k, 0]) or math.isnan(mag[k, 1]) or math.isnan(mag[k, 2])):
+            present |= MAG
+        _step(s, c, t[k], present, gyr[k, 0], gyr[k, 1], gyr[k, 2], acc[k, 0], acc[k, 1],
+              acc[k, 2], mag[k, 0], mag[k, 1], mag[k, 2])
+        for i in range(4):
+            out_q[k, i] = s[S.x + i]
+        out_flags[k, 0] = s[S.acc_rejected] != 0.0
+        out_flags[k, 1] = s[S.mag_rejected] != 0.0
+        out_flags[k, 2] = s[S.at_rest] != 0.0
+        for i in range(7):
+            out_x[k, i] = s[S.x + i]
+            out_xp[k, i] = s[S.work_pred_x + i]
+            for j in range(7):
+                out_P[k, i, j] = s[S.P + 7 * i + j]
+                out_Pp[k, i, j] = s[S.work_pred_P + 7 * i + j]
+        for i in range(3):
+            out_omega[k, i] = s[S.work_pred_omega + i]
+        out_T[k] = s[S.work_pred_T]
+
+
+@jit
 def _compiled_cache_key():
     return CACHE_KEY
 

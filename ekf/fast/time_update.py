@@ -145,6 +145,18 @@ def _time_update_random_walk(s, c, T):
 
 
 @jit
+def _record_prediction(s, T):
+    """For the smoother (c[C.record_prediction]): x, P and T right after a time update."""
+    for i in range(7):
+        s[S.work_pred_x + i] = s[S.x + i]
+    for i in range(49):
+        s[S.work_pred_P + i] = s[S.P + i]
+    s[S.work_pred_T] = T
+    for i in range(3):
+        s[S.work_pred_omega + i] = s[S.omega + i]
+
+
+@jit
 def _advance(s, c, t):
     """reference ``_advance``: move the state to time t with the held gyro sample."""
     if math.isnan(s[S.t]):
@@ -169,10 +181,14 @@ def _advance(s, c, t):
             _normalise(s)
         elif s[S.x] < 0.0:
             _flip_sign(s)
+        if c[C.record_prediction] != 0.0:
+            _record_prediction(s, dt)
     else:
         _time_update_random_walk(s, c, dt)
         s[S.used_gyr] = 0.0
         _normalise(s)
+        if c[C.record_prediction] != 0.0:
+            _record_prediction(s, 0.0)
 
 
 @jit
