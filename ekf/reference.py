@@ -25,8 +25,8 @@ re-learning of a changed field, and a cap on how often the slow updates run.
 Covariance updates use the Joseph form P = (I - K H) P (I - K H)^T + K R K^T, which stays
 symmetric positive semi-definite and is valid for any gain (the heading-only gain included).
 
-This module is the oracle; ``ekf.fast`` runs the same arithmetic compiled and is tested
-against it.
+This module (with its magnetic-field part, ``ekf.reference_field``) is the oracle; ``ekf.fast``
+runs the same arithmetic compiled and is tested against it.
 """
 
 from __future__ import annotations
@@ -38,10 +38,11 @@ from numpy.typing import ArrayLike
 
 import ekf.quaternion as quat
 from ekf.estimator import SENSORS, EstimatorBase, ekf_name
-from ekf.outputs import (ACC_CLIPPED, ACC_NIS_GATE, ACC_NORM_GATE, MAG_DIP_GATE, MAG_NIS_GATE,
-                         MAG_SETTLING, MAG_STRENGTH_GATE, NOT_REJECTED)
+from ekf.outputs import (ACC_CLIPPED, ACC_NIS_GATE, ACC_NORM_GATE, MAG_NIS_GATE, MAG_SETTLING,
+                         NOT_REJECTED)
 from ekf.settings import EKFSettings
-from ekf.state import EKFState, reference_dip_deg
+from ekf.reference_field import MagneticField
+from ekf.state import EKFState
 
 __all__ = ["SENSORS", "OrientationEKF", "acc_mag_quaternion", "tilt_quaternion", "usable"]
 
@@ -53,17 +54,6 @@ MIN_NORM = 1e-6
 # acc_range = 0: an axis within 1 % of the largest |axis| seen, once that exceeds 1.5 g, clips.
 CLIP_MARGIN = 0.99
 CLIP_MIN_G = 1.5
-# The online hard-iron fit (mag_hard_iron_tau_s): a pair closes once the phone turned this far
-# [rad] (a smaller turn says little about the offset), or is dropped after this long [s] (the
-# gyro's relative rotation is trusted over short spans); residuals beyond this [uT] weigh less
-# (w = min(1, this / |r|): a field changing in the world meanwhile).
-HARD_IRON_PAIR_ANGLE = math.radians(20.0)
-HARD_IRON_PAIR_MAX_S = 2.0
-HARD_IRON_RESIDUAL = 5.0
-# HARD_IRON_RESET_COUNT pairs in a row with residuals beyond HARD_IRON_RESET_RESIDUAL [uT]: the
-# offset itself changed (a magnet was put on the phone): the fit starts again from the new pairs.
-HARD_IRON_RESET_RESIDUAL = 20.0
-HARD_IRON_RESET_COUNT = 5
 
 
 def _as3(v: ArrayLike) -> np.ndarray:
@@ -112,7 +102,7 @@ def _rotate_world_about_up(q: np.ndarray, angle: float) -> np.ndarray:
     return quat.normalize(quat.multiply(quat.from_axis_angle([0, 0, 1], angle), q))
 
 
-class OrientationEKF(EstimatorBase):
+class OrientationEKF(MagneticField, EstimatorBase):
     """Quaternion EKF for asynchronous gyroscope, accelerometer and magnetometer samples.
 
     Parameters
@@ -260,6 +250,8 @@ class OrientationEKF(EstimatorBase):
             st.flags.used_acc = False
             st.diagnostics.acc_norm = float(np.linalg.norm(y))
             st.diagnostics.acc_rejected_by = ACC_CLIPPED
+            if self.settings.acc_lowpass_s > 0.0:
+                self._shaking(t, y)
             st.last_motion_t = t
             self._update_rest(t)
             return
@@ -421,7 +413,16 @@ class OrientationEKF(EstimatorBase):
 
     # ---------------------------------------------------------------------------------------
     # measurement updates
-    def _acc_update(self, y: np.ndarray, norm_gate: float) -> None:
+    def _shaking(self, t: float, y: np.ndarray) -> None:
+        """acc_noise_adapt: d² <- d² + alpha ((‖y‖ - g)² - d²), the low-pass of acc_lowpass_s."""
+        s, st = self.settings, self._state
+        dev = (float(np.linalg.norm(y)) - s.g) ** 2
+        dt = t - st.acc_dev_t if math.isfinite(st.acc_dev_t) else math.inf
+        alpha = 1.0 if not dt < math.inf else dt / (s.acc_lowpass_s + dt)
+        st.acc_dev_sq += alpha * (dev - st.acc_dev_sq)
+        st.acc_dev_t = t
+
+    def _acc_update(self, y: np.ndarray, norm_gate: float, noise_scale: float = 1.0) -> None:
         """Task 6 with the task-8 gate: y_a = Q(q)^T g0 + e_a, skipped when |‖y‖ - g| > gate
         or (optionally) when the NIS exceeds acc_nis_gate."""
         s = self.settings
@@ -443,7 +444,7 @@ class OrientationEKF(EstimatorBase):
         H = np.zeros((3, self._state.n))
         for i, dQi in enumerate(quat.dQ_dq(q)):
             H[:, i] = dQi.T @ g0
-        R = np.asarray(s.acc_noise_cov, float)
+        R = np.asarray(s.acc_noise_cov, float) * noise_scale
         nis = self._update(y - y_hat, H, R, gate=s.acc_nis_gate)
         diag.acc_nis = nis
         accepted = nis <= s.acc_nis_gate
@@ -459,6 +460,7 @@ class OrientationEKF(EstimatorBase):
         disturbed reading for the user."""
         s, st = self.settings, self._state
         norm = float(np.linalg.norm(y))
+        self._shaking(t, y)
         if not st.acc_carried_valid:
             st.acc_carried[:] = y
             st.acc_carried_valid = True
@@ -470,7 +472,8 @@ class OrientationEKF(EstimatorBase):
         used = True
         if t - st.acc_updated_t >= s.update_period_s:
             st.acc_updated_t = t
-            self._acc_update(st.acc_carried, math.inf)
+            scale = 1.0 + s.acc_noise_adapt * st.acc_dev_sq / (s.g * s.g)
+            self._acc_update(st.acc_carried, math.inf, scale)
             used = st.flags.used_acc   # the NIS gate may still refuse the average
         st.diagnostics.acc_norm = norm
         st.diagnostics.acc_gate = s.acc_gate
@@ -541,49 +544,6 @@ class OrientationEKF(EstimatorBase):
             return
         flags.used_mag = True
 
-    def _fit_hard_iron(self, t: float, y: np.ndarray) -> None:
-        """mag_hard_iron_tau_s: the sensor-frame offset b_m of the magnetometer, online.
-
-        A field that is constant in the world, seen at two times i and j, obeys
-        y_j - b = Q_j^T Q_i (y_i - b) whatever it is; with A = Q_j^T Q_i that is D b = e,
-        D = I - A, e = y_j - A y_i: linear in b, observable once the phone turns. A changed
-        field in a building is constant in the world (it fits b = 0), a magnet on the phone is
-        b. Each pair (turn >= HARD_IRON_PAIR_ANGLE within HARD_IRON_PAIR_MAX_S) adds w D^T D
-        and w D^T e to sums forgotten with time constant tau, w = min(1, HARD_IRON_RESIDUAL /
-        |e - D b|); b = (M + mag_hard_iron_prior I)^-1 v. Residuals that stay large
-        (HARD_IRON_RESET_*) mean a new offset: the sums start again."""
-        s, st = self.settings, self._state
-        q = self._x[:4]
-        if math.isnan(st.mag_pair_t) or t - st.mag_pair_t > HARD_IRON_PAIR_MAX_S:
-            self._open_pair(t, y, q)
-            return
-        if 2.0 * math.acos(min(1.0, abs(float(q @ st.mag_pair_q)))) < HARD_IRON_PAIR_ANGLE:
-            return
-        A = quat.to_matrix(q).T @ quat.to_matrix(st.mag_pair_q)
-        D = np.eye(3) - A
-        e = y - A @ st.mag_pair_raw
-        residual = float(np.linalg.norm(e - D @ st.mag_offset))
-        w = min(1.0, HARD_IRON_RESIDUAL / residual) if residual > 0.0 else 1.0
-        forget = (math.exp(-(t - st.mag_offset_t) / s.mag_hard_iron_tau_s)
-                  if math.isfinite(st.mag_offset_t) else 0.0)
-        st.mag_offset_outliers = st.mag_offset_outliers + 1 if (
-            residual > HARD_IRON_RESET_RESIDUAL) else 0.0
-        if st.mag_offset_outliers >= HARD_IRON_RESET_COUNT:
-            forget, w, st.mag_offset_outliers = 0.0, 1.0, 0.0   # a new offset: start again
-        st.mag_offset_info[:] = forget * st.mag_offset_info + w * (D.T @ D)
-        st.mag_offset_rhs[:] = forget * st.mag_offset_rhs + w * (D.T @ e)
-        st.mag_offset_t = t
-        st.mag_offset[:] = np.linalg.solve(st.mag_offset_info + s.mag_hard_iron_prior * np.eye(3),
-                                           st.mag_offset_rhs)
-        st.diagnostics.mag_offset_norm = float(np.linalg.norm(st.mag_offset))
-        self._open_pair(t, y, q)
-
-    def _open_pair(self, t: float, y: np.ndarray, q: np.ndarray) -> None:
-        st = self._state
-        st.mag_pair_t = t
-        st.mag_pair_raw[:] = y
-        st.mag_pair_q[:] = q
-
     def _heading_gain_cap(self, dt: float) -> float:
         """mag_return_s: the largest fraction of a heading innovation one update may correct,
         dt / (dt + tau) for dt since the previous update (1: no cap). Only while the gyroscope
@@ -592,118 +552,6 @@ class OrientationEKF(EstimatorBase):
         if tau <= 0.0:
             return 1.0
         return dt / (dt + tau) if math.isfinite(dt) else 1.0
-
-    def _learn_reference(self, y: np.ndarray) -> float:
-        """mag_reference_s: add a reading to the expected field's sums (world frame, strength);
-        meanwhile L_k is their mean. Returns ‖y‖."""
-        st = self._state
-        norm = float(np.linalg.norm(y))
-        st.mag_reference_sum[:] += quat.to_matrix(self._x[:4]) @ y
-        st.mag_reference_norm_sum += norm
-        st.mag_reference_count += 1.0
-        st.mag_strength = st.mag_reference_norm_sum / st.mag_reference_count
-        st.diagnostics.mag_norm = norm
-        st.diagnostics.mag_expected = st.mag_strength
-        st.diagnostics.mag_gate = self.settings.mag_gate
-        return norm
-
-    def _finish_reference(self) -> None:
-        """The end of mag_reference_s: L_k is the readings' mean strength, and m0 gets that
-        strength and the dip of their mean world-frame vector; its horizontal direction stays
-        (the heading does not move)."""
-        st = self._state
-        strength = st.mag_reference_norm_sum / st.mag_reference_count
-        mean = st.mag_reference_sum / st.mag_reference_count
-        dip = math.atan2(float(mean[2]), math.hypot(float(mean[0]), float(mean[1])))
-        horizontal = math.hypot(float(st.m0[0]), float(st.m0[1]))
-        if horizontal > 0.0:
-            scale = strength * math.cos(dip) / horizontal
-            st.m0[:] = [st.m0[0] * scale, st.m0[1] * scale, strength * math.sin(dip)]
-        st.mag_strength = strength
-        st.mag_reference_count = 0.0
-        st.mag_reference_until = -math.inf
-        st.diagnostics.mag_expected = strength
-        st.diagnostics.mag_reference_dip_deg = self._reference_dip_deg()
-
-    def _mag_gates(self, y: np.ndarray) -> tuple[float, float, int]:
-        """Task 11's strength gate |‖y‖ - L_k| with the AR(1) estimate L_k, then the dip gate.
-        Returns ‖y‖, the dip [deg] and which gate rejected the reading (NOT_REJECTED: none)."""
-        s, st = self.settings, self._state
-        diag = st.diagnostics
-        norm = float(np.linalg.norm(y))
-        diag.mag_norm = norm
-        diag.mag_gate = s.mag_gate
-        if math.isnan(st.mag_strength):
-            st.mag_strength = norm
-        L_prev = st.mag_strength
-        rejected_by = MAG_STRENGTH_GATE if abs(norm - L_prev) > s.mag_gate else NOT_REJECTED
-        dip = self._dip_deg(y)
-        diag.mag_dip_deg = dip
-        if (rejected_by == NOT_REJECTED and math.isfinite(s.mag_dip_gate_deg)
-                and math.isfinite(dip)
-                and abs(dip - self._reference_dip_deg()) > s.mag_dip_gate_deg):
-            rejected_by = MAG_DIP_GATE
-        # Task 11: AR(1) estimate of the field strength.
-        if s.mag_strength_update == "always" or rejected_by == NOT_REJECTED:
-            st.mag_strength = (1 - s.mag_alpha) * L_prev + s.mag_alpha * norm
-        diag.mag_expected = st.mag_strength
-        return norm, dip, rejected_by
-
-    def _track_new_field(self, y: np.ndarray, t: float, norm: float, dip: float) -> None:
-        """A new field is learned only when the rejected readings agree with each other
-        (strength and dip within the gates of their running mean) for mag_relearn_s: a changed
-        field, not a magnet that moves with the phone."""
-        s, st = self.settings, self._state
-        if s.mag_relearn_world:
-            self._track_new_field_world(y, t)
-            return
-        cn, cd = st.mag_candidate_norm, st.mag_candidate_dip
-        if (math.isnan(st.mag_rejected_since) or abs(norm - cn) > s.mag_gate
-                or abs(dip - cd) > s.mag_dip_gate_deg):
-            st.mag_rejected_since = t
-            st.mag_candidate_norm, st.mag_candidate_dip = norm, dip
-        else:
-            st.mag_candidate_norm = cn + s.mag_alpha * (norm - cn)
-            st.mag_candidate_dip = cd + s.mag_alpha * (dip - cd)
-            if t - st.mag_rejected_since >= s.mag_relearn_s:
-                self._relearn_field(y)
-
-    def _track_new_field_world(self, y: np.ndarray, t: float) -> None:
-        """mag_relearn_world: the rejected readings must agree in the world frame (within
-        mag_gate of their running mean Q(q) y) while the phone turns faster than
-        mag_relearn_min_rate, for mag_relearn_s of turning: a field that changed in the building
-        stays put in the world while the phone turns, a magnet on the phone turns with it."""
-        s, st = self.settings, self._state
-        m_w = quat.to_matrix(self._x[:4]) @ y
-        cand = st.mag_candidate_world
-        if math.isnan(st.mag_rejected_since) or np.linalg.norm(m_w - cand) > s.mag_gate:
-            st.mag_rejected_since = t
-            cand[:] = m_w
-            st.mag_candidate_time = 0.0
-        else:
-            cand[:] = cand + s.mag_alpha * (m_w - cand)
-            if self._turn_rate() >= s.mag_relearn_min_rate:
-                st.mag_candidate_time += t - st.mag_candidate_t
-            if st.mag_candidate_time >= s.mag_relearn_s:
-                st.m0[:] = cand
-                if np.linalg.norm(st.mag_offset - st.mag_offset_at_reference) > s.mag_gate:
-                    # m0 was taken from readings the offset estimate did not yet correct: its
-                    # north is not north. Take north from the corrected field (the heading
-                    # updates then turn the estimate round, no faster than mag_return_s).
-                    st.m0[:] = [0.0, math.hypot(cand[0], cand[1]), cand[2]]
-                    st.mag_offset_at_reference[:] = st.mag_offset
-                st.mag_strength = float(np.linalg.norm(cand))
-                st.diagnostics.mag_reference_dip_deg = self._reference_dip_deg()
-                st.mag_rejected_since = math.nan
-        st.mag_candidate_t = t
-
-    def _turn_rate(self) -> float:
-        """‖ω − b‖ of the latest gyroscope sample driving the filter (0: none)."""
-        st = self._state
-        if not (st.omega_valid and st.gyr_enabled):
-            return 0.0
-        bias = self._x[4:7] if st.n == 7 else np.asarray(self.settings.gyr_bias, float)
-        return float(np.linalg.norm(st.omega - bias))
 
     def _mag_heading_update(self, y: np.ndarray, R: np.ndarray,
                             gate: float = math.inf, gain_cap: float = 1.0) -> float:
@@ -863,49 +711,6 @@ class OrientationEKF(EstimatorBase):
         denom = cross * cross + dot * dot
         grad = (dot * np.array([-ry, rx]) - cross * np.array([rx, ry])) / denom
         return psi, grad
-
-    def _set_m0_from(self, y: np.ndarray) -> None:
-        """m0 = (0, sqrt(mx^2 + my^2), mz) of the reading expressed in the (level) world frame."""
-        st = self._state
-        m_w = quat.to_matrix(self._x[:4]) @ y
-        st.m0[:] = [0.0, math.hypot(m_w[0], m_w[1]), m_w[2]]
-        st.m0_valid = True
-        st.mag_offset_at_reference[:] = st.mag_offset
-        st.mag_strength = float(np.linalg.norm(st.m0))
-        st.diagnostics.mag_expected = st.mag_strength
-        st.diagnostics.mag_reference_dip_deg = self._reference_dip_deg()
-        if self.settings.mag_reference_s > 0.0:
-            # mag_reference_s: this reading starts the mean that becomes the expected field
-            st.mag_reference_until = st.t + self.settings.mag_reference_s
-            st.mag_reference_sum[:] = st.m0
-            st.mag_reference_norm_sum = st.mag_strength
-            st.mag_reference_count = 1.0
-
-    def _relearn_field(self, y: np.ndarray) -> None:
-        st = self._state
-        st.mag_strength = float(np.linalg.norm(y))
-        if st.m0_valid:
-            m_w = quat.to_matrix(self._x[:4]) @ y
-            st.m0[:] = [0.0, math.hypot(m_w[0], m_w[1]), m_w[2]]
-            st.diagnostics.mag_reference_dip_deg = self._reference_dip_deg()
-        st.mag_rejected_since = math.nan
-
-    def _dip_deg(self, y: np.ndarray) -> float:
-        """Angle between up and the field [deg]: up from the estimate, or from the latest
-        accelerometer reading (NaN when there is none or it was disturbed)."""
-        st = self._state
-        if self.settings.mag_dip_from_estimate:
-            up = float(quat.to_matrix(self._x[:4])[2] @ y)
-            c = up / (np.linalg.norm(y) + 1e-300)
-            return math.degrees(math.acos(max(-1.0, min(1.0, c))))
-        a = st.last_acc
-        if not st.last_acc_valid or st.flags.acc_rejected:
-            return math.nan
-        c = float(a @ y) / (np.linalg.norm(a) * np.linalg.norm(y) + 1e-300)
-        return math.degrees(math.acos(max(-1.0, min(1.0, c))))
-
-    def _reference_dip_deg(self) -> float:
-        return reference_dip_deg(self._state.m0) if self._state.m0_valid else math.nan
 
     # ---------------------------------------------------------------------------------------
     # rest detection

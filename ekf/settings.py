@@ -116,6 +116,11 @@ class EKFSettings:
         doc="time constant of a low-pass of the accelerometer that the gyroscope carries along "
             "with the phone; the update sees the average specific force, in which accelerations "
             "cancel (0: off, the raw reading is used)")
+    acc_noise_adapt: float = _setting(
+        0.0, unit="-",
+        doc="with the low-pass: R_a grows with how hard the phone is shaken, R_a (1 + this · "
+            "d²/g²), d² the low-passed (‖y_a‖ − g)² (clipped readings included): running and "
+            "swinging cannot tilt the estimate (0: off)")
     mag_dip_from_estimate: bool = _setting(
         False, unit="-",
         doc="true: the dip gate measures the field's angle to the estimated up (good while "
@@ -311,6 +316,7 @@ DEFAULT = EKFSettings(
     mag_relearn_min_rate=math.radians(20.0),
     mag_return_s=1.0,
     mag_hard_iron_tau_s=60.0,
+    acc_noise_adapt=30.0,
 )
 
 PRESETS: dict[str, EKFSettings] = {"default": DEFAULT, "course": COURSE}

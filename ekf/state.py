@@ -186,6 +186,9 @@ class EKFState:
     acc_carried_t: float = state_field("time of the latest reading blended into acc_carried",
                                        _NAN, unit="s")
     acc_updated_t: float = state_field("time of the latest accelerometer update", _NEVER, unit="s")
+    acc_dev_sq: float = state_field("low-pass of (‖y_a‖ − g)² (acc_noise_adapt)", _value(0.0),
+                                    unit="(m/s²)²")
+    acc_dev_t: float = state_field("time of the latest reading in acc_dev_sq", _NAN, unit="s")
     acc_axis_max: float = state_field("largest |axis| of the accelerometer readings so far (the "
                                       "range detected from the data, acc_range = 0)",
                                       _value(0.0), unit="m/s²")

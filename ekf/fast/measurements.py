@@ -115,7 +115,19 @@ def _fit_hard_iron(s, c, t, y0, y1, y2):
 
 
 @jit
-def _acc_update(s, c, y0, y1, y2, norm_gate):
+def _shaking(s, c, t, y0, y1, y2):
+    """reference ``_shaking``: the low-pass d² of (‖y‖ - g)² (acc_noise_adapt)."""
+    d = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2) - c[C.g]
+    alpha = 1.0
+    if math.isfinite(s[S.acc_dev_t]):
+        dt = t - s[S.acc_dev_t]
+        alpha = dt / (c[C.acc_lowpass_s] + dt)
+    s[S.acc_dev_sq] += alpha * (d * d - s[S.acc_dev_sq])
+    s[S.acc_dev_t] = t
+
+
+@jit
+def _acc_update(s, c, y0, y1, y2, norm_gate, noise_scale=1.0):
     """reference ``_acc_update``: y_a = Q(q)^T g0 with the norm gate (task 8) and NIS gate;
     y is the reading, or its carried low-pass (then without the norm gate)."""
     norm = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
@@ -140,7 +152,8 @@ def _acc_update(s, c, y0, y1, y2, norm_gate):
          g * (2 * q1), g * (2 * q0), g * (2 * q3), g * (2 * q2),
          g * (2 * (2 * q0)), 0.0, 0.0, g * (2 * (2 * q3)))
     gate = c[C.acc_nis_gate]
-    nis = _measurement_update_q(s, c, h, y0 - yh0, y1 - yh1, y2 - yh2, C.acc_noise_cov, gate)
+    nis = _measurement_update_q(s, c, h, y0 - yh0, y1 - yh1, y2 - yh2, C.acc_noise_cov, gate,
+                                noise_scale)
     s[S.acc_nis] = nis
     accepted = nis <= gate
     s[S.acc_rejected] = 0.0 if accepted else 1.0
@@ -155,6 +168,7 @@ def _acc_lowpass_update(s, c, t, v0, v1, v2, tau):
     dropped); at most every update_period_s the carried vector is the measurement. The
     norm gate only flags a disturbed reading (acc_rejected) for the user."""
     norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+    _shaking(s, c, t, v0, v1, v2)
     A = S.acc_carried
     if s[S.acc_carried_valid] == 0.0:
         s[A] = v0
@@ -171,7 +185,8 @@ def _acc_lowpass_update(s, c, t, v0, v1, v2, tau):
     used = 1.0
     if t - s[S.acc_updated_t] >= c[C.update_period_s]:
         s[S.acc_updated_t] = t
-        _acc_update(s, c, s[A], s[A + 1], s[A + 2], _INF)
+        scale = 1.0 + c[C.acc_noise_adapt] * s[S.acc_dev_sq] / (c[C.g] * c[C.g])
+        _acc_update(s, c, s[A], s[A + 1], s[A + 2], _INF, scale)
         used = s[S.used_acc]   # the NIS gate may still refuse the averaged vector
     s[S.acc_norm] = norm
     s[S.acc_gate] = c[C.acc_gate]
@@ -502,6 +517,16 @@ def _mag_gates(s, c, y0, y1, y2):
 
 
 @jit
+def _heading_gain_cap(s, c, dt):
+    """reference ``_heading_gain_cap``: at most dt / (dt + mag_return_s) of a heading
+    innovation, while the gyroscope drives the filter (1: no cap)."""
+    tau = c[C.mag_return_s]
+    if tau > 0.0 and math.isfinite(dt) and s[S.used_gyr] != 0.0:
+        return dt / (dt + tau)
+    return 1.0
+
+
+@jit
 def _mag_update(s, c, y0, y1, y2, t):
     """reference ``_mag_update``: the expected field learned first (mag_reference_s), the gates
     (``_mag_gates``), settling, the bound on a disturbance's length, then the update (heading
@@ -544,11 +569,7 @@ def _mag_update(s, c, y0, y1, y2, t):
     if t - s[S.mag_updated_t] < c[C.update_period_s]:
         s[S.used_mag] = 0.0
         return
-    gain_cap = 1.0
-    tau = c[C.mag_return_s]
-    dt_update = t - s[S.mag_updated_t]
-    if tau > 0.0 and math.isfinite(dt_update) and s[S.used_gyr] != 0.0:
-        gain_cap = dt_update / (dt_update + tau)
+    gain_cap = _heading_gain_cap(s, c, t - s[S.mag_updated_t])
     s[S.mag_updated_t] = t
     if c[C.mag_heading_only] != 0.0:
         nis = _mag_heading_update(s, c, y0, y1, y2, c[C.mag_nis_gate], noise_scale, gain_cap)

@@ -12,7 +12,7 @@ from ekf.fast.algebra import (_acc_mag_quaternion, _add_attitude_cov, _cross, _q
                               _to_matrix, _zero_rate_update)
 from ekf.fast.layout import C, S
 from ekf.fast.measurements import (_acc_lowpass_update, _acc_update, _fit_hard_iron,
-                                   _heading_error, _mag_update, _set_m0_from)
+                                   _heading_error, _mag_update, _set_m0_from, _shaking)
 from ekf.fast.time_update import _advance
 from ekf.outputs import ACC_CLIPPED
 
@@ -244,6 +244,8 @@ def _update_acc(s, c, t, v0, v1, v2):
         s[S.used_acc] = 0.0
         s[S.acc_norm] = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
         s[S.acc_rejected_by] = ACC_CLIPPED
+        if c[C.acc_lowpass_s] > 0.0:
+            _shaking(s, c, t, v0, v1, v2)
         s[S.last_motion_t] = t
         _update_rest(s, c, t)
         return
