@@ -501,7 +501,7 @@ class OrientationEKF(MagneticField, EstimatorBase):
         if rejected_by == NOT_REJECTED and t - st.mag_passing_since < s.mag_settle_s:
             rejected_by = MAG_SETTLING
         diag.mag_rejected_by = rejected_by
-        R = np.asarray(s.mag_noise_cov, float)
+        R = np.asarray(s.mag_noise_cov, float) * self._uneven_field(t, norm)
         if rejected_by != NOT_REJECTED:
             if math.isnan(st.mag_disturbed_since):
                 st.mag_disturbed_since = t
@@ -543,6 +543,22 @@ class OrientationEKF(MagneticField, EstimatorBase):
             flags.used_mag = False
             return
         flags.used_mag = True
+
+    def _uneven_field(self, t: float, norm: float) -> float:
+        """mag_noise_adapt: where the field is uneven (a building's, along a walk), readings
+        that pass the gates are still bent: d² <- low-pass (mag_return_s) of (‖y‖ - L_k)², and
+        R_m is scaled by 1 + mag_noise_adapt d² / L_k²."""
+        s, st = self.settings, self._state
+        if s.mag_noise_adapt == 0.0 or not math.isfinite(st.mag_strength):
+            return 1.0
+        d = norm - st.mag_strength
+        alpha = 1.0
+        if math.isfinite(st.mag_dev_t):
+            dt = t - st.mag_dev_t
+            alpha = dt / (s.mag_return_s + dt) if s.mag_return_s + dt > 0.0 else 1.0
+        st.mag_dev_sq += alpha * (d * d - st.mag_dev_sq)
+        st.mag_dev_t = t
+        return 1.0 + s.mag_noise_adapt * st.mag_dev_sq / st.mag_strength ** 2
 
     def _heading_gain_cap(self, dt: float) -> float:
         """mag_return_s: the largest fraction of a heading innovation one update may correct,

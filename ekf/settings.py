@@ -140,6 +140,11 @@ class EKFSettings:
         doc="weight of the prior b_m = 0 in that fit, in pairs of a full turn's worth: small "
             "offsets (a field that is not quite uniform) stay near zero, a magnet's hundreds of "
             "µT do not")
+    mag_noise_adapt: float = _setting(
+        0.0, unit="-",
+        doc="R_m grows where the field is uneven: R_m (1 + this · d²/L_k²), d² the low-pass "
+            "(time constant mag_return_s) of (‖y_m‖ − L_k)² over every reading, rejected ones "
+            "included (0: off)")
     mag_reference_s: float = _setting(
         0.0, unit="s",
         doc="the expected field (strength L_k and the reference m0 with its dip) is the mean of "
@@ -301,8 +306,8 @@ DEFAULT = EKFSettings(
     acc_gate=2.0,
     mag_heading_only=True,
     mag_noise_cov=_diag(1.0),
-    mag_gate=5.0,
-    mag_dip_gate_deg=10.0,
+    mag_gate=8.0,
+    mag_dip_gate_deg=25.0,
     mag_dip_from_estimate=True,
     mag_settle_s=0.5,
     mag_strength_update="accepted",
@@ -314,9 +319,10 @@ DEFAULT = EKFSettings(
     mag_max_reject_no_gyro_s=5.0,
     mag_relearn_world=True,
     mag_relearn_min_rate=math.radians(20.0),
-    mag_return_s=1.0,
+    mag_return_s=8.0,
     mag_hard_iron_tau_s=60.0,
     acc_noise_adapt=30.0,
+    mag_noise_adapt=1000.0,
 )
 
 PRESETS: dict[str, EKFSettings] = {"default": DEFAULT, "course": COURSE}

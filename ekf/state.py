@@ -169,6 +169,9 @@ class EKFState:
                                             "turned (mag_relearn_world)", _value(0.0), unit="s")
     mag_candidate_t: float = state_field("time of the latest candidate reading", _NAN, unit="s")
     mag_updated_t: float = state_field("time of the latest magnetometer update", _NEVER, unit="s")
+    mag_dev_sq: float = state_field("low-pass of (‖y_m‖ − L_k)² (mag_noise_adapt)", _value(0.0),
+                                    unit="µT²")
+    mag_dev_t: float = state_field("time of the latest reading in mag_dev_sq", _NAN, unit="s")
     mag_disturbed_since: float = state_field("the current disturbance (rejected or settling "
                                              "readings) began then; NaN: none", _NAN, unit="s")
     mag_reference_until: float = state_field("the expected field is learned from the readings "

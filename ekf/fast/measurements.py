@@ -517,6 +517,21 @@ def _mag_gates(s, c, y0, y1, y2):
 
 
 @jit
+def _uneven_field(s, c, t, norm):
+    """reference ``_uneven_field``: d² <- low-pass of (‖y‖ - L_k)²; returns 1 + k d² / L_k²."""
+    if c[C.mag_noise_adapt] == 0.0 or not math.isfinite(s[S.mag_strength]):
+        return 1.0
+    d = norm - s[S.mag_strength]
+    alpha = 1.0
+    if math.isfinite(s[S.mag_dev_t]):
+        dt = t - s[S.mag_dev_t]
+        alpha = dt / (c[C.mag_return_s] + dt) if c[C.mag_return_s] + dt > 0.0 else 1.0
+    s[S.mag_dev_sq] += alpha * (d * d - s[S.mag_dev_sq])
+    s[S.mag_dev_t] = t
+    return 1.0 + c[C.mag_noise_adapt] * s[S.mag_dev_sq] / (s[S.mag_strength] ** 2)
+
+
+@jit
 def _heading_gain_cap(s, c, dt):
     """reference ``_heading_gain_cap``: at most dt / (dt + mag_return_s) of a heading
     innovation, while the gyroscope drives the filter (1: no cap)."""
@@ -547,7 +562,7 @@ def _mag_update(s, c, y0, y1, y2, t):
     if rejected_by == NOT_REJECTED and t - s[S.mag_passing_since] < c[C.mag_settle_s]:
         rejected_by = MAG_SETTLING
     s[S.mag_rejected_by] = rejected_by
-    noise_scale = 1.0
+    noise_scale = _uneven_field(s, c, t, norm)
     if rejected_by != NOT_REJECTED:
         if math.isnan(s[S.mag_disturbed_since]):
             s[S.mag_disturbed_since] = t
@@ -561,7 +576,7 @@ def _mag_update(s, c, y0, y1, y2, t):
         if not t - s[S.mag_disturbed_since] > bound:
             return
         # out for longer than the bound: use the reading, trusted less, until it ends
-        noise_scale = c[C.mag_reject_noise_scale]
+        noise_scale *= c[C.mag_reject_noise_scale]
     else:
         s[S.mag_rejected_since] = _NAN
         s[S.mag_disturbed_since] = _NAN
