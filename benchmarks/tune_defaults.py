@@ -9,9 +9,9 @@ the same search on every recording gives the fit on all, rounded to round values
 plateau check (each value halved and doubled).
 
 The objective is VQF-relative, so that the Nexus 5's larger errors do not drown BROAD: per
-dataset the mean total RMSE over the VQF 9D mean (VQF's causal filter ``VQF.updateBatch``, the
-peer of a causal filter), averaged over the datasets, plus a penalty for any recording beyond
-1.5x (BROAD) or 2x (Nexus 5) its VQF figure.
+dataset the mean over its recordings of total RMSE / VQF 9D's (VQF's causal filter
+``VQF.updateBatch``, the peer of a causal filter), averaged over the datasets, plus a penalty
+for any recording beyond 1.5x (BROAD) or 2x (Nexus 5) its VQF figure.
 
     .venv/bin/python benchmarks/tune_defaults.py [--trials 60] [--jobs 2] [--quick]
 
@@ -38,19 +38,17 @@ from datasets import Recording, load_all, run_ours, run_vqf  # noqa: E402
 
 # name: (low, high, log scale, round to) — the searched settings (matrices as r·I)
 SPACE = {
-    "acc_lowpass_s": (0.25, 4.0, True, 0.25),
+    "acc_lowpass_s": (0.25, 3.0, True, 0.25),
     "acc_noise_cov": (0.1, 3.0, True, 0.1),
-    "mag_noise_cov": (0.3, 10.0, True, 0.1),
-    "gyr_noise_cov": (3e-5, 3e-3, True, 1e-5),
-    "mag_gate": (3.0, 20.0, True, 1.0),
-    "mag_dip_gate_deg": (5.0, 40.0, True, 1.0),
-    "mag_settle_s": (0.0, 2.0, False, 0.1),
-    "mag_max_reject_s": (2.0, 60.0, True, 1.0),
-    "mag_reject_noise_scale": (1.0, 100.0, True, 1.0),
-    "mag_return_s": (0.0, 5.0, False, 0.1),
-    "mag_hard_iron_tau_s": (10.0, 300.0, True, 10.0),
-    "mag_hard_iron_prior": (0.3, 300.0, True, 0.1),
-    "mag_relearn_s": (5.0, 40.0, True, 1.0),
+    "acc_noise_adapt": (3.0, 300.0, True, 1.0),
+    "mag_noise_cov": (0.1, 10.0, True, 0.1),
+    "mag_gate": (4.0, 16.0, True, 1.0),
+    "mag_dip_gate_deg": (10.0, 40.0, True, 1.0),
+    "mag_return_s": (2.0, 20.0, True, 1.0),
+    "mag_noise_adapt": (100.0, 10000.0, True, 100.0),
+    "mag_max_reject_s": (5.0, 60.0, True, 1.0),
+    "mag_hard_iron_tau_s": (20.0, 300.0, True, 10.0),
+    "mag_hard_iron_prior": (0.3, 10.0, True, 0.1),
 }
 FOLDS = {
     "broad-undisturbed": lambda r: r.kind == "broad" and not r.disturbed,
@@ -78,13 +76,18 @@ def errors(settings: ekf.EKFSettings, recs: list[Recording]) -> np.ndarray:
 
 
 def objective(ours: np.ndarray, vqf: np.ndarray, kinds: list[str]) -> float:
+    """Per dataset the mean of the recordings' ratios to VQF (a bad recording weighs as much as
+    its ratio, whatever its size in degrees), averaged over the datasets, plus the ratios
+    beyond the per-recording limit. (Adding the worst ratio itself made the held-out figures
+    worse: one recording then steers the search.)"""
     kinds_arr = np.array(kinds)
     parts, penalty = [], 0.0
     for kind in sorted(set(kinds)):
         sel = kinds_arr == kind
-        parts.append(ours[sel].mean() / vqf[sel].mean())
-        penalty += float(np.sum(np.maximum(0.0, ours[sel] / vqf[sel] - LIMIT[kind])))
-    value = float(np.mean(parts)) + 0.5 * penalty / len(ours)
+        ratio = ours[sel] / vqf[sel]
+        parts.append(float(np.mean(ratio)))
+        penalty += float(np.sum(np.maximum(0.0, ratio - LIMIT[kind])))
+    value = float(np.mean(parts)) + penalty / len(ours)
     return value if math.isfinite(value) else 1e9
 
 
@@ -184,9 +187,11 @@ def main() -> int:
     for kind in sorted(set(kinds)):
         sel = kinds == kind
         v = vqf_err[sel].mean()
+        worst = (f"{np.max(held[sel] / vqf_err[sel]):.2f}x" if np.isfinite(held[sel]).all()
+                 else "-")
         print(f"{'mean ' + kind:<44}{held[sel].mean():>10.2f}{on_all[sel].mean():>10.2f}"
               f"{default[sel].mean():>10.2f}{v:>10.2f}   (held-out / VQF "
-              f"{held[sel].mean() / v:.2f}, worst {np.nanmax(held[sel] / vqf_err[sel]):.2f}x; "
+              f"{held[sel].mean() / v:.2f}, worst {worst}; "
               f"default / VQF {default[sel].mean() / v:.2f}, worst "
               f"{np.max(default[sel] / vqf_err[sel]):.2f}x)")
     if not args.quick:

@@ -389,6 +389,9 @@ class OrientationEKF(MagneticField, EstimatorBase):
             Qn[4:, 4:] = np.eye(3) * (s.gyro_bias_random_walk ** 2 * T)
         self._x[:4] = F @ q
         self._P = A @ self._P @ A.T + Qn
+        if s.mag_hard_iron_tau_s > 0.0 and math.isfinite(self._state.mag_pair_t):
+            # the hard-iron fit's pair: the turn since its first reading, from the gyro alone
+            self._state.mag_pair_q[:] = F @ self._state.mag_pair_q
 
     def _carry(self, omega: np.ndarray, T: float) -> None:
         """Turn the carried specific force into the new body frame: the body turned by |w| T

@@ -38,7 +38,9 @@ class MagneticField:
         """mag_hard_iron_tau_s: the sensor-frame offset b_m of the magnetometer, online.
 
         A field that is constant in the world, seen at two times i and j, obeys
-        y_j - b = Q_j^T Q_i (y_i - b) whatever it is; with A = Q_j^T Q_i that is D b = e,
+        y_j - b = Q_j^T Q_i (y_i - b) whatever it is; with A = Q_j^T Q_i = Q(dq)^T, dq the
+        turn between them integrated from the gyroscope alone (mag_pair_q, turned by every time
+        update: the filter's own corrections are not a turn), that is D b = e,
         D = I - A, e = y_j - A y_i: linear in b, observable once the phone turns. A changed
         field in a building is constant in the world (it fits b = 0), a magnet on the phone is
         b. Each pair (turn >= HARD_IRON_PAIR_ANGLE within HARD_IRON_PAIR_MAX_S) adds w D^T D
@@ -46,13 +48,13 @@ class MagneticField:
         |e - D b|); b = (M + mag_hard_iron_prior I)^-1 v. Residuals that stay large
         (HARD_IRON_RESET_*) mean a new offset: the sums start again."""
         s, st = self.settings, self._state
-        q = self._x[:4]
         if math.isnan(st.mag_pair_t) or t - st.mag_pair_t > HARD_IRON_PAIR_MAX_S:
-            self._open_pair(t, y, q)
+            self._open_pair(t, y)
             return
-        if 2.0 * math.acos(min(1.0, abs(float(q @ st.mag_pair_q)))) < HARD_IRON_PAIR_ANGLE:
+        turn = st.mag_pair_q / np.linalg.norm(st.mag_pair_q)
+        if 2.0 * math.acos(min(1.0, abs(float(turn[0])))) < HARD_IRON_PAIR_ANGLE:
             return
-        A = quat.to_matrix(q).T @ quat.to_matrix(st.mag_pair_q)
+        A = quat.to_matrix(turn).T
         D = np.eye(3) - A
         e = y - A @ st.mag_pair_raw
         residual = float(np.linalg.norm(e - D @ st.mag_offset))
@@ -69,13 +71,13 @@ class MagneticField:
         st.mag_offset[:] = np.linalg.solve(st.mag_offset_info + s.mag_hard_iron_prior * np.eye(3),
                                            st.mag_offset_rhs)
         st.diagnostics.mag_offset_norm = float(np.linalg.norm(st.mag_offset))
-        self._open_pair(t, y, q)
+        self._open_pair(t, y)
 
-    def _open_pair(self, t: float, y: np.ndarray, q: np.ndarray) -> None:
+    def _open_pair(self, t: float, y: np.ndarray) -> None:
         st = self._state
         st.mag_pair_t = t
         st.mag_pair_raw[:] = y
-        st.mag_pair_q[:] = q
+        st.mag_pair_q[:] = quat.IDENTITY
 
     def _learn_reference(self, y: np.ndarray) -> float:
         """mag_reference_s: add a reading to the expected field's sums (world frame, strength);

@@ -158,7 +158,8 @@ class EKFState:
                                                       unit="µT", shape=(3,))
     mag_pair_raw: np.ndarray = state_field("the first reading of the open pair (raw)", _zeros3,
                                            unit="µT", shape=(3,))
-    mag_pair_q: np.ndarray = state_field("the orientation at that reading",
+    mag_pair_q: np.ndarray = state_field("the turn since that reading, integrated from the "
+                                         "gyroscope (F of every time update)",
                                          lambda settings, enabled: np.array([1.0, 0, 0, 0]),
                                          shape=(4,))
     mag_pair_t: float = state_field("time of that reading; NaN: no open pair", _NAN, unit="s")

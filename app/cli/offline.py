@@ -33,6 +33,13 @@ def read_log(path: str) -> LogData:
     return log
 
 
+def _check_smooth(args: argparse.Namespace, names: list[str]) -> None:
+    """--smooth is the EKF's (the smoother needs its covariance)."""
+    bad = [name for name in names if name not in ("ekf", "course")]
+    if args.smooth and bad:
+        raise config.ConfigError(f"--smooth needs the EKF (ekf or course), not {bad[0]!r}")
+
+
 # ---- filter -------------------------------------------------------------------------------------
 
 def cmd_filter(args: argparse.Namespace) -> int:
@@ -41,6 +48,7 @@ def cmd_filter(args: argparse.Namespace) -> int:
     if len(names) != 1:
         raise config.ConfigError("filter: give exactly one --estimator")
     settings = config.load_settings(args.settings)
+    _check_smooth(args, names)
     try:
         rows = filter_log(read_log(args.log), names[0], settings, sensors, smooth=args.smooth)
     except ValueError as error:
@@ -86,6 +94,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     sensors = config.sensor_list(args.sensors)
     names = config.estimator_names(args.estimator)
     settings = config.load_settings(args.settings)
+    _check_smooth(args, names)
     intervals, where = _intervals(args)
     log = read_log(args.log)
     truth, against = _truth(args)

@@ -31,33 +31,32 @@ def _open_pair(s, t, y0, y1, y2):
     s[S.mag_pair_raw] = y0
     s[S.mag_pair_raw + 1] = y1
     s[S.mag_pair_raw + 2] = y2
-    for i in range(4):
-        s[S.mag_pair_q + i] = s[S.x + i]
+    s[S.mag_pair_q] = 1.0
+    for i in range(1, 4):
+        s[S.mag_pair_q + i] = 0.0
 
 
 @jit
 def _fit_hard_iron(s, c, t, y0, y1, y2):
-    """reference ``_fit_hard_iron``: pairs of readings turned >= 20 deg apart, D b = e with
-    D = I - A, e = y_j - A y_i, A = Q_j^T Q_i; weighted sums with forgetting; b solved."""
+    """reference ``_fit_hard_iron``: pairs of readings turned >= 20 deg apart (the turn
+    integrated from the gyroscope, mag_pair_q), D b = e with D = I - A, e = y_j - A y_i,
+    A = Q(turn)^T; weighted sums with forgetting; b solved."""
     if math.isnan(s[S.mag_pair_t]) or t - s[S.mag_pair_t] > _PAIR_MAX_S:
         _open_pair(s, t, y0, y1, y2)
         return
     P = S.mag_pair_q
-    dot = (s[S.x] * s[P] + s[S.x + 1] * s[P + 1] + s[S.x + 2] * s[P + 2]
-           + s[S.x + 3] * s[P + 3])
-    if 2.0 * math.acos(min(1.0, abs(dot))) < _PAIR_ANGLE:
+    inv = 1.0 / math.sqrt(s[P] ** 2 + s[P + 1] ** 2 + s[P + 2] ** 2 + s[P + 3] ** 2)
+    if 2.0 * math.acos(min(1.0, abs(s[P] * inv))) < _PAIR_ANGLE:
         return
-    Qj = _to_matrix(s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3])
-    Qi = _to_matrix(s[P], s[P + 1], s[P + 2], s[P + 3])
-    # D = I - Qj^T Qi, e = y - A y_i, r = e - D b
+    Qt = _to_matrix(s[P] * inv, s[P + 1] * inv, s[P + 2] * inv, s[P + 3] * inv)
+    # D = I - A with A = Q(turn)^T, e = y - A y_i, r = e - D b
     R = S.mag_pair_raw
     B = S.mag_offset
     D = S.work_s          # scratch 3x3
     e = S.work_pht        # scratch: e (3), then r (3)
     for r in range(3):
         for k in range(3):
-            a = Qj[r] * Qi[k] + Qj[3 + r] * Qi[3 + k] + Qj[6 + r] * Qi[6 + k]
-            s[D + 3 * r + k] = (1.0 if r == k else 0.0) - a
+            s[D + 3 * r + k] = (1.0 if r == k else 0.0) - Qt[3 * k + r]
     yv = (y0, y1, y2)
     for r in range(3):
         # A y_i = y_i - D y_i

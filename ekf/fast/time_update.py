@@ -124,6 +124,12 @@ def _time_update_gyro_n(s, c, T, n):
             s[P + 8 * i] += qb
     for i in range(4):
         s[S.x + i] = F[i][0] * q0 + F[i][1] * q1 + F[i][2] * q2 + F[i][3] * q3
+    if c[C.mag_hard_iron_tau_s] > 0.0 and not math.isnan(s[S.mag_pair_t]):
+        # the hard-iron fit's pair: the turn since its first reading, from the gyro alone
+        M = S.mag_pair_q
+        p0, p1, p2, p3 = s[M], s[M + 1], s[M + 2], s[M + 3]
+        for i in range(4):
+            s[M + i] = F[i][0] * p0 + F[i][1] * p1 + F[i][2] * p2 + F[i][3] * p3
 
 
 @jit
