@@ -552,8 +552,9 @@ class OrientationEKF(MagneticField, EstimatorBase):
         that pass the gates are still bent: d² <- low-pass (mag_return_s) of (‖y‖ - L_k)², and
         R_m is scaled by 1 + mag_noise_adapt d² / L_k²."""
         s, st = self.settings, self._state
-        if s.mag_noise_adapt == 0.0 or not math.isfinite(st.mag_strength):
-            return 1.0
+        if (s.mag_noise_adapt == 0.0 or not math.isfinite(st.mag_strength)
+                or not st.flags.used_gyr):
+            return 1.0   # off, or no gyroscope: then the magnetometer is all the heading there is
         d = norm - st.mag_strength
         alpha = 1.0
         if math.isfinite(st.mag_dev_t):

@@ -158,7 +158,8 @@ class MagneticField:
         """mag_relearn_world: the rejected readings must agree in the world frame (within
         mag_gate of their running mean Q(q) y) while the phone turns faster than
         mag_relearn_min_rate, for mag_relearn_s of turning: a field that changed in the building
-        stays put in the world while the phone turns, a magnet on the phone turns with it."""
+        stays put in the world while the phone turns, a magnet on the phone turns with it. The
+        new m0 has their strength and dip; its north is kept."""
         s, st = self.settings, self._state
         m_w = quat.to_matrix(self._x[:4]) @ y
         cand = st.mag_candidate_world
@@ -171,13 +172,12 @@ class MagneticField:
             if self._turn_rate() >= s.mag_relearn_min_rate:
                 st.mag_candidate_time += t - st.mag_candidate_t
             if st.mag_candidate_time >= s.mag_relearn_s:
-                st.m0[:] = cand
-                if np.linalg.norm(st.mag_offset - st.mag_offset_at_reference) > s.mag_gate:
-                    # m0 was taken from readings the offset estimate did not yet correct: its
-                    # north is not north. Take north from the corrected field (the heading
-                    # updates then turn the estimate round, no faster than mag_return_s).
-                    st.m0[:] = [0.0, math.hypot(cand[0], cand[1]), cand[2]]
-                    st.mag_offset_at_reference[:] = st.mag_offset
+                # the new field's strength and dip; north stays where it was (the heading
+                # follows the new field no faster than mag_return_s)
+                horizontal = math.hypot(float(st.m0[0]), float(st.m0[1]))
+                if horizontal > 0.0:
+                    st.m0[:2] *= math.hypot(float(cand[0]), float(cand[1])) / horizontal
+                st.m0[2] = cand[2]
                 st.mag_strength = float(np.linalg.norm(cand))
                 st.diagnostics.mag_reference_dip_deg = self._reference_dip_deg()
                 st.mag_rejected_since = math.nan
@@ -197,7 +197,6 @@ class MagneticField:
         m_w = quat.to_matrix(self._x[:4]) @ y
         st.m0[:] = [0.0, math.hypot(m_w[0], m_w[1]), m_w[2]]
         st.m0_valid = True
-        st.mag_offset_at_reference[:] = st.mag_offset
         st.mag_strength = float(np.linalg.norm(st.m0))
         st.diagnostics.mag_expected = st.mag_strength
         st.diagnostics.mag_reference_dip_deg = self._reference_dip_deg()

@@ -144,7 +144,7 @@ class EKFSettings:
         0.0, unit="-",
         doc="R_m grows where the field is uneven: R_m (1 + this · d²/L_k²), d² the low-pass "
             "(time constant mag_return_s) of (‖y_m‖ − L_k)² over every reading, rejected ones "
-            "included (0: off)")
+            "included; only while the gyroscope drives the filter (0: off)")
     mag_reference_s: float = _setting(
         0.0, unit="s",
         doc="the expected field (strength L_k and the reference m0 with its dip) is the mean of "
@@ -166,8 +166,9 @@ class EKFSettings:
         False, unit="-",
         doc="true: re-learning compares the rejected readings in the world frame (Q(q) y_m: a "
             "changed field in a building stays put, a magnet on the phone turns with it), counts "
-            "time only while the phone turns faster than `mag_relearn_min_rate`, and takes the "
-            "new m0 as the readings' world vector (no heading jump); false: strength and dip")
+            "time only while the phone turns faster than `mag_relearn_min_rate`; the new m0 "
+            "takes their strength and dip, north stays (the heading follows no faster than "
+            "`mag_return_s`); false: strength and dip agree, m0 from the latest reading")
     mag_relearn_min_rate: float = _setting(
         0.0, unit="rad/s",
         doc="with `mag_relearn_world`: rejected readings count towards re-learning only while "

@@ -154,8 +154,6 @@ class EKFState:
     mag_offset_t: float = state_field("time of the latest pair in the fit", _NAN, unit="s")
     mag_offset_outliers: float = state_field("pairs in a row whose residual says the offset "
                                              "changed", _value(0.0))
-    mag_offset_at_reference: np.ndarray = state_field("b_m when m0 was taken", _zeros3,
-                                                      unit="µT", shape=(3,))
     mag_pair_raw: np.ndarray = state_field("the first reading of the open pair (raw)", _zeros3,
                                            unit="µT", shape=(3,))
     mag_pair_q: np.ndarray = state_field("the turn since that reading, integrated from the "

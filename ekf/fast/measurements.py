@@ -316,8 +316,6 @@ def _set_m0_from(s, c, y0, y1, y2):
     s[S.m0 + 1] = math.hypot(mw0, mw1)
     s[S.m0 + 2] = mw2
     s[S.m0_valid] = 1.0
-    for i in range(3):
-        s[S.mag_offset_at_reference + i] = s[S.mag_offset + i]
     strength = math.sqrt(s[S.m0 + 1] ** 2 + mw2 * mw2)
     s[S.mag_strength] = strength
     s[S.mag_expected] = strength
@@ -426,7 +424,8 @@ def _turn_rate(s, c):
 @jit
 def _track_new_field_world(s, c, y0, y1, y2, t):
     """reference ``_track_new_field_world``: the rejected readings must agree in the world
-    frame while the phone turns faster than mag_relearn_min_rate, for mag_relearn_s."""
+    frame while the phone turns faster than mag_relearn_min_rate, for mag_relearn_s; the new
+    m0 has their strength and dip, north kept."""
     Q = _to_matrix(s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3])
     mw0 = Q[0] * y0 + Q[1] * y1 + Q[2] * y2
     mw1 = Q[3] * y0 + Q[4] * y1 + Q[5] * y2
@@ -450,18 +449,13 @@ def _track_new_field_world(s, c, y0, y1, y2, t):
         if _turn_rate(s, c) >= c[C.mag_relearn_min_rate]:
             s[S.mag_candidate_time] += t - s[S.mag_candidate_t]
         if s[S.mag_candidate_time] >= c[C.mag_relearn_s]:
-            for i in range(3):
-                s[S.m0 + i] = s[W + i]
-            o0 = s[S.mag_offset] - s[S.mag_offset_at_reference]
-            o1 = s[S.mag_offset + 1] - s[S.mag_offset_at_reference + 1]
-            o2 = s[S.mag_offset + 2] - s[S.mag_offset_at_reference + 2]
-            if math.sqrt(o0 * o0 + o1 * o1 + o2 * o2) > c[C.mag_gate]:
-                # m0 came from readings the offset did not yet correct: north from this field
-                s[S.m0] = 0.0
-                s[S.m0 + 1] = math.hypot(s[W], s[W + 1])
-                s[S.m0 + 2] = s[W + 2]
-                for i in range(3):
-                    s[S.mag_offset_at_reference + i] = s[S.mag_offset + i]
+            # the new field's strength and dip; north stays where it was
+            horizontal = math.hypot(s[S.m0], s[S.m0 + 1])
+            if horizontal > 0.0:
+                scale = math.hypot(s[W], s[W + 1]) / horizontal
+                s[S.m0] = s[S.m0] * scale
+                s[S.m0 + 1] = s[S.m0 + 1] * scale
+            s[S.m0 + 2] = s[W + 2]
             s[S.mag_strength] = math.sqrt(s[W] ** 2 + s[W + 1] ** 2 + s[W + 2] ** 2)
             s[S.mag_reference_dip_deg] = _reference_dip_deg(s)
             s[S.mag_rejected_since] = _NAN
@@ -518,7 +512,8 @@ def _mag_gates(s, c, y0, y1, y2):
 @jit
 def _uneven_field(s, c, t, norm):
     """reference ``_uneven_field``: d² <- low-pass of (‖y‖ - L_k)²; returns 1 + k d² / L_k²."""
-    if c[C.mag_noise_adapt] == 0.0 or not math.isfinite(s[S.mag_strength]):
+    if (c[C.mag_noise_adapt] == 0.0 or not math.isfinite(s[S.mag_strength])
+            or s[S.used_gyr] == 0.0):
         return 1.0
     d = norm - s[S.mag_strength]
     alpha = 1.0
