@@ -259,10 +259,12 @@ class OrientationEKF(MagneticField, EstimatorBase):
         if not st.initialised:
             self._initialise(t)
             return
-        if self.settings.acc_lowpass_s > 0.0 and st.gyr_enabled:
-            # Only the gyroscope can carry the average along; without it, the reading itself.
+        if self.settings.acc_lowpass_s > 0.0 and st.gyr_enabled and st.flags.used_gyr:
+            # Only the gyroscope can carry the average along; without it (switched off, or a
+            # phone that has none, or silent), the reading itself, and the average restarts.
             self._acc_lowpass_update(t, y)
         else:
+            st.acc_carried_valid = False
             self._acc_update(y, self.settings.acc_gate)
 
     def update_mag(self, t: float, mag: ArrayLike) -> None:

@@ -294,7 +294,7 @@ COURSE = EKFSettings()
 # - magnetometer: heading only, following the field with a 5 s time constant at the fastest,
 #   trusted less where the field is uneven; strength and dip gates (6 uT, 15 deg, dip from the
 #   estimate) around the mean of the first second, 0.5 s of passing readings before use, a
-#   disturbance keeps it out for 15 s at most (5 s without a gyroscope); a changed field is
+#   disturbance keeps it out for 15 s at most (never without a gyroscope); a changed field is
 #   re-learned from readings that agree in the world frame for 20 s while the phone turns
 #   faster than 20 deg/s; the sensor-frame offset (a magnet on the phone) fitted online;
 # - the slow updates (low-passed accelerometer, magnetometer, zero rate) at most every 50 ms.
@@ -321,7 +321,7 @@ DEFAULT = EKFSettings(
     mag_settle_s=0.5,
     mag_reference_s=1.0,
     mag_max_reject_s=15.0,
-    mag_max_reject_no_gyro_s=5.0,
+    mag_max_reject_no_gyro_s=0.0,
     mag_strength_update="accepted",
     mag_relearn_s=20.0,
     mag_relearn_world=True,

@@ -21,7 +21,8 @@ QUICK_ARGS = {"headless_engine.py": ["--seconds", "1.5"],
               "stream_to_server.py": ["--seconds", "3"],
               "compare_estimators.py": ["--seconds", "20"],
               "embed_phone_view.py": ["--exit-after", "0.5"]}
-BENCHMARKS = [("speed.py", []), ("accuracy.py", ["--only", "ours-default,ours-course,ours-smoothed"]),
+BENCHMARKS = [("speed.py", []),
+              ("accuracy.py", ["--only", "ours-default,ours-course,ours-smoothed"]),
               ("tune_defaults.py", []),
               ("live.py", ["--skip-no-loss"])]
 

@@ -254,9 +254,11 @@ def _update_acc(s, c, t, v0, v1, v2):
         _initialise(s, c, t)
         return
     tau = c[C.acc_lowpass_s]
-    if tau > 0.0 and s[S.gyr_enabled] != 0.0:
+    if tau > 0.0 and s[S.gyr_enabled] != 0.0 and s[S.used_gyr] != 0.0:
         _acc_lowpass_update(s, c, t, v0, v1, v2, tau)
     else:
+        # no gyroscope drives the filter (off, none, silent): the reading itself
+        s[S.acc_carried_valid] = 0.0
         _acc_update(s, c, v0, v1, v2, c[C.acc_gate])
 
 

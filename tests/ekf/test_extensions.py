@@ -247,3 +247,28 @@ def test_exact_time_update_keeps_w_nonnegative_without_normalising():
         f.step(k * 0.01, gyr=[0, 0, 3.0])
         assert f.quat[0] >= 0
         assert abs(np.linalg.norm(f.quat) - 1) < 1e-12
+
+
+def test_a_phone_without_gyroscope_follows_the_magnetometer_from_the_start(realphone_dir):
+    """The course's rotation log with the gyroscope left out (cheap phones have none): the
+    expected field comes from the first second, not the first reading, and without a gyroscope
+    the magnetometer is never kept out, so nothing is rejected for seconds at the start and the
+    estimate stays as close to the phone's own as the plain course filter's."""
+    from app.stream.logfile import read_log
+    from ekf.metrics import interpolate_quat
+    a = read_log(realphone_dir / "tsrt14_lab2_rotation.txt").to_arrays()
+    rows = ~(np.isnan(a.acc).all(1) & np.isnan(a.mag).all(1))
+    t, acc, mag = a.t_s[rows], a.acc[rows], a.mag[rows]
+    has_ori = ~np.isnan(a.ori).any(axis=1)
+    t_ori, q_ori = a.t_s[has_ori], a.ori[has_ori]
+    errors = {}
+    for preset in ("default", "course"):
+        r = ekf.filter_batch(t, None, acc, mag, settings=preset)
+        has_mag = ~np.isnan(mag).any(axis=1)
+        first = has_mag & (t < t[0] + 8.0)
+        if preset == "default":
+            assert r.mag_rejected[first].mean() < 0.1
+        q = interpolate_quat(t, r.quat, t_ori)
+        sel = t_ori > t[0] + 3.0
+        errors[preset] = ekf.summarize(q[sel], q_ori[sel]).total_rmse_deg
+    assert errors["default"] < 1.1 * errors["course"]
