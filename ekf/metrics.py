@@ -62,3 +62,43 @@ def intervals_mask(t_ms: ArrayLike, intervals_ms: list[list[float]] | None) -> n
     for start, end in intervals_ms:
         m |= (t >= start) & (t <= end)
     return m
+
+
+def interpolate_quat(t_src: ArrayLike, q_src: ArrayLike, t_dst: ArrayLike) -> np.ndarray:
+    """The quaternion series (t_src (N,) non-decreasing, q_src (N, 4)) at the times t_dst (M,),
+    by spherical linear interpolation between the two samples around each time (slerp along
+    the shorter arc; the sign of a quaternion does not matter). NaN outside [t_src[0],
+    t_src[-1]] and where a neighbour is not finite; w >= 0.
+
+    Two orientations are compared at the same instant this way: the latest sample at or before
+    a time lags by up to one sample period, which in a fast turn (8 rad/s, 10 ms) is 4°.
+    """
+    t_src = np.asarray(t_src, float).reshape(-1)
+    q_src = np.asarray(q_src, float).reshape(-1, 4)
+    t_dst = np.asarray(t_dst, float).reshape(-1)
+    out = np.full((t_dst.shape[0], 4), np.nan)
+    if t_src.shape[0] == 0:
+        return out
+    inside = (t_dst >= t_src[0]) & (t_dst <= t_src[-1])
+    hi = np.clip(np.searchsorted(t_src, t_dst, side="left"), 0, t_src.shape[0] - 1)
+    lo = np.maximum(hi - 1, 0)
+    exact = t_src[hi] == t_dst
+    lo = np.where(exact, hi, lo)
+    span = t_src[hi] - t_src[lo]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = np.where(span > 0, (t_dst - t_src[lo]) / np.where(span > 0, span, 1.0), 0.0)
+    a = quat.normalize(q_src[lo])
+    b = quat.normalize(q_src[hi])
+    dot = np.sum(a * b, axis=1)
+    b = np.where(dot[:, None] < 0, -b, b)          # the shorter arc
+    dot = np.clip(np.abs(dot), 0.0, 1.0)
+    theta = np.arccos(dot)
+    sin_theta = np.sin(theta)
+    small = sin_theta < 1e-9
+    with np.errstate(invalid="ignore", divide="ignore"):
+        wa = np.where(small, 1.0 - u, np.sin((1.0 - u) * theta) / np.where(small, 1.0, sin_theta))
+        wb = np.where(small, u, np.sin(u * theta) / np.where(small, 1.0, sin_theta))
+    q = wa[:, None] * a + wb[:, None] * b
+    ok = inside & np.isfinite(q).all(axis=1)
+    out[ok] = quat.normalize(q[ok])
+    return out

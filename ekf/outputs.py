@@ -21,13 +21,14 @@ from typing import NamedTuple
 NOT_REJECTED = 0
 ACC_NORM_GATE = 1       # | ||y_a|| - g | > acc_gate (task 8)
 ACC_NIS_GATE = 2        # normalised innovation squared > acc_nis_gate
+ACC_CLIPPED = 3         # an axis at the sensor's range (acc_range): the reading is not the force
 MAG_STRENGTH_GATE = 1   # | ||y_m|| - L_k | > mag_gate (task 11)
 MAG_DIP_GATE = 2        # | dip - reference dip | > mag_dip_gate_deg
 MAG_SETTLING = 3        # passing the gates, but not yet for mag_settle_s
 MAG_NIS_GATE = 4        # normalised innovation squared > mag_nis_gate
 
 ACC_REJECTED_BY = {NOT_REJECTED: "not rejected", ACC_NORM_GATE: "norm gate",
-                   ACC_NIS_GATE: "NIS gate"}
+                   ACC_NIS_GATE: "NIS gate", ACC_CLIPPED: "clipped"}
 MAG_REJECTED_BY = {NOT_REJECTED: "not rejected", MAG_STRENGTH_GATE: "strength gate",
                    MAG_DIP_GATE: "dip gate", MAG_SETTLING: "settling", MAG_NIS_GATE: "NIS gate"}
 
@@ -75,7 +76,8 @@ class Diagnostics:
     acc_nis: float = _number(
         "-", "normalised innovation squared of the latest accelerometer update")
     acc_rejected_by: int = _code(
-        "which gate rejected the latest accelerometer reading: 0 none, 1 norm gate, 2 NIS gate")
+        "which gate rejected the latest accelerometer reading: 0 none, 1 norm gate, 2 NIS gate, "
+        "3 clipped (an axis at the sensor's range)")
     mag_norm: float = _number("µT", "‖y_m‖ of the latest magnetometer reading")
     mag_expected: float = _number("µT", "L_k, the learned field strength (AR(1), task 11)")
     mag_gate: float = _number("µT", "the field-strength gate in use (setting `mag_gate`)")
@@ -88,6 +90,11 @@ class Diagnostics:
     mag_rejected_by: int = _code(
         "which gate rejected the latest magnetometer reading: 0 none, 1 strength gate, "
         "2 dip gate, 3 settling, 4 NIS gate")
+    mag_offset_norm: float = _number(
+        "µT", "‖b_m‖, the online hard-iron estimate subtracted from the readings")
+    refused_samples: int = _output(
+        0, int, "-", "samples refused as degenerate (a non-finite time or value, an axis beyond "
+        "1e6, a zero-length acc or mag reading): each left the estimate as it was")
 
 
 class OutputRow(NamedTuple):

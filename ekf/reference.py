@@ -25,8 +25,8 @@ re-learning of a changed field, and a cap on how often the slow updates run.
 Covariance updates use the Joseph form P = (I - K H) P (I - K H)^T + K R K^T, which stays
 symmetric positive semi-definite and is valid for any gain (the heading-only gain included).
 
-This module is the oracle; ``ekf.fast`` runs the same arithmetic compiled and is tested
-against it.
+This module (with its magnetic-field part, ``ekf.reference_field``) is the oracle; ``ekf.fast``
+runs the same arithmetic compiled and is tested against it.
 """
 
 from __future__ import annotations
@@ -38,16 +38,37 @@ from numpy.typing import ArrayLike
 
 import ekf.quaternion as quat
 from ekf.estimator import SENSORS, EstimatorBase, ekf_name
-from ekf.outputs import (ACC_NIS_GATE, ACC_NORM_GATE, MAG_DIP_GATE, MAG_NIS_GATE, MAG_SETTLING,
-                         MAG_STRENGTH_GATE, NOT_REJECTED)
+from ekf.outputs import (ACC_CLIPPED, ACC_NIS_GATE, ACC_NORM_GATE, MAG_NIS_GATE, MAG_SETTLING,
+                         NOT_REJECTED)
 from ekf.settings import EKFSettings
-from ekf.state import EKFState, reference_dip_deg
+from ekf.reference_field import MagneticField
+from ekf.state import EKFState
 
-__all__ = ["SENSORS", "OrientationEKF", "acc_mag_quaternion", "tilt_quaternion"]
+__all__ = ["SENSORS", "OrientationEKF", "acc_mag_quaternion", "tilt_quaternion", "usable"]
+
+# A reading is degenerate (refused, counted in Diagnostics.refused_samples) when a value is not
+# finite or beyond MAX_READING (no phone sensor reads 1e6 m/s^2, rad/s or uT), or an acc/mag
+# reading is shorter than MIN_NORM (no direction). Within these bounds every step stays finite.
+MAX_READING = 1e6
+MIN_NORM = 1e-6
+# acc_range = 0: an axis within 1 % of the largest |axis| seen, once that exceeds 1.5 g, clips.
+CLIP_MARGIN = 0.99
+CLIP_MIN_G = 1.5
 
 
 def _as3(v: ArrayLike) -> np.ndarray:
     return np.asarray(v, dtype=float).reshape(3)
+
+
+def usable(t: float, v: np.ndarray | None, needs_direction: bool) -> bool:
+    """False for a degenerate sample (see MAX_READING, MIN_NORM): it must not enter the filter."""
+    if not math.isfinite(t):
+        return False
+    if v is None:
+        return True
+    if not all(math.isfinite(x) and abs(x) <= MAX_READING for x in v):
+        return False
+    return not needs_direction or math.sqrt(float(v @ v)) >= MIN_NORM
 
 
 def tilt_quaternion(acc: ArrayLike) -> np.ndarray:
@@ -81,7 +102,7 @@ def _rotate_world_about_up(q: np.ndarray, angle: float) -> np.ndarray:
     return quat.normalize(quat.multiply(quat.from_axis_angle([0, 0, 1], angle), q))
 
 
-class OrientationEKF(EstimatorBase):
+class OrientationEKF(MagneticField, EstimatorBase):
     """Quaternion EKF for asynchronous gyroscope, accelerometer and magnetometer samples.
 
     Parameters
@@ -186,6 +207,9 @@ class OrientationEKF(EstimatorBase):
         ``gyr_rate_before_sample``, from the previous sample up to t."""
         omega = _as3(gyr)
         s, st = self.settings, self._state
+        if not self._accept(t, omega, False):
+            return
+        t = self._not_before(t)
         if s.gyr_rate_before_sample and st.gyr_enabled:
             # The sample is the rate over the interval that ends now: it drives the state to t.
             if not st.omega_valid or t - st.omega_t <= s.gyr_hold_s:
@@ -207,8 +231,11 @@ class OrientationEKF(EstimatorBase):
 
     def update_acc(self, t: float, acc: ArrayLike) -> None:
         """An accelerometer sample [m/s^2, sensor frame] at time t [s]."""
-        self._advance(t)
         y = _as3(acc)
+        if not self._accept(t, y, True):
+            return
+        t = self._not_before(t)
+        self._advance(t)
         st = self._state
         st.last_acc[:] = y
         st.last_acc_valid = True
@@ -216,21 +243,43 @@ class OrientationEKF(EstimatorBase):
         if not st.acc_enabled:
             st.flags.used_acc = False
             return
+        if self._clipped(y):
+            # A saturated axis: the reading is not the specific force; it enters no update,
+            # no average, no start, and it is motion for the rest detector.
+            st.flags.acc_rejected = True
+            st.flags.used_acc = False
+            st.diagnostics.acc_norm = float(np.linalg.norm(y))
+            st.diagnostics.acc_rejected_by = ACC_CLIPPED
+            if self.settings.acc_lowpass_s > 0.0:
+                self._shaking(t, y)
+            st.last_motion_t = t
+            self._update_rest(t)
+            return
         self._detect_rest_acc(t, y)
         if not st.initialised:
             self._initialise(t)
             return
-        if self.settings.acc_lowpass_s > 0.0 and st.gyr_enabled:
-            # Only the gyroscope can carry the average along; without it, the reading itself.
+        if self.settings.acc_lowpass_s > 0.0 and st.gyr_enabled and st.flags.used_gyr:
+            # Only the gyroscope can carry the average along; without it (switched off, or a
+            # phone that has none, or silent), the reading itself, and the average restarts.
             self._acc_lowpass_update(t, y)
         else:
+            st.acc_carried_valid = False
             self._acc_update(y, self.settings.acc_gate)
 
     def update_mag(self, t: float, mag: ArrayLike) -> None:
         """A magnetometer sample [uT, sensor frame] at time t [s]."""
-        self._advance(t)
         y = _as3(mag)
+        if not self._accept(t, y, True):
+            return
+        t = self._not_before(t)
+        self._advance(t)
         st = self._state
+        if self.settings.mag_hard_iron_tau_s > 0.0 and st.mag_enabled and st.initialised:
+            self._fit_hard_iron(t, y)
+            y = y - st.mag_offset
+            if float(np.linalg.norm(y)) < MIN_NORM:
+                return
         st.last_mag[:] = y
         st.last_mag_valid = True
         st.last_mag_t = t
@@ -256,8 +305,30 @@ class OrientationEKF(EstimatorBase):
             self.update_acc(t, acc)
         if mag is not None:
             self.update_mag(t, mag)
-        if gyr is None and acc is None and mag is None:
-            self._advance(t)
+        if gyr is None and acc is None and mag is None and self._accept(t, None, False):
+            self._advance(self._not_before(t))
+
+    def _accept(self, t: float, v: np.ndarray | None, needs_direction: bool) -> bool:
+        """A degenerate sample is refused and counted; the estimate stays as it was."""
+        if usable(t, v, needs_direction):
+            return True
+        self._state.diagnostics.refused_samples += 1
+        return False
+
+    def _not_before(self, t: float) -> float:
+        """A sample older than the latest counts as at the latest time (the state cannot go
+        back; an ordered stream never has one)."""
+        return t if math.isnan(self._state.t) or t >= self._state.t else self._state.t
+
+    def _clipped(self, y: np.ndarray) -> bool:
+        """Any axis at the accelerometer's range (acc_range, or the range seen in the data)."""
+        s, st = self.settings, self._state
+        largest = float(np.max(np.abs(y)))
+        st.acc_axis_max = max(st.acc_axis_max, largest)
+        if s.acc_range == 0.0:
+            return (st.acc_axis_max >= CLIP_MIN_G * s.g
+                    and largest >= CLIP_MARGIN * st.acc_axis_max)
+        return largest >= s.acc_range
 
     # ---------------------------------------------------------------------------------------
     # time update
@@ -320,6 +391,9 @@ class OrientationEKF(EstimatorBase):
             Qn[4:, 4:] = np.eye(3) * (s.gyro_bias_random_walk ** 2 * T)
         self._x[:4] = F @ q
         self._P = A @ self._P @ A.T + Qn
+        if s.mag_hard_iron_tau_s > 0.0 and math.isfinite(self._state.mag_pair_t):
+            # the hard-iron fit's pair: the turn since its first reading, from the gyro alone
+            self._state.mag_pair_q[:] = F @ self._state.mag_pair_q
 
     def _carry(self, omega: np.ndarray, T: float) -> None:
         """Turn the carried specific force into the new body frame: the body turned by |w| T
@@ -344,7 +418,16 @@ class OrientationEKF(EstimatorBase):
 
     # ---------------------------------------------------------------------------------------
     # measurement updates
-    def _acc_update(self, y: np.ndarray, norm_gate: float) -> None:
+    def _shaking(self, t: float, y: np.ndarray) -> None:
+        """acc_noise_adapt: d² <- d² + alpha ((‖y‖ - g)² - d²), the low-pass of acc_lowpass_s."""
+        s, st = self.settings, self._state
+        dev = (float(np.linalg.norm(y)) - s.g) ** 2
+        dt = t - st.acc_dev_t if math.isfinite(st.acc_dev_t) else math.inf
+        alpha = 1.0 if not dt < math.inf else dt / (s.acc_lowpass_s + dt)
+        st.acc_dev_sq += alpha * (dev - st.acc_dev_sq)
+        st.acc_dev_t = t
+
+    def _acc_update(self, y: np.ndarray, norm_gate: float, noise_scale: float = 1.0) -> None:
         """Task 6 with the task-8 gate: y_a = Q(q)^T g0 + e_a, skipped when |‖y‖ - g| > gate
         or (optionally) when the NIS exceeds acc_nis_gate."""
         s = self.settings
@@ -366,7 +449,7 @@ class OrientationEKF(EstimatorBase):
         H = np.zeros((3, self._state.n))
         for i, dQi in enumerate(quat.dQ_dq(q)):
             H[:, i] = dQi.T @ g0
-        R = np.asarray(s.acc_noise_cov, float)
+        R = np.asarray(s.acc_noise_cov, float) * noise_scale
         nis = self._update(y - y_hat, H, R, gate=s.acc_nis_gate)
         diag.acc_nis = nis
         accepted = nis <= s.acc_nis_gate
@@ -382,6 +465,7 @@ class OrientationEKF(EstimatorBase):
         disturbed reading for the user."""
         s, st = self.settings, self._state
         norm = float(np.linalg.norm(y))
+        self._shaking(t, y)
         if not st.acc_carried_valid:
             st.acc_carried[:] = y
             st.acc_carried_valid = True
@@ -393,7 +477,8 @@ class OrientationEKF(EstimatorBase):
         used = True
         if t - st.acc_updated_t >= s.update_period_s:
             st.acc_updated_t = t
-            self._acc_update(st.acc_carried, math.inf)
+            scale = 1.0 + s.acc_noise_adapt * st.acc_dev_sq / (s.g * s.g)
+            self._acc_update(st.acc_carried, math.inf, scale)
             used = st.flags.used_acc   # the NIS gate may still refuse the average
         st.diagnostics.acc_norm = norm
         st.diagnostics.acc_gate = s.acc_gate
@@ -402,10 +487,17 @@ class OrientationEKF(EstimatorBase):
         st.flags.used_acc = used
 
     def _mag_update(self, y: np.ndarray, t: float) -> None:
-        """Task 9 behind the gates of task 11 (and the dip, settling and NIS gates)."""
+        """Task 9 behind the gates of task 11 (and the dip, settling and NIS gates), with the
+        expected field learned over the first mag_reference_s and a bound on how long a
+        disturbance keeps the magnetometer out."""
         s, st = self.settings, self._state
         flags, diag = st.flags, st.diagnostics
-        norm, dip, rejected_by = self._mag_gates(y)
+        if t < st.mag_reference_until:
+            norm, dip, rejected_by = self._learn_reference(y), math.nan, NOT_REJECTED
+        else:
+            if st.mag_reference_count > 0:
+                self._finish_reference()
+            norm, dip, rejected_by = self._mag_gates(y)
         # After a rejection, readings must pass for mag_settle_s before they are used again.
         if rejected_by != NOT_REJECTED:
             st.mag_passing_since = math.nan
@@ -414,22 +506,32 @@ class OrientationEKF(EstimatorBase):
         if rejected_by == NOT_REJECTED and t - st.mag_passing_since < s.mag_settle_s:
             rejected_by = MAG_SETTLING
         diag.mag_rejected_by = rejected_by
+        R = np.asarray(s.mag_noise_cov, float) * self._uneven_field(t, norm)
         if rejected_by != NOT_REJECTED:
+            if math.isnan(st.mag_disturbed_since):
+                st.mag_disturbed_since = t
             if s.mag_strength_update == "accepted":
                 self._track_new_field(y, t, norm, dip)
             flags.mag_rejected = True
             flags.used_mag = False
-            return
-        st.mag_rejected_since = math.nan
-        flags.mag_rejected = False
+            bound = s.mag_max_reject_s if flags.used_gyr else min(s.mag_max_reject_s,
+                                                                  s.mag_max_reject_no_gyro_s)
+            if not t - st.mag_disturbed_since > bound:
+                return
+            # Out for longer than the bound: use the reading, trusted less, until it ends.
+            R = R * s.mag_reject_noise_scale
+        else:
+            st.mag_rejected_since = math.nan
+            st.mag_disturbed_since = math.nan
+            flags.mag_rejected = False
         if t - st.mag_updated_t < s.update_period_s:
             flags.used_mag = False
             return
+        gain_cap = self._heading_gain_cap(t - st.mag_updated_t) if flags.used_gyr else 1.0
         st.mag_updated_t = t
         q = self._x[:4]
-        R = np.asarray(s.mag_noise_cov, float)
         if s.mag_heading_only:
-            nis = self._mag_heading_update(y, R, s.mag_nis_gate)
+            nis = self._mag_heading_update(y, R, s.mag_nis_gate, gain_cap)
         else:
             m0 = st.m0
             y_hat = quat.to_matrix(q).T @ m0
@@ -445,51 +547,36 @@ class OrientationEKF(EstimatorBase):
             flags.mag_rejected = True
             flags.used_mag = False
             return
-        flags.mag_rejected = False
         flags.used_mag = True
 
-    def _mag_gates(self, y: np.ndarray) -> tuple[float, float, int]:
-        """Task 11's strength gate |‖y‖ - L_k| with the AR(1) estimate L_k, then the dip gate.
-        Returns ‖y‖, the dip [deg] and which gate rejected the reading (NOT_REJECTED: none)."""
+    def _uneven_field(self, t: float, norm: float) -> float:
+        """mag_noise_adapt: where the field is uneven (a building's, along a walk), readings
+        that pass the gates are still bent: d² <- low-pass (mag_return_s) of (‖y‖ - L_k)², and
+        R_m is scaled by 1 + mag_noise_adapt d² / L_k²."""
         s, st = self.settings, self._state
-        diag = st.diagnostics
-        norm = float(np.linalg.norm(y))
-        diag.mag_norm = norm
-        diag.mag_gate = s.mag_gate
-        if math.isnan(st.mag_strength):
-            st.mag_strength = norm
-        L_prev = st.mag_strength
-        rejected_by = MAG_STRENGTH_GATE if abs(norm - L_prev) > s.mag_gate else NOT_REJECTED
-        dip = self._dip_deg(y)
-        diag.mag_dip_deg = dip
-        if (rejected_by == NOT_REJECTED and math.isfinite(s.mag_dip_gate_deg)
-                and math.isfinite(dip)
-                and abs(dip - self._reference_dip_deg()) > s.mag_dip_gate_deg):
-            rejected_by = MAG_DIP_GATE
-        # Task 11: AR(1) estimate of the field strength.
-        if s.mag_strength_update == "always" or rejected_by == NOT_REJECTED:
-            st.mag_strength = (1 - s.mag_alpha) * L_prev + s.mag_alpha * norm
-        diag.mag_expected = st.mag_strength
-        return norm, dip, rejected_by
+        if (s.mag_noise_adapt == 0.0 or not math.isfinite(st.mag_strength)
+                or not st.flags.used_gyr):
+            return 1.0   # off, or no gyroscope: then the magnetometer is all the heading there is
+        d = norm - st.mag_strength
+        alpha = 1.0
+        if math.isfinite(st.mag_dev_t):
+            dt = t - st.mag_dev_t
+            alpha = dt / (s.mag_return_s + dt) if s.mag_return_s + dt > 0.0 else 1.0
+        st.mag_dev_sq += alpha * (d * d - st.mag_dev_sq)
+        st.mag_dev_t = t
+        return 1.0 + s.mag_noise_adapt * st.mag_dev_sq / st.mag_strength ** 2
 
-    def _track_new_field(self, y: np.ndarray, t: float, norm: float, dip: float) -> None:
-        """A new field is learned only when the rejected readings agree with each other
-        (strength and dip within the gates of their running mean) for mag_relearn_s: a changed
-        field, not a magnet that moves with the phone."""
-        s, st = self.settings, self._state
-        cn, cd = st.mag_candidate_norm, st.mag_candidate_dip
-        if (math.isnan(st.mag_rejected_since) or abs(norm - cn) > s.mag_gate
-                or abs(dip - cd) > s.mag_dip_gate_deg):
-            st.mag_rejected_since = t
-            st.mag_candidate_norm, st.mag_candidate_dip = norm, dip
-        else:
-            st.mag_candidate_norm = cn + s.mag_alpha * (norm - cn)
-            st.mag_candidate_dip = cd + s.mag_alpha * (dip - cd)
-            if t - st.mag_rejected_since >= s.mag_relearn_s:
-                self._relearn_field(y)
+    def _heading_gain_cap(self, dt: float) -> float:
+        """mag_return_s: the largest fraction of a heading innovation one update may correct,
+        dt / (dt + tau) for dt since the previous update (1: no cap). Only while the gyroscope
+        drives the filter: without it the magnetometer is all the heading there is."""
+        tau = self.settings.mag_return_s
+        if tau <= 0.0:
+            return 1.0
+        return dt / (dt + tau) if math.isfinite(dt) else 1.0
 
     def _mag_heading_update(self, y: np.ndarray, R: np.ndarray,
-                            gate: float = math.inf) -> float:
+                            gate: float = math.inf, gain_cap: float = 1.0) -> float:
         """Footnote 2: use only the field's horizontal direction, and only turn about up.
 
         Pseudo-measurement: the heading error psi = atan2(-m_E, m_N) of the reading rotated to
@@ -510,9 +597,17 @@ class OrientationEKF(EstimatorBase):
         # Heading noise from the field noise: sigma_psi^2 = sigma_m^2 / |m_horizontal|^2.
         r = float(np.trace(R)) / 3.0 / horizontal_sq
         P = self._P
-        S = float((H @ P @ H.T)[0, 0]) + r
-        if psi * psi / S > gate:
-            return psi * psi / S
+        HPH = float((H @ P @ H.T)[0, 0])
+        S = HPH + r
+        nis = psi * psi / S
+        if nis > gate:
+            return nis
+        if HPH * (1.0 - gain_cap) > gain_cap * r:
+            # mag_return_s: a larger r, so that at most gain_cap of psi is corrected now
+            if gain_cap <= 0.0:
+                return nis
+            r = HPH * (1.0 - gain_cap) / gain_cap
+            S = HPH + r
         K = (P @ H.T) / S
         # Keep only the component of the quaternion correction along a turn about up:
         # d q / d delta = 1/2 (0,0,0,1) ⊗ q.
@@ -524,7 +619,7 @@ class OrientationEKF(EstimatorBase):
         I_KH = np.eye(n) - K @ H
         self._P = I_KH @ P @ I_KH.T + r * (K @ K.T)
         self._normalise()
-        return innovation * innovation / S
+        return nis
 
     def _update(self, innovation: np.ndarray, H: np.ndarray, R: np.ndarray,
                 gate: float = math.inf) -> float:
@@ -638,42 +733,6 @@ class OrientationEKF(EstimatorBase):
         denom = cross * cross + dot * dot
         grad = (dot * np.array([-ry, rx]) - cross * np.array([rx, ry])) / denom
         return psi, grad
-
-    def _set_m0_from(self, y: np.ndarray) -> None:
-        """m0 = (0, sqrt(mx^2 + my^2), mz) of the reading expressed in the (level) world frame."""
-        st = self._state
-        m_w = quat.to_matrix(self._x[:4]) @ y
-        st.m0[:] = [0.0, math.hypot(m_w[0], m_w[1]), m_w[2]]
-        st.m0_valid = True
-        st.mag_strength = float(np.linalg.norm(st.m0))
-        st.diagnostics.mag_expected = st.mag_strength
-        st.diagnostics.mag_reference_dip_deg = self._reference_dip_deg()
-
-    def _relearn_field(self, y: np.ndarray) -> None:
-        st = self._state
-        st.mag_strength = float(np.linalg.norm(y))
-        if st.m0_valid:
-            m_w = quat.to_matrix(self._x[:4]) @ y
-            st.m0[:] = [0.0, math.hypot(m_w[0], m_w[1]), m_w[2]]
-            st.diagnostics.mag_reference_dip_deg = self._reference_dip_deg()
-        st.mag_rejected_since = math.nan
-
-    def _dip_deg(self, y: np.ndarray) -> float:
-        """Angle between up and the field [deg]: up from the estimate, or from the latest
-        accelerometer reading (NaN when there is none or it was disturbed)."""
-        st = self._state
-        if self.settings.mag_dip_from_estimate:
-            up = float(quat.to_matrix(self._x[:4])[2] @ y)
-            c = up / (np.linalg.norm(y) + 1e-300)
-            return math.degrees(math.acos(max(-1.0, min(1.0, c))))
-        a = st.last_acc
-        if not st.last_acc_valid or st.flags.acc_rejected:
-            return math.nan
-        c = float(a @ y) / (np.linalg.norm(a) * np.linalg.norm(y) + 1e-300)
-        return math.degrees(math.acos(max(-1.0, min(1.0, c))))
-
-    def _reference_dip_deg(self) -> float:
-        return reference_dip_deg(self._state.m0) if self._state.m0_valid else math.nan
 
     # ---------------------------------------------------------------------------------------
     # rest detection

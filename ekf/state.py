@@ -143,7 +143,43 @@ class EKFState:
     mag_candidate_norm: float = state_field("running strength of those rejected readings", _NAN,
                                             unit="µT")
     mag_candidate_dip: float = state_field("their running dip", _NAN, unit="deg")
+    mag_offset: np.ndarray = state_field("the online hard-iron estimate b_m, subtracted from "
+                                         "every reading (mag_hard_iron_tau_s)", _zeros3,
+                                         unit="µT", shape=(3,))
+    mag_offset_info: np.ndarray = state_field("its normal matrix Σ w Dᵀ D (forgetting)",
+                                              lambda settings, enabled: np.zeros((3, 3)),
+                                              shape=(3, 3))
+    mag_offset_rhs: np.ndarray = state_field("its right-hand side Σ w Dᵀ e", _zeros3, unit="µT",
+                                             shape=(3,))
+    mag_offset_t: float = state_field("time of the latest pair in the fit", _NAN, unit="s")
+    mag_offset_outliers: float = state_field("pairs in a row whose residual says the offset "
+                                             "changed", _value(0.0))
+    mag_pair_raw: np.ndarray = state_field("the first reading of the open pair (raw)", _zeros3,
+                                           unit="µT", shape=(3,))
+    mag_pair_q: np.ndarray = state_field("the turn since that reading, integrated from the "
+                                         "gyroscope (F of every time update)",
+                                         lambda settings, enabled: np.array([1.0, 0, 0, 0]),
+                                         shape=(4,))
+    mag_pair_t: float = state_field("time of that reading; NaN: no open pair", _NAN, unit="s")
+    mag_candidate_world: np.ndarray = state_field(
+        "running world-frame vector of the rejected readings (mag_relearn_world)", _zeros3,
+        unit="µT", shape=(3,))
+    mag_candidate_time: float = state_field("time those readings have agreed while the phone "
+                                            "turned (mag_relearn_world)", _value(0.0), unit="s")
+    mag_candidate_t: float = state_field("time of the latest candidate reading", _NAN, unit="s")
     mag_updated_t: float = state_field("time of the latest magnetometer update", _NEVER, unit="s")
+    mag_dev_sq: float = state_field("low-pass of (‖y_m‖ − L_k)² (mag_noise_adapt)", _value(0.0),
+                                    unit="µT²")
+    mag_dev_t: float = state_field("time of the latest reading in mag_dev_sq", _NAN, unit="s")
+    mag_disturbed_since: float = state_field("the current disturbance (rejected or settling "
+                                             "readings) began then; NaN: none", _NAN, unit="s")
+    mag_reference_until: float = state_field("the expected field is learned from the readings "
+                                             "until then (mag_reference_s); -inf: done",
+                                             _NEVER, unit="s")
+    mag_reference_sum: np.ndarray = state_field("sum of those readings in the world frame",
+                                                _zeros3, unit="µT", shape=(3,))
+    mag_reference_norm_sum: float = state_field("sum of their strengths", _value(0.0), unit="µT")
+    mag_reference_count: float = state_field("how many readings are in the sums", _value(0.0))
 
     # --- the accelerometer low-pass carried by the gyroscope ------------------------------------
     acc_carried: np.ndarray = state_field("low-passed specific force in the current body frame",
@@ -152,6 +188,12 @@ class EKFState:
     acc_carried_t: float = state_field("time of the latest reading blended into acc_carried",
                                        _NAN, unit="s")
     acc_updated_t: float = state_field("time of the latest accelerometer update", _NEVER, unit="s")
+    acc_dev_sq: float = state_field("low-pass of (‖y_a‖ − g)² (acc_noise_adapt)", _value(0.0),
+                                    unit="(m/s²)²")
+    acc_dev_t: float = state_field("time of the latest reading in acc_dev_sq", _NAN, unit="s")
+    acc_axis_max: float = state_field("largest |axis| of the accelerometer readings so far (the "
+                                      "range detected from the data, acc_range = 0)",
+                                      _value(0.0), unit="m/s²")
 
     # --- rest detection ------------------------------------------------------------------------
     acc_lowpass: np.ndarray = state_field("low-pass of the accelerometer for rest detection",

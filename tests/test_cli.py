@@ -95,3 +95,81 @@ def test_real_rotation_log_within_10_degrees_of_the_phone(realphone_dir):
     assert s.total_rmse_deg < 10.0
     course = evaluate_log(log, "ekf", ekf.PRESETS["course"], ("gyr", "acc", "mag"), None, 3.0)
     assert course.total_rmse_deg < 10.0
+
+
+def _log_and_truth(tmp_path, seconds=20):
+    """A simulated log whose ORI is turned by 5 deg (a phone's own, imperfect estimate) and a
+    sibling NAME.truth.txt holding the true orientation (ORI lines only)."""
+    import ekf.quaternion as Q
+    log = tmp_path / "walk.txt"
+    assert cli.main(["simulate", "-o", str(log), "--duration", str(seconds), "--seed", "4"]) == 0
+    lines = log.read_text().splitlines()
+    truth = [line for line in lines if "\tORI\t" in line]
+    (tmp_path / "walk.truth.txt").write_text("\n".join(truth) + "\n")
+    off = Q.from_axis_angle([0, 0, 1], np.radians(5.0))
+    phone = []
+    for line in lines:
+        if "\tORI\t" in line:
+            t, tag, *q = line.split("\t")
+            q = Q.multiply(off, np.array(q, float))
+            line = "\t".join([t, tag, *(f"{v:.7f}" for v in q)])
+        phone.append(line)
+    log.write_text("\n".join(phone) + "\n")
+    return log
+
+
+def _rows(table: str) -> dict[str, list[float]]:
+    out = {}
+    for line in table.splitlines()[2:]:
+        name, _, rest = line.rpartition("  ")
+        parts = line.split()
+        if len(parts) >= 5:
+            out[" ".join(parts[:-4])] = [float(x) for x in parts[-3:]]
+    return out
+
+
+def test_evaluate_scores_against_the_sibling_truth_with_the_phone_as_a_row(tmp_path, capsys):
+    log = _log_and_truth(tmp_path)
+    capsys.readouterr()
+    assert cli.main(["evaluate", str(log), "--estimator", "ekf,course"]) == 0
+    out = capsys.readouterr().out
+    assert "walk.truth.txt" in out.splitlines()[0]
+    rows = _rows(out)
+    assert set(rows) == {"ekf", "course", "phone (ORI)"}
+    assert rows["ekf"][0] < 3.0
+    assert abs(rows["phone (ORI)"][0] - 5.0) < 0.1 and abs(rows["phone (ORI)"][1] - 5.0) < 0.1
+    # an explicit --truth gives the same; without a truth file the reference is the log's ORI
+    capsys.readouterr()
+    assert cli.main(["evaluate", str(log), "--truth", str(tmp_path / "walk.truth.txt")]) == 0
+    assert _rows(capsys.readouterr().out)["ekf"] == rows["ekf"]
+    (tmp_path / "walk.truth.txt").unlink()
+    assert cli.main(["evaluate", str(log)]) == 0
+    alone = _rows(capsys.readouterr().out)
+    assert set(alone) == {"ekf"} and alone["ekf"][1] > 3.0     # 5 deg off in heading
+
+
+def test_evaluate_and_filter_smooth(tmp_path, capsys):
+    log = _log_and_truth(tmp_path, seconds=30)
+    capsys.readouterr()
+    assert cli.main(["evaluate", str(log), "--estimator", "ekf,course"]) == 0
+    forward = _rows(capsys.readouterr().out)
+    assert cli.main(["evaluate", str(log), "--estimator", "ekf,course", "--smooth"]) == 0
+    smoothed = _rows(capsys.readouterr().out)
+    assert smoothed["ekf smoothed"][0] <= forward["ekf"][0]
+    assert "course smoothed" in smoothed
+    out = tmp_path / "s.csv"
+    assert cli.main(["filter", str(log), "--smooth", "-o", str(out)]) == 0
+    plain = tmp_path / "f.csv"
+    assert cli.main(["filter", str(log), "-o", str(plain)]) == 0
+    a, b = list(csv.reader(out.open())), list(csv.reader(plain.open()))
+    assert len(a) == len(b) and [r[0] for r in a] == [r[0] for r in b]
+    assert a[-1] == b[-1] and a[10] != b[10]     # the last row is the filter's, earlier ones not
+
+
+def test_smooth_needs_the_ekf(tmp_path, capsys):
+    log = tmp_path / "sim.txt"
+    cli.main(["simulate", "-o", str(log), "--duration", "3"])
+    capsys.readouterr()
+    assert cli.main(["filter", str(log), "--smooth", "--estimator", "complementary"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--smooth" in err[0]

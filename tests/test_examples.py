@@ -22,7 +22,9 @@ QUICK_ARGS = {"headless_engine.py": ["--seconds", "1.5"],
               "compare_estimators.py": ["--seconds", "20"],
               "embed_phone_view.py": ["--exit-after", "0.5"],
               "course_ekf.py": ["--seconds", "10"]}
-BENCHMARKS = [("speed.py", []), ("accuracy.py", ["--only", "ours-default,ours-course"]),
+BENCHMARKS = [("speed.py", []),
+              ("accuracy.py", ["--only", "ours-default,ours-course,ours-smoothed"]),
+              ("tune_defaults.py", []),
               ("live.py", ["--skip-no-loss"]), ("chaos.py", []), ("tuning.py", []),
               ("plugin.py", []), ("session.py", [])]
 

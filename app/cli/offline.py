@@ -18,7 +18,7 @@ from pathlib import Path
 from ekf.simulate import simulate
 from app.cli import options
 from app.engine import config, estimates
-from app.engine.offline import evaluate_log, filter_log
+from app.engine.offline import evaluate_log, evaluate_phone, filter_log, sibling_truth
 from app.engine.user_filter import UserFilterEstimator
 from app.engine.user_template import write_template
 from app.stream.demo import write_session
@@ -74,6 +74,13 @@ def cmd_new_filter(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_smooth(args: argparse.Namespace, names: list[str]) -> None:
+    """--smooth is the EKF's (the smoother needs its covariance)."""
+    bad = [name for name in names if name not in ("ekf", "course")]
+    if args.smooth and bad:
+        raise config.ConfigError(f"--smooth needs the EKF (ekf or course), not {bad[0]!r}")
+
+
 # ---- filter -------------------------------------------------------------------------------------
 
 def cmd_filter(args: argparse.Namespace) -> int:
@@ -82,10 +89,15 @@ def cmd_filter(args: argparse.Namespace) -> int:
     if len(names) != 1:
         raise config.ConfigError("filter: give exactly one --estimator")
     settings = config.load_settings(args.settings)
+    _check_smooth(args, names)
     estimator = config.make_estimator(names[0], settings, sensors)   # before a long read
     log = read_log(args.log, args.limits)
-    with contextlib.redirect_stdout(sys.stderr):   # what the user's code prints: not the CSV
-        rows = filter_log(log, estimator, settings, sensors)
+    try:
+        with contextlib.redirect_stdout(sys.stderr):   # what the user's code prints: not the CSV
+            rows = filter_log(log, names[0] if args.smooth else estimator, settings, sensors,
+                              smooth=args.smooth)
+    except ValueError as error:
+        raise config.ConfigError(f"filter: {error}") from None
     if not report_user_filter(estimator, args.traceback):
         print("orientation-lab: no estimates written", file=sys.stderr)
         return 1
@@ -114,32 +126,49 @@ def intervals_of(args: argparse.Namespace) -> tuple[list | None, str]:
     return config.read_intervals(path), f"score intervals from {path}"
 
 
+def _truth(args: argparse.Namespace) -> tuple[LogData | None, str]:
+    path = args.truth or sibling_truth(args.log)
+    if path is None:
+        return None, "the log's ORI"
+    return read_log(str(path)), f"the truth in {path}"
+
+
+def _row(name: str, s, width: int = 16) -> str:
+    return (f"{name:<{width}}{s.samples:>9}{s.total_rmse_deg:>10.2f}{s.heading_rmse_deg:>11.2f}"
+            f"{s.inclination_rmse_deg:>11.2f}")
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     sensors = config.sensor_list(args.sensors)
     names = config.estimator_names(args.estimator)
     settings = config.load_settings(args.settings)
+    _check_smooth(args, names)
     intervals, where = intervals_of(args)
     estimators = [config.make_estimator(name, settings, sensors) for name in names]
     log = read_log(args.log, args.limits)
+    truth, against = _truth(args)
     skip = f", after the first {args.skip:g} s" if args.skip else ""
-    print(f"{args.log}: error against ORI, {where}{skip}")
-    width = max([16] + [len(Path(name).name) + 2 for name in names])
+    smooth = ", smoothed (forward EKF + backward RTS pass)" if args.smooth else ""
+    print(f"{args.log}: error against {against} at its time stamps, {where}{skip}{smooth}")
+    labels = [Path(name).name + (" smoothed" if args.smooth else "") for name in names]
+    width = max([16] + [len(label) + 2 for label in labels])
     print(f"{'estimator':<{width}}{'samples':>9}{'total °':>10}{'heading °':>11}"
           f"{'inclin. °':>11}")
     status = 0
-    for name, estimator in zip(names, estimators):
-        try:
+    try:
+        for name, estimator, label in zip(names, estimators, labels):
             with contextlib.redirect_stdout(sys.stderr):
-                s = evaluate_log(log, estimator, settings, sensors, intervals, args.skip)
-        except ValueError as error:
-            raise config.ConfigError(f"evaluate: {error}") from None
-        label = Path(name).name
-        if not report_user_filter(estimator, args.traceback):
-            print(f"{label:<{width}}{'stopped: see above':>20}", flush=True)
-            status = 1
-            continue
-        print(f"{label:<{width}}{s.samples:>9}{s.total_rmse_deg:>10.2f}"
-              f"{s.heading_rmse_deg:>11.2f}{s.inclination_rmse_deg:>11.2f}", flush=True)
+                s = evaluate_log(log, name if args.smooth else estimator, settings, sensors,
+                                 intervals, args.skip, truth, smooth=args.smooth)
+            if not report_user_filter(estimator, args.traceback):
+                print(f"{label:<{width}}{'stopped: see above':>20}", flush=True)
+                status = 1
+                continue
+            print(_row(label, s, width), flush=True)
+        if truth is not None:
+            print(_row("phone (ORI)", evaluate_phone(log, truth, intervals, args.skip), width))
+    except ValueError as error:
+        raise config.ConfigError(f"evaluate: {error}") from None
     return status
 
 
@@ -179,6 +208,7 @@ def _log_filter_options(parser: argparse.ArgumentParser, several: bool) -> None:
     options.add_settings(parser)
     options.add_limits(parser)
     options.add_traceback(parser)
+    options.add_smooth(parser)
 
 
 def add_commands(sub) -> None:
@@ -196,9 +226,10 @@ def add_commands(sub) -> None:
                    help="output file (default: standard output)")
     f.set_defaults(func=cmd_filter)
 
-    e = sub.add_parser("evaluate", help="RMSE of the estimate against the log's ORI")
+    e = sub.add_parser("evaluate", help="RMSE of the estimate against a truth file or the log's ORI")
     _log_filter_options(e, several=True)
     options.add_intervals(e)
+    options.add_truth(e)
     options.add_skip(e)
     e.set_defaults(func=cmd_evaluate)
 

@@ -157,6 +157,20 @@ def add_sensors(parser: argparse.ArgumentParser) -> None:
                              "(default all)")
 
 
+def add_smooth(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--smooth", action="store_true",
+                        help="offline smoother: the EKF forward, then a backward "
+                             "Rauch-Tung-Striebel pass (EKF only; every estimate uses the whole "
+                             "recording)")
+
+
+def add_truth(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--truth", metavar="FILE",
+                        help="ORI-only log holding the ground truth (default: LOG's sibling "
+                             "NAME.truth.txt if present, else LOG's own ORI); the phone's own "
+                             "ORI is then scored as a row of its own")
+
+
 def add_record(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--record", metavar="DIR",
                         help="record from the start into DIR (raw.txt, session.json, "

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 import ekf
-from app.engine.offline import ReferenceErrors, reference_errors
+from app.engine.offline import ReferenceErrors, reference_errors, session_row_starts
 from app.engine.runner import SENSORS, EstimatorRunner, Rows
 from app.stream.fastparse import samples_to_arrays
 from app.stream.logfile import LogData
@@ -121,7 +121,8 @@ def refilter(log: LogData | PreparedLog, settings: ekf.EKFSettings | None,
     rows = run_rows(prepared, settings, estimator, sensors)
     errors = None
     if len(prepared.ori_times) and rows.has_sample.any():
-        errors = reference_errors(rows, prepared.ori_times, intervals_ms, skip_s)
+        errors = reference_errors(rows, prepared.ori_times, intervals_ms, skip_s,
+                                  session_row_starts(prepared.t_ms, prepared.session_starts))
     return RefilterResult(settings if settings is not None else ekf.PRESETS["default"],
                           estimator, rows, errors, time.perf_counter() - started, label)
 

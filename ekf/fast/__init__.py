@@ -35,8 +35,18 @@ ekf.fast                                    ekf.reference
 ``time_update._time_update_random_walk``    ``_time_update_random_walk``
 ``measurements._acc_update``                ``_acc_update``
 ``measurements._acc_lowpass_update``        ``_acc_lowpass_update``
-``measurements._mag_update``                ``_mag_update`` and ``_mag_gates``
+``measurements._shaking``                   ``_shaking``
+``measurements._mag_update``                ``_mag_update``
+``measurements._mag_gates``                 ``_mag_gates``
+``measurements._uneven_field``              ``_uneven_field``
+``measurements._heading_gain_cap``          ``_heading_gain_cap``
+``measurements._learn_reference``           ``_learn_reference``
+``measurements._finish_reference``          ``_finish_reference``
+``measurements._fit_hard_iron``             ``_fit_hard_iron``
+``measurements._open_pair``                 ``_open_pair``
+``measurements._turn_rate``                 ``_turn_rate``
 ``measurements._track_new_field``           ``_track_new_field``
+``measurements._track_new_field_world``     ``_track_new_field_world``
 ``measurements._mag_heading_update``        ``_mag_heading_update``
 ``measurements._heading_error``             ``_heading_error``
 ``measurements._set_m0_from``               ``_set_m0_from``
@@ -50,6 +60,9 @@ ekf.fast                                    ekf.reference
 ``algebra._flip_sign``                      ``_flip_sign``
 ``algebra._tilt_quaternion``                ``ekf.reference.tilt_quaternion``
 ``algebra._acc_mag_quaternion``             ``ekf.reference.acc_mag_quaternion``
+``steps._accept``, ``steps._usable``        ``_accept``, ``ekf.reference.usable``
+``steps._not_before``                       ``_not_before``
+``steps._clipped``                          ``_clipped``
 ``steps._initialise``                       ``_initialise``
 ``steps._take_heading_from_mag``            ``_take_heading_from_mag``
 ``steps._detect_rest_gyr/_acc``             ``_detect_rest_gyr`` / ``_detect_rest_acc``
@@ -57,7 +70,12 @@ ekf.fast                                    ekf.reference
 ``steps._update_gyr/_acc/_mag``             ``update_gyr`` / ``update_acc`` / ``update_mag``
 ``steps._step``                             ``step``
 ``steps._run_batch``                        ``EstimatorBase.run_batch``'s row loop
+``steps._run_batch_record``                 the same, recording predictions for
+                                            ``ekf.smooth_batch`` (no reference twin)
 ==========================================  ===============================================
+
+(The reference's magnetic-field methods live in ``ekf.reference_field``, a mixin of
+``OrientationEKF``.)
 
 ``reset``, ``set_enabled``, ``set_settings`` and ``align_heading`` are not per-sample and run in
 Python on the packed array (``ekf.fast.filter``), line by line as in the reference.

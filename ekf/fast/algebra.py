@@ -286,9 +286,9 @@ def _joseph_update(s, e0, e1, e2, gate):
 
 
 @jit_inline
-def _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, n):
+def _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, n, scale):
     """Update with a measurement whose H (3 x n) is non-zero only in the q columns:
-    h = the 3x4 block (row-major 12-tuple), cov = offset of R in the settings."""
+    h = the 3x4 block (row-major 12-tuple), cov = offset of R in the settings, R x scale."""
     B = S.work_pht
     P = S.P
     for i in range(n):
@@ -303,16 +303,17 @@ def _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, n):
         for col in range(3):
             s[S.work_s + 3 * r + col] = (h[4 * r] * s[B + col] + h[4 * r + 1] * s[B + 3 + col]
                                          + h[4 * r + 2] * s[B + 6 + col]
-                                         + h[4 * r + 3] * s[B + 9 + col]) + c[cov + 3 * r + col]
+                                         + h[4 * r + 3] * s[B + 9 + col]) \
+                + c[cov + 3 * r + col] * scale
     return _joseph_update(s, e0, e1, e2, gate)
 
 
 @jit
-def _measurement_update_q(s, c, h, e0, e1, e2, cov, gate):
+def _measurement_update_q(s, c, h, e0, e1, e2, cov, gate, scale=1.0):
     # n = 4 or 7 as a compile-time constant: fixed loops are unrolled.
     if int(s[S.n]) == 7:
-        return _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, 7)
-    return _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, 4)
+        return _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, 7, scale)
+    return _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, 4, scale)
 
 
 @jit

@@ -31,6 +31,10 @@ WORK: tuple[tuple[str, int, str], ...] = (
     ("work_gain", 28, "rows of A P in the time update (4x7), or the gain K (7x3 or 7)"),
     ("work_s", 9, "S = H P H^T + R (3x3)"),
     ("work_s_inv", 9, "S^-1 (3x3)"),
+    ("work_pred_x", 7, "x after the latest time update (recorded for the smoother)"),
+    ("work_pred_P", 49, "P after the latest time update (recorded for the smoother)"),
+    ("work_pred_T", 1, "its time step T [s]: 0 without a gyroscope (random walk), -1 none"),
+    ("work_pred_omega", 3, "the gyroscope sample that drove it [rad/s]"),
 )
 
 # Settings the kernels read as numbers that are not fields: name, value from the settings, doc.
@@ -42,6 +46,8 @@ COEFFICIENTS: tuple[tuple[str, Callable[[EKFSettings], float], str], ...] = (
     ("gyr_noise_isotropic", lambda s: float(np.array_equal(
         np.asarray(s.gyr_noise_cov, float), s.gyr_noise_cov[0][0] * np.eye(3))),
      "R_w = r I: G R_w G^T has the closed form r (T/2)^2 (|q|^2 I - q q^T)"),
+    ("record_prediction", lambda s: 0.0,
+     "1: every time update copies x, P and T into work_pred_* (set by ekf.smooth_batch)"),
 )
 
 

@@ -17,10 +17,116 @@ from ekf.outputs import (ACC_NIS_GATE, ACC_NORM_GATE, MAG_DIP_GATE, MAG_NIS_GATE
 
 _INF = math.inf
 _NAN = math.nan
+# ekf.reference.HARD_IRON_*
+_PAIR_ANGLE = math.radians(20.0)
+_PAIR_MAX_S = 2.0
+_RESIDUAL = 5.0
+_RESET_RESIDUAL = 20.0
+_RESET_COUNT = 5.0
 
 
 @jit
-def _acc_update(s, c, y0, y1, y2, norm_gate):
+def _open_pair(s, t, y0, y1, y2):
+    s[S.mag_pair_t] = t
+    s[S.mag_pair_raw] = y0
+    s[S.mag_pair_raw + 1] = y1
+    s[S.mag_pair_raw + 2] = y2
+    s[S.mag_pair_q] = 1.0
+    for i in range(1, 4):
+        s[S.mag_pair_q + i] = 0.0
+
+
+@jit
+def _fit_hard_iron(s, c, t, y0, y1, y2):
+    """reference ``_fit_hard_iron``: pairs of readings turned >= 20 deg apart (the turn
+    integrated from the gyroscope, mag_pair_q), D b = e with D = I - A, e = y_j - A y_i,
+    A = Q(turn)^T; weighted sums with forgetting; b solved."""
+    if math.isnan(s[S.mag_pair_t]) or t - s[S.mag_pair_t] > _PAIR_MAX_S:
+        _open_pair(s, t, y0, y1, y2)
+        return
+    P = S.mag_pair_q
+    inv = 1.0 / math.sqrt(s[P] ** 2 + s[P + 1] ** 2 + s[P + 2] ** 2 + s[P + 3] ** 2)
+    if 2.0 * math.acos(min(1.0, abs(s[P] * inv))) < _PAIR_ANGLE:
+        return
+    Qt = _to_matrix(s[P] * inv, s[P + 1] * inv, s[P + 2] * inv, s[P + 3] * inv)
+    # D = I - A with A = Q(turn)^T, e = y - A y_i, r = e - D b
+    R = S.mag_pair_raw
+    B = S.mag_offset
+    D = S.work_s          # scratch 3x3
+    e = S.work_pht        # scratch: e (3), then r (3)
+    for r in range(3):
+        for k in range(3):
+            s[D + 3 * r + k] = (1.0 if r == k else 0.0) - Qt[3 * k + r]
+    yv = (y0, y1, y2)
+    for r in range(3):
+        # A y_i = y_i - D y_i
+        ay = s[R + r] - (s[D + 3 * r] * s[R] + s[D + 3 * r + 1] * s[R + 1]
+                         + s[D + 3 * r + 2] * s[R + 2])
+        s[e + r] = yv[r] - ay
+        s[e + 3 + r] = s[e + r] - (s[D + 3 * r] * s[B] + s[D + 3 * r + 1] * s[B + 1]
+                                   + s[D + 3 * r + 2] * s[B + 2])
+    residual = math.sqrt(s[e + 3] ** 2 + s[e + 4] ** 2 + s[e + 5] ** 2)
+    w = min(1.0, _RESIDUAL / residual) if residual > 0.0 else 1.0
+    forget = 0.0
+    if math.isfinite(s[S.mag_offset_t]):
+        forget = math.exp(-(t - s[S.mag_offset_t]) / c[C.mag_hard_iron_tau_s])
+    if residual > _RESET_RESIDUAL:
+        s[S.mag_offset_outliers] += 1.0
+    else:
+        s[S.mag_offset_outliers] = 0.0
+    if s[S.mag_offset_outliers] >= _RESET_COUNT:
+        forget = 0.0
+        w = 1.0
+        s[S.mag_offset_outliers] = 0.0
+    M = S.mag_offset_info
+    V = S.mag_offset_rhs
+    for r in range(3):
+        for k in range(3):
+            dtd = (s[D + r] * s[D + k] + s[D + 3 + r] * s[D + 3 + k]
+                   + s[D + 6 + r] * s[D + 6 + k])
+            s[M + 3 * r + k] = forget * s[M + 3 * r + k] + w * dtd
+        dte = s[D + r] * s[e] + s[D + 3 + r] * s[e + 1] + s[D + 6 + r] * s[e + 2]
+        s[V + r] = forget * s[V + r] + w * dte
+    s[S.mag_offset_t] = t
+    # b = (M + prior I)^-1 v by the adjugate (M symmetric positive semi-definite)
+    prior = c[C.mag_hard_iron_prior]
+    a00 = s[M] + prior
+    a01 = s[M + 1]
+    a02 = s[M + 2]
+    a11 = s[M + 4] + prior
+    a12 = s[M + 5]
+    a22 = s[M + 8] + prior
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    c11 = a00 * a22 - a02 * a02
+    c12 = a01 * a02 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    inv_det = 1.0 / (a00 * c00 + a01 * c01 + a02 * c02)
+    v0 = s[V]
+    v1 = s[V + 1]
+    v2 = s[V + 2]
+    s[B] = (c00 * v0 + c01 * v1 + c02 * v2) * inv_det
+    s[B + 1] = (c01 * v0 + c11 * v1 + c12 * v2) * inv_det
+    s[B + 2] = (c02 * v0 + c12 * v1 + c22 * v2) * inv_det
+    s[S.mag_offset_norm] = math.sqrt(s[B] ** 2 + s[B + 1] ** 2 + s[B + 2] ** 2)
+    _open_pair(s, t, y0, y1, y2)
+
+
+@jit
+def _shaking(s, c, t, y0, y1, y2):
+    """reference ``_shaking``: the low-pass d² of (‖y‖ - g)² (acc_noise_adapt)."""
+    d = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2) - c[C.g]
+    alpha = 1.0
+    if math.isfinite(s[S.acc_dev_t]):
+        dt = t - s[S.acc_dev_t]
+        alpha = dt / (c[C.acc_lowpass_s] + dt)
+    s[S.acc_dev_sq] += alpha * (d * d - s[S.acc_dev_sq])
+    s[S.acc_dev_t] = t
+
+
+@jit
+def _acc_update(s, c, y0, y1, y2, norm_gate, noise_scale=1.0):
     """reference ``_acc_update``: y_a = Q(q)^T g0 with the norm gate (task 8) and NIS gate;
     y is the reading, or its carried low-pass (then without the norm gate)."""
     norm = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
@@ -45,7 +151,8 @@ def _acc_update(s, c, y0, y1, y2, norm_gate):
          g * (2 * q1), g * (2 * q0), g * (2 * q3), g * (2 * q2),
          g * (2 * (2 * q0)), 0.0, 0.0, g * (2 * (2 * q3)))
     gate = c[C.acc_nis_gate]
-    nis = _measurement_update_q(s, c, h, y0 - yh0, y1 - yh1, y2 - yh2, C.acc_noise_cov, gate)
+    nis = _measurement_update_q(s, c, h, y0 - yh0, y1 - yh1, y2 - yh2, C.acc_noise_cov, gate,
+                                noise_scale)
     s[S.acc_nis] = nis
     accepted = nis <= gate
     s[S.acc_rejected] = 0.0 if accepted else 1.0
@@ -60,6 +167,7 @@ def _acc_lowpass_update(s, c, t, v0, v1, v2, tau):
     dropped); at most every update_period_s the carried vector is the measurement. The
     norm gate only flags a disturbed reading (acc_rejected) for the user."""
     norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+    _shaking(s, c, t, v0, v1, v2)
     A = S.acc_carried
     if s[S.acc_carried_valid] == 0.0:
         s[A] = v0
@@ -76,7 +184,8 @@ def _acc_lowpass_update(s, c, t, v0, v1, v2, tau):
     used = 1.0
     if t - s[S.acc_updated_t] >= c[C.update_period_s]:
         s[S.acc_updated_t] = t
-        _acc_update(s, c, s[A], s[A + 1], s[A + 2], _INF)
+        scale = 1.0 + c[C.acc_noise_adapt] * s[S.acc_dev_sq] / (c[C.g] * c[C.g])
+        _acc_update(s, c, s[A], s[A + 1], s[A + 2], _INF, scale)
         used = s[S.used_acc]   # the NIS gate may still refuse the averaged vector
     s[S.acc_norm] = norm
     s[S.acc_gate] = c[C.acc_gate]
@@ -103,9 +212,10 @@ def _heading_error(s, m0, m1):
 
 
 @jit_inline
-def _mag_heading_update_n(s, c, y0, y1, y2, n, gate):
+def _mag_heading_update_n(s, c, y0, y1, y2, n, gate, noise_scale, gain_cap):
     """reference ``_mag_heading_update``: heading pseudo-measurement, gain projected on a turn
-    about world up. Returns the NIS (NaN when the field is vertical: no update)."""
+    about world up, at most `gain_cap` of the innovation corrected (mag_return_s). Returns the
+    NIS (NaN when the field is vertical: no update)."""
     q0 = s[S.x]
     q1 = s[S.x + 1]
     q2 = s[S.x + 2]
@@ -124,15 +234,24 @@ def _mag_heading_update_n(s, c, y0, y1, y2, n, gate):
     h2 = d0 * (2 * q1 * y1 + 2 * q0 * y2) + d1 * (2 * q1 * y0 + 4 * q2 * y1 + 2 * q3 * y2)
     h3 = d0 * (-2 * q0 * y1 + 2 * q1 * y2) + d1 * (2 * q0 * y0 + 2 * q2 * y2)
     R = C.mag_noise_cov
-    r = (c[R] + c[R + 4] + c[R + 8]) / 3.0 / horizontal_sq
+    r = (c[R] * noise_scale + c[R + 4] * noise_scale + c[R + 8] * noise_scale) / 3.0 \
+        / horizontal_sq
     P = S.P
     B = S.work_pht
     for i in range(n):
         s[B + i] = (s[P + 7 * i] * h0 + s[P + 7 * i + 1] * h1 + s[P + 7 * i + 2] * h2
                     + s[P + 7 * i + 3] * h3)
-    S_psi = h0 * s[B] + h1 * s[B + 1] + h2 * s[B + 2] + h3 * s[B + 3] + r
-    if psi * psi / S_psi > gate:
-        return psi * psi / S_psi
+    HPH = h0 * s[B] + h1 * s[B + 1] + h2 * s[B + 2] + h3 * s[B + 3]
+    S_psi = HPH + r
+    nis = psi * psi / S_psi
+    if nis > gate:
+        return nis
+    if HPH * (1.0 - gain_cap) > gain_cap * r:
+        # mag_return_s: a larger r, so that at most gain_cap of psi is corrected now
+        if gain_cap <= 0.0:
+            return nis
+        r = HPH * (1.0 - gain_cap) / gain_cap
+        S_psi = HPH + r
     K = S.work_gain
     inv_S = 1.0 / S_psi
     for i in range(n):
@@ -163,15 +282,15 @@ def _mag_heading_update_n(s, c, y0, y1, y2, n, gate):
             s[P + 7 * i + j] = v
             s[P + 7 * j + i] = v
     _normalise(s)
-    return innovation * innovation * inv_S
+    return nis
 
 
 @jit
-def _mag_heading_update(s, c, y0, y1, y2, gate):
+def _mag_heading_update(s, c, y0, y1, y2, gate, noise_scale, gain_cap):
     # n = 4 or 7 as a compile-time constant: fixed loops are unrolled.
     if int(s[S.n]) == 7:
-        return _mag_heading_update_n(s, c, y0, y1, y2, 7, gate)
-    return _mag_heading_update_n(s, c, y0, y1, y2, 4, gate)
+        return _mag_heading_update_n(s, c, y0, y1, y2, 7, gate, noise_scale, gain_cap)
+    return _mag_heading_update_n(s, c, y0, y1, y2, 4, gate, noise_scale, gain_cap)
 
 
 @jit
@@ -186,8 +305,9 @@ def _reference_dip_deg(s):
 
 
 @jit
-def _set_m0_from(s, y0, y1, y2):
-    """reference ``_set_m0_from``: m0 = (0, horizontal, vertical) of the reading in the world."""
+def _set_m0_from(s, c, y0, y1, y2):
+    """reference ``_set_m0_from``: m0 = (0, horizontal, vertical) of the reading in the world;
+    with mag_reference_s it starts the mean that becomes the expected field."""
     Q = _to_matrix(s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3])
     mw0 = Q[0] * y0 + Q[1] * y1 + Q[2] * y2
     mw1 = Q[3] * y0 + Q[4] * y1 + Q[5] * y2
@@ -198,6 +318,53 @@ def _set_m0_from(s, y0, y1, y2):
     s[S.m0_valid] = 1.0
     strength = math.sqrt(s[S.m0 + 1] ** 2 + mw2 * mw2)
     s[S.mag_strength] = strength
+    s[S.mag_expected] = strength
+    s[S.mag_reference_dip_deg] = _reference_dip_deg(s)
+    if c[C.mag_reference_s] > 0.0:
+        s[S.mag_reference_until] = s[S.t] + c[C.mag_reference_s]
+        for i in range(3):
+            s[S.mag_reference_sum + i] = s[S.m0 + i]
+        s[S.mag_reference_norm_sum] = strength
+        s[S.mag_reference_count] = 1.0
+
+
+@jit
+def _learn_reference(s, c, y0, y1, y2):
+    """reference ``_learn_reference``: add a reading to the expected field's sums; meanwhile
+    L_k is their mean. Returns ‖y‖."""
+    norm = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
+    Q = _to_matrix(s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3])
+    s[S.mag_reference_sum] += Q[0] * y0 + Q[1] * y1 + Q[2] * y2
+    s[S.mag_reference_sum + 1] += Q[3] * y0 + Q[4] * y1 + Q[5] * y2
+    s[S.mag_reference_sum + 2] += Q[6] * y0 + Q[7] * y1 + Q[8] * y2
+    s[S.mag_reference_norm_sum] += norm
+    s[S.mag_reference_count] += 1.0
+    s[S.mag_strength] = s[S.mag_reference_norm_sum] / s[S.mag_reference_count]
+    s[S.mag_norm] = norm
+    s[S.mag_expected] = s[S.mag_strength]
+    s[S.mag_gate] = c[C.mag_gate]
+    return norm
+
+
+@jit
+def _finish_reference(s):
+    """reference ``_finish_reference``: L_k the mean strength; m0 that strength and the dip of
+    the mean world-frame reading, its horizontal direction kept."""
+    count = s[S.mag_reference_count]
+    strength = s[S.mag_reference_norm_sum] / count
+    e = s[S.mag_reference_sum] / count
+    n = s[S.mag_reference_sum + 1] / count
+    u = s[S.mag_reference_sum + 2] / count
+    dip = math.atan2(u, math.hypot(e, n))
+    horizontal = math.hypot(s[S.m0], s[S.m0 + 1])
+    if horizontal > 0.0:
+        scale = strength * math.cos(dip) / horizontal
+        s[S.m0] = s[S.m0] * scale
+        s[S.m0 + 1] = s[S.m0 + 1] * scale
+        s[S.m0 + 2] = strength * math.sin(dip)
+    s[S.mag_strength] = strength
+    s[S.mag_reference_count] = 0.0
+    s[S.mag_reference_until] = -_INF
     s[S.mag_expected] = strength
     s[S.mag_reference_dip_deg] = _reference_dip_deg(s)
 
@@ -238,11 +405,71 @@ def _dip_deg(s, c, y0, y1, y2):
     return math.degrees(math.acos(max(-1.0, min(1.0, cv))))
 
 
+@jit
+def _turn_rate(s, c):
+    """reference ``_turn_rate``: ‖w - b‖ of the latest gyroscope sample (0: none)."""
+    if s[S.omega_valid] == 0.0 or s[S.gyr_enabled] == 0.0:
+        return 0.0
+    if int(s[S.n]) == 7:
+        d0 = s[S.omega] - s[S.x + 4]
+        d1 = s[S.omega + 1] - s[S.x + 5]
+        d2 = s[S.omega + 2] - s[S.x + 6]
+    else:
+        d0 = s[S.omega] - c[C.gyr_bias]
+        d1 = s[S.omega + 1] - c[C.gyr_bias + 1]
+        d2 = s[S.omega + 2] - c[C.gyr_bias + 2]
+    return math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+
+
+@jit
+def _track_new_field_world(s, c, y0, y1, y2, t):
+    """reference ``_track_new_field_world``: the rejected readings must agree in the world
+    frame while the phone turns faster than mag_relearn_min_rate, for mag_relearn_s; the new
+    m0 has their strength and dip, north kept."""
+    Q = _to_matrix(s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3])
+    mw0 = Q[0] * y0 + Q[1] * y1 + Q[2] * y2
+    mw1 = Q[3] * y0 + Q[4] * y1 + Q[5] * y2
+    mw2 = Q[6] * y0 + Q[7] * y1 + Q[8] * y2
+    W = S.mag_candidate_world
+    d0 = mw0 - s[W]
+    d1 = mw1 - s[W + 1]
+    d2 = mw2 - s[W + 2]
+    if (math.isnan(s[S.mag_rejected_since])
+            or math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) > c[C.mag_gate]):
+        s[S.mag_rejected_since] = t
+        s[W] = mw0
+        s[W + 1] = mw1
+        s[W + 2] = mw2
+        s[S.mag_candidate_time] = 0.0
+    else:
+        alpha = c[C.mag_alpha]
+        s[W] += alpha * d0
+        s[W + 1] += alpha * d1
+        s[W + 2] += alpha * d2
+        if _turn_rate(s, c) >= c[C.mag_relearn_min_rate]:
+            s[S.mag_candidate_time] += t - s[S.mag_candidate_t]
+        if s[S.mag_candidate_time] >= c[C.mag_relearn_s]:
+            # the new field's strength and dip; north stays where it was
+            horizontal = math.hypot(s[S.m0], s[S.m0 + 1])
+            if horizontal > 0.0:
+                scale = math.hypot(s[W], s[W + 1]) / horizontal
+                s[S.m0] = s[S.m0] * scale
+                s[S.m0 + 1] = s[S.m0 + 1] * scale
+            s[S.m0 + 2] = s[W + 2]
+            s[S.mag_strength] = math.sqrt(s[W] ** 2 + s[W + 1] ** 2 + s[W + 2] ** 2)
+            s[S.mag_reference_dip_deg] = _reference_dip_deg(s)
+            s[S.mag_rejected_since] = _NAN
+    s[S.mag_candidate_t] = t
+
+
 @jit_inline
 def _track_new_field(s, c, y0, y1, y2, t, norm, dip):
     """reference ``_track_new_field``: a new field is learned only when the rejected readings
     agree with each other (strength and dip within the gates of their running mean) for
     mag_relearn_s."""
+    if c[C.mag_relearn_world] != 0.0:
+        _track_new_field_world(s, c, y0, y1, y2, t)
+        return
     cn = s[S.mag_candidate_norm]
     cd = s[S.mag_candidate_dip]
     if (math.isnan(s[S.mag_rejected_since]) or abs(norm - cn) > c[C.mag_gate]
@@ -259,10 +486,9 @@ def _track_new_field(s, c, y0, y1, y2, t, norm, dip):
 
 
 @jit
-def _mag_update(s, c, y0, y1, y2, t):
-    """reference ``_mag_update`` and ``_mag_gates``: the strength gate |‖y‖ - L_k| with the
-    AR(1) estimate L_k (task 11), the dip and settling gates, then the update (heading only, or
-    the full one of task 9) behind the NIS gate."""
+def _mag_gates(s, c, y0, y1, y2):
+    """reference ``_mag_gates``: the strength gate |‖y‖ - L_k| with the AR(1) estimate L_k
+    (task 11), then the dip gate. Returns ‖y‖, the dip and which gate rejected the reading."""
     norm = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
     s[S.mag_norm] = norm
     s[S.mag_gate] = c[C.mag_gate]
@@ -280,6 +506,48 @@ def _mag_update(s, c, y0, y1, y2, t):
         alpha = c[C.mag_alpha]
         s[S.mag_strength] = (1 - alpha) * L_prev + alpha * norm
     s[S.mag_expected] = s[S.mag_strength]
+    return norm, dip, rejected_by
+
+
+@jit
+def _uneven_field(s, c, t, norm):
+    """reference ``_uneven_field``: d² <- low-pass of (‖y‖ - L_k)²; returns 1 + k d² / L_k²."""
+    if (c[C.mag_noise_adapt] == 0.0 or not math.isfinite(s[S.mag_strength])
+            or s[S.used_gyr] == 0.0):
+        return 1.0
+    d = norm - s[S.mag_strength]
+    alpha = 1.0
+    if math.isfinite(s[S.mag_dev_t]):
+        dt = t - s[S.mag_dev_t]
+        alpha = dt / (c[C.mag_return_s] + dt) if c[C.mag_return_s] + dt > 0.0 else 1.0
+    s[S.mag_dev_sq] += alpha * (d * d - s[S.mag_dev_sq])
+    s[S.mag_dev_t] = t
+    return 1.0 + c[C.mag_noise_adapt] * s[S.mag_dev_sq] / (s[S.mag_strength] ** 2)
+
+
+@jit
+def _heading_gain_cap(s, c, dt):
+    """reference ``_heading_gain_cap``: at most dt / (dt + mag_return_s) of a heading
+    innovation, while the gyroscope drives the filter (1: no cap)."""
+    tau = c[C.mag_return_s]
+    if tau > 0.0 and math.isfinite(dt) and s[S.used_gyr] != 0.0:
+        return dt / (dt + tau)
+    return 1.0
+
+
+@jit
+def _mag_update(s, c, y0, y1, y2, t):
+    """reference ``_mag_update``: the expected field learned first (mag_reference_s), the gates
+    (``_mag_gates``), settling, the bound on a disturbance's length, then the update (heading
+    only, or the full one of task 9) behind the NIS gate."""
+    if t < s[S.mag_reference_until]:
+        norm = _learn_reference(s, c, y0, y1, y2)
+        dip = _NAN
+        rejected_by = NOT_REJECTED
+    else:
+        if s[S.mag_reference_count] > 0.0:
+            _finish_reference(s)
+        norm, dip, rejected_by = _mag_gates(s, c, y0, y1, y2)
     # after a rejection, readings must pass for mag_settle_s before they are used again
     if rejected_by != NOT_REJECTED:
         s[S.mag_passing_since] = _NAN
@@ -288,20 +556,32 @@ def _mag_update(s, c, y0, y1, y2, t):
     if rejected_by == NOT_REJECTED and t - s[S.mag_passing_since] < c[C.mag_settle_s]:
         rejected_by = MAG_SETTLING
     s[S.mag_rejected_by] = rejected_by
+    noise_scale = _uneven_field(s, c, t, norm)
     if rejected_by != NOT_REJECTED:
+        if math.isnan(s[S.mag_disturbed_since]):
+            s[S.mag_disturbed_since] = t
         if c[C.mag_strength_accepted] != 0.0:
             _track_new_field(s, c, y0, y1, y2, t, norm, dip)
         s[S.mag_rejected] = 1.0
         s[S.used_mag] = 0.0
-        return
-    s[S.mag_rejected_since] = _NAN
-    s[S.mag_rejected] = 0.0
+        bound = c[C.mag_max_reject_s]
+        if s[S.used_gyr] == 0.0:
+            bound = min(bound, c[C.mag_max_reject_no_gyro_s])
+        if not t - s[S.mag_disturbed_since] > bound:
+            return
+        # out for longer than the bound: use the reading, trusted less, until it ends
+        noise_scale *= c[C.mag_reject_noise_scale]
+    else:
+        s[S.mag_rejected_since] = _NAN
+        s[S.mag_disturbed_since] = _NAN
+        s[S.mag_rejected] = 0.0
     if t - s[S.mag_updated_t] < c[C.update_period_s]:
         s[S.used_mag] = 0.0
         return
+    gain_cap = _heading_gain_cap(s, c, t - s[S.mag_updated_t])
     s[S.mag_updated_t] = t
     if c[C.mag_heading_only] != 0.0:
-        nis = _mag_heading_update(s, c, y0, y1, y2, c[C.mag_nis_gate])
+        nis = _mag_heading_update(s, c, y0, y1, y2, c[C.mag_nis_gate], noise_scale, gain_cap)
     else:
         q0, q1, q2, q3 = s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3]
         m0, m1, m2 = s[S.m0], s[S.m0 + 1], s[S.m0 + 2]
@@ -323,7 +603,7 @@ def _mag_update(s, c, y0, y1, y2, t):
              2 * q0 * m0 + 2 * q3 * m1,
              2 * q1 * m0 + 2 * q2 * m1 + 4 * q3 * m2)
         nis = _measurement_update_q(s, c, h, y0 - yh0, y1 - yh1, y2 - yh2, C.mag_noise_cov,
-                                    c[C.mag_nis_gate])
+                                    c[C.mag_nis_gate], noise_scale)
     s[S.mag_nis] = nis
     if nis > c[C.mag_nis_gate]:
         # an innovation the filter cannot believe: rejected, and readings must settle again
@@ -332,7 +612,6 @@ def _mag_update(s, c, y0, y1, y2, t):
         s[S.mag_rejected] = 1.0
         s[S.used_mag] = 0.0
         return
-    s[S.mag_rejected] = 0.0
     s[S.used_mag] = 1.0
 
 

@@ -11,9 +11,10 @@ from ekf.fast.algebra import (_acc_mag_quaternion, _add_attitude_cov, _cross, _q
                               _rotate_world_about_up, _set_attitude_cov, _tilt_quaternion,
                               _to_matrix, _zero_rate_update)
 from ekf.fast.layout import C, S
-from ekf.fast.measurements import (_acc_lowpass_update, _acc_update, _heading_error,
-                                   _mag_update, _set_m0_from)
+from ekf.fast.measurements import (_acc_lowpass_update, _acc_update, _fit_hard_iron,
+                                   _heading_error, _mag_update, _set_m0_from, _shaking)
 from ekf.fast.time_update import _advance
+from ekf.outputs import ACC_CLIPPED
 
 # bits of _step's `present` mask
 GYR = 1
@@ -21,6 +22,53 @@ ACC = 2
 MAG = 4
 
 _INF = math.inf
+# ekf.reference.MAX_READING, MIN_NORM, CLIP_MARGIN, CLIP_MIN_G
+_MAX_READING = 1e6
+_MIN_NORM = 1e-6
+_CLIP_MARGIN = 0.99
+_CLIP_MIN_G = 1.5
+
+
+# ---- degenerate samples ---------------------------------------------------------------------
+@jit_inline
+def _usable(t, v0, v1, v2, needs_direction):
+    """ekf.reference.usable: finite time and values within MAX_READING, and (acc, mag) a
+    direction."""
+    if not (math.isfinite(t) and math.isfinite(v0) and math.isfinite(v1)
+            and math.isfinite(v2)):
+        return False
+    if abs(v0) > _MAX_READING or abs(v1) > _MAX_READING or abs(v2) > _MAX_READING:
+        return False
+    return not needs_direction or math.sqrt(v0 * v0 + v1 * v1 + v2 * v2) >= _MIN_NORM
+
+
+@jit_inline
+def _accept(s, t, v0, v1, v2, needs_direction):
+    """reference ``_accept``: a degenerate sample is refused and counted."""
+    if _usable(t, v0, v1, v2, needs_direction):
+        return True
+    s[S.refused_samples] += 1.0
+    return False
+
+
+@jit_inline
+def _not_before(s, t):
+    """reference ``_not_before``: a late sample counts as at the latest time."""
+    if math.isnan(s[S.t]) or t >= s[S.t]:
+        return t
+    return s[S.t]
+
+
+@jit
+def _clipped(s, c, y0, y1, y2):
+    """reference ``_clipped``: an axis at the accelerometer's range (set, or seen)."""
+    largest = max(abs(y0), abs(y1), abs(y2))
+    if largest > s[S.acc_axis_max]:
+        s[S.acc_axis_max] = largest
+    if c[C.acc_range] == 0.0:
+        return (s[S.acc_axis_max] >= _CLIP_MIN_G * c[C.g]
+                and largest >= _CLIP_MARGIN * s[S.acc_axis_max])
+    return largest >= c[C.acc_range]
 
 
 # ---- initialisation -------------------------------------------------------------------------
@@ -68,7 +116,7 @@ def _initialise(s, c, t):
     s[S.initialised] = 1.0
     if (s[S.heading_from_mag] != 0.0 and s[S.m0_valid] == 0.0
             and s[S.last_mag_valid] != 0.0):
-        _set_m0_from(s, m0, m1, m2)
+        _set_m0_from(s, c, m0, m1, m2)
 
 
 @jit
@@ -91,7 +139,7 @@ def _take_heading_from_mag(s, c, y0, y1, y2):
             s[S.P + 7 * j + i] = 0.0
     s[S.heading_from_mag] = 1.0
     if s[S.m0_valid] == 0.0:
-        _set_m0_from(s, y0, y1, y2)
+        _set_m0_from(s, c, y0, y1, y2)
 
 
 # ---- rest detection -------------------------------------------------------------------------
@@ -146,6 +194,9 @@ def _detect_rest_acc(s, c, t, y0, y1, y2):
 @jit
 def _update_gyr(s, c, t, v0, v1, v2):
     """reference ``update_gyr``."""
+    if not _accept(s, t, v0, v1, v2, False):
+        return
+    t = _not_before(s, t)
     if c[C.gyr_rate_before_sample] != 0.0 and s[S.gyr_enabled] != 0.0:
         # the sample is the rate over the interval ending now: it drives the state up to t
         if s[S.omega_valid] == 0.0 or t - s[S.omega_t] <= c[C.gyr_hold_s]:
@@ -175,6 +226,9 @@ def _update_gyr(s, c, t, v0, v1, v2):
 @jit
 def _update_acc(s, c, t, v0, v1, v2):
     """reference ``update_acc``."""
+    if not _accept(s, t, v0, v1, v2, True):
+        return
+    t = _not_before(s, t)
     _advance(s, c, t)
     s[S.last_acc] = v0
     s[S.last_acc + 1] = v1
@@ -184,21 +238,45 @@ def _update_acc(s, c, t, v0, v1, v2):
     if s[S.acc_enabled] == 0.0:
         s[S.used_acc] = 0.0
         return
+    if _clipped(s, c, v0, v1, v2):
+        # a saturated axis: no update, no average, no start; motion for the rest detector
+        s[S.acc_rejected] = 1.0
+        s[S.used_acc] = 0.0
+        s[S.acc_norm] = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        s[S.acc_rejected_by] = ACC_CLIPPED
+        if c[C.acc_lowpass_s] > 0.0:
+            _shaking(s, c, t, v0, v1, v2)
+        s[S.last_motion_t] = t
+        _update_rest(s, c, t)
+        return
     _detect_rest_acc(s, c, t, v0, v1, v2)
     if s[S.initialised] == 0.0:
         _initialise(s, c, t)
         return
     tau = c[C.acc_lowpass_s]
-    if tau > 0.0 and s[S.gyr_enabled] != 0.0:
+    if tau > 0.0 and s[S.gyr_enabled] != 0.0 and s[S.used_gyr] != 0.0:
         _acc_lowpass_update(s, c, t, v0, v1, v2, tau)
     else:
+        # no gyroscope drives the filter (off, none, silent): the reading itself
+        s[S.acc_carried_valid] = 0.0
         _acc_update(s, c, v0, v1, v2, c[C.acc_gate])
 
 
 @jit
 def _update_mag(s, c, t, v0, v1, v2):
     """reference ``update_mag``."""
+    if not _accept(s, t, v0, v1, v2, True):
+        return
+    t = _not_before(s, t)
     _advance(s, c, t)
+    if (c[C.mag_hard_iron_tau_s] > 0.0 and s[S.mag_enabled] != 0.0
+            and s[S.initialised] != 0.0):
+        _fit_hard_iron(s, c, t, v0, v1, v2)
+        v0 -= s[S.mag_offset]
+        v1 -= s[S.mag_offset + 1]
+        v2 -= s[S.mag_offset + 2]
+        if math.sqrt(v0 * v0 + v1 * v1 + v2 * v2) < _MIN_NORM:
+            return
     s[S.last_mag] = v0
     s[S.last_mag + 1] = v1
     s[S.last_mag + 2] = v2
@@ -228,8 +306,8 @@ def _step(s, c, t, present, g0, g1, g2, a0, a1, a2, m0, m1, m2):
         _update_acc(s, c, t, a0, a1, a2)
     if present & MAG:
         _update_mag(s, c, t, m0, m1, m2)
-    if present == 0:
-        _advance(s, c, t)
+    if present == 0 and _accept(s, t, 0.0, 0.0, 0.0, False):
+        _advance(s, c, _not_before(s, t))
 
 
 @jit
@@ -265,6 +343,39 @@ def _run_batch(s, c, t, gyr, acc, mag, out_q, out_flags, out_bias):
         else:
             for i in range(3):
                 out_bias[k, i] = c[C.gyr_bias + i]
+
+
+@jit
+def _run_batch_record(s, c, t, gyr, acc, mag, out_q, out_flags, out_x, out_P, out_xp, out_Pp,
+                      out_omega, out_T):
+    """_run_batch for the smoother (c[C.record_prediction] = 1): per row also x and P after
+    the row, x and P after the row's time update (before its measurements), the gyroscope
+    sample that drove it and its T (-1: the row had no time update)."""
+    for k in range(t.shape[0]):
+        s[S.work_pred_T] = -1.0
+        present = 0
+        if not (math.isnan(gyr[k, 0]) or math.isnan(gyr[k, 1]) or math.isnan(gyr[k, 2])):
+            present |= GYR
+        if not (math.isnan(acc[k, 0]) or math.isnan(acc[k, 1]) or math.isnan(acc[k, 2])):
+            present |= ACC
+        if not (math.isnan(mag[k, 0]) or math.isnan(mag[k, 1]) or math.isnan(mag[k, 2])):
+            present |= MAG
+        _step(s, c, t[k], present, gyr[k, 0], gyr[k, 1], gyr[k, 2], acc[k, 0], acc[k, 1],
+              acc[k, 2], mag[k, 0], mag[k, 1], mag[k, 2])
+        for i in range(4):
+            out_q[k, i] = s[S.x + i]
+        out_flags[k, 0] = s[S.acc_rejected] != 0.0
+        out_flags[k, 1] = s[S.mag_rejected] != 0.0
+        out_flags[k, 2] = s[S.at_rest] != 0.0
+        for i in range(7):
+            out_x[k, i] = s[S.x + i]
+            out_xp[k, i] = s[S.work_pred_x + i]
+            for j in range(7):
+                out_P[k, i, j] = s[S.P + 7 * i + j]
+                out_Pp[k, i, j] = s[S.work_pred_P + 7 * i + j]
+        for i in range(3):
+            out_omega[k, i] = s[S.work_pred_omega + i]
+        out_T[k] = s[S.work_pred_T]
 
 
 @jit

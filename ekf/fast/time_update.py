@@ -47,6 +47,16 @@ def _carry_along(s, c, T, wx, wy, wz, rate, sinc, cs):
 
 
 @jit_inline
+def _turn_pair(s, F):
+    """The hard-iron fit's open pair: its turn since the first reading, from the gyro alone
+    (mag_pair_q <- F mag_pair_q, the reference's _time_update_gyro)."""
+    M = S.mag_pair_q
+    p0, p1, p2, p3 = s[M], s[M + 1], s[M + 2], s[M + 3]
+    for i in range(4):
+        s[M + i] = F[i][0] * p0 + F[i][1] * p1 + F[i][2] * p2 + F[i][3] * p3
+
+
+@jit_inline
 def _time_update_gyro_n(s, c, T, n):
     """reference ``_time_update_gyro``: q = F q, P = A P A^T + Q with A = [[F, -G], [0, I]]."""
     q0, q1, q2, q3 = s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3]
@@ -124,6 +134,8 @@ def _time_update_gyro_n(s, c, T, n):
             s[P + 8 * i] += qb
     for i in range(4):
         s[S.x + i] = F[i][0] * q0 + F[i][1] * q1 + F[i][2] * q2 + F[i][3] * q3
+    if c[C.mag_hard_iron_tau_s] > 0.0 and not math.isnan(s[S.mag_pair_t]):
+        _turn_pair(s, F)
 
 
 @jit
@@ -142,6 +154,18 @@ def _time_update_random_walk(s, c, T):
         qb = c[C.gyro_bias_random_walk] ** 2 * T
         for i in range(4, 7):
             s[S.P + 8 * i] += qb
+
+
+@jit
+def _record_prediction(s, T):
+    """For the smoother (c[C.record_prediction]): x, P and T right after a time update."""
+    for i in range(7):
+        s[S.work_pred_x + i] = s[S.x + i]
+    for i in range(49):
+        s[S.work_pred_P + i] = s[S.P + i]
+    s[S.work_pred_T] = T
+    for i in range(3):
+        s[S.work_pred_omega + i] = s[S.omega + i]
 
 
 @jit
@@ -169,10 +193,14 @@ def _advance(s, c, t):
             _normalise(s)
         elif s[S.x] < 0.0:
             _flip_sign(s)
+        if c[C.record_prediction] != 0.0:
+            _record_prediction(s, dt)
     else:
         _time_update_random_walk(s, c, dt)
         s[S.used_gyr] = 0.0
         _normalise(s)
+        if c[C.record_prediction] != 0.0:
+            _record_prediction(s, 0.0)
 
 
 @jit

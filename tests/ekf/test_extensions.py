@@ -73,7 +73,7 @@ def test_lowpass_keeps_tilt_through_back_and_forth_translation():
         _, _, incl = ekf.error_angles_deg(r.quat[t > 2], np.tile(Q.IDENTITY, ((t > 2).sum(), 1)))
         rms[name] = float(np.sqrt(np.mean(incl ** 2)))
     assert rms["course, wide gate"] > 8.0
-    assert rms["default"] < 0.4 * rms["course, wide gate"]
+    assert rms["default"] < 0.5 * rms["course, wide gate"]
 
 
 def test_norm_gate_only_flags_when_lowpass_is_on():
@@ -134,28 +134,83 @@ def _magnet_on_phone(settings, seconds=30.0, hz=100.0):
 
 
 def test_settling_keeps_a_magnet_on_the_phone_out_and_is_never_learned():
-    s = PRESETS["default"].with_changes(mag_relearn_s=5.0, update_period_s=0.0)
+    """Without the hard-iron fit and the rejection bound, a magnet on the phone stays out."""
+    s = PRESETS["default"].with_changes(mag_relearn_s=5.0, update_period_s=0.0,
+                                        mag_hard_iron_tau_s=0.0, mag_max_reject_s=math.inf)
     used, m0 = _magnet_on_phone(s)
     # now and then the disturbed reading looks right; settling keeps those out
     assert used.mean() < 0.02
-    # the readings never agree with each other for relearn_s: the reference field stays
+    # the readings never agree in the world frame for relearn_s: the reference field stays
     np.testing.assert_allclose(m0, [0.0, 16.0, -45.0], atol=0.5)
     without_settling, _ = _magnet_on_phone(s.with_changes(mag_settle_s=0.0))
     assert without_settling.mean() > used.mean()
 
 
-def test_a_changed_field_is_relearned_after_consistent_readings():
-    s = PRESETS["default"].with_changes(mag_relearn_s=3.0, update_period_s=0.0)
+def test_a_magnet_on_the_phone_becomes_a_calibration():
+    """The default fits the sensor-frame offset while the phone turns: the magnet's 30 uT are
+    found, the corrected field passes the gates again and the heading stays right. (Turning
+    about one axis only, the offset along it could not be told from the field: the axis
+    wanders.)"""
+    hz = 100.0
+    t = np.arange(0.0, 40.0, 1.0 / hz)
+    rates = np.column_stack([1.5 * np.sin(0.31 * t), -1.0 + np.cos(0.17 * t), 2.0 * np.cos(0.23 * t)])
+    q = np.empty((t.size, 4))
+    q[0] = Q.IDENTITY
+    for k in range(1, t.size):
+        q[k] = Q.normalize(Q.multiply(q[k - 1], Q.from_rotation_vector(rates[k] / hz)))
+    f = OrientationEKF(PRESETS["default"])
+    offset = np.array([30.0, -10.0, 5.0])
+    used = []
+    for k in range(t.size):
+        R = Q.to_matrix(q[k])
+        f.step(t[k], gyr=rates[k], acc=R.T @ G0, mag=R.T @ M0 + (offset if t[k] > 5 else 0.0))
+        if t[k] > 30:
+            used.append(f.flags.used_mag or f.flags.mag_rejected is False)
+    b = f.snapshot()["state"]["mag_offset"]
+    # most of it (the fit still remembers the magnet-free pairs, mag_hard_iron_tau_s)
+    assert np.linalg.norm(b - offset) < 0.25 * np.linalg.norm(offset)
+    assert np.mean(used) > 0.9 and not f.flags.mag_rejected
+    assert math.degrees(Q.angle_between(f.quat, q[-1])) < 2.0
+
+
+def test_a_changed_field_is_relearned_in_the_world_frame_while_turning():
+    """A new place (another field, fixed in the world) while the phone turns faster than
+    mag_relearn_min_rate: after mag_relearn_s of agreeing readings it is the new normal."""
+    s = PRESETS["default"].with_changes(mag_relearn_s=3.0, update_period_s=0.0,
+                                        mag_hard_iron_tau_s=0.0, mag_max_reject_s=math.inf)
+    rate = np.array([0.0, 0.0, 0.8])          # 46 deg/s about up
+    t, q = _turning(rate, 10.0, 100.0)
     f = OrientationEKF(s)
     new_field = np.array([0.0, 30.0, -30.0])     # stronger and another dip: a new place
-    for k in range(1000):
-        t = k * 0.01
-        f.step(t, gyr=[0, 0, 0], acc=G0, mag=M0 if t < 2 else new_field)
-        if 2.5 < t < 4.9:
+    for k in range(t.size):
+        R = Q.to_matrix(q[k])
+        f.step(t[k], gyr=rate, acc=R.T @ G0, mag=R.T @ (M0 if t[k] < 2 else new_field))
+        if 2.5 < t[k] < 4.9:
             assert f.flags.mag_rejected
     assert not f.flags.mag_rejected and f.flags.used_mag
     assert f.snapshot()["state"]["mag_strength"] == pytest.approx(np.linalg.norm(new_field),
-                                                                  rel=1e-6)
+                                                                  rel=0.02)
+    assert math.degrees(Q.angle_between(f.quat, q[-1])) < 1.0    # and no heading jump
+
+
+def test_a_still_phone_learns_no_new_field_but_the_bound_brings_the_magnetometer_back():
+    """Still, a changed field and a magnet on the phone look alike: nothing is re-learned; after
+    mag_max_reject_s the readings are used again (trusted less), no faster than mag_return_s."""
+    s = PRESETS["default"].with_changes(mag_relearn_s=3.0, update_period_s=0.0,
+                                        mag_max_reject_s=4.0)
+    f = OrientationEKF(s)
+    turned = Q.to_matrix(Q.from_axis_angle([0, 0, 1], math.radians(30))) @ M0
+    headings = []
+    for k in range(1200):
+        t = k * 0.01
+        f.step(t, gyr=[0, 0, 0], acc=G0, mag=M0 if t < 2 else turned * 1.3)
+        headings.append(Q.to_euler(f.quat)[0])
+        if 2.5 < t < 5.9:
+            assert f.flags.mag_rejected and not f.flags.used_mag
+    assert f.snapshot()["state"]["mag_strength"] == pytest.approx(np.linalg.norm(M0), rel=0.02)
+    assert f.flags.mag_rejected and f.flags.used_mag       # disturbed, but used again
+    steps = np.abs(np.diff(np.unwrap(headings)))
+    assert math.degrees(steps.max()) < 1.0                # no jump: at most 1 deg per sample
 
 
 def test_dip_from_the_estimate_ignores_accelerations():
@@ -192,3 +247,29 @@ def test_exact_time_update_keeps_w_nonnegative_without_normalising():
         f.step(k * 0.01, gyr=[0, 0, 3.0])
         assert f.quat[0] >= 0
         assert abs(np.linalg.norm(f.quat) - 1) < 1e-12
+
+
+def test_a_phone_without_gyroscope_follows_the_magnetometer_from_the_start(realphone_dir):
+    """The course's rotation log with the gyroscope left out (cheap phones have none): the
+    expected field comes from the first second, not the first reading, and without a gyroscope
+    the magnetometer is never kept out, so nothing is rejected for seconds at the start and the
+    estimate stays within a quarter of the plain course filter's distance to the phone's own
+    (the default's magnetometer may not tilt the estimate, the course's may)."""
+    from app.stream.logfile import read_log
+    from ekf.metrics import interpolate_quat
+    a = read_log(realphone_dir / "tsrt14_lab2_rotation.txt").to_arrays()
+    rows = ~(np.isnan(a.acc).all(1) & np.isnan(a.mag).all(1))
+    t, acc, mag = a.t_s[rows], a.acc[rows], a.mag[rows]
+    has_ori = ~np.isnan(a.ori).any(axis=1)
+    t_ori, q_ori = a.t_s[has_ori], a.ori[has_ori]
+    errors = {}
+    for preset in ("default", "course"):
+        r = ekf.filter_batch(t, None, acc, mag, settings=preset)
+        has_mag = ~np.isnan(mag).any(axis=1)
+        first = has_mag & (t < t[0] + 8.0)
+        if preset == "default":
+            assert r.mag_rejected[first].mean() < 0.1
+        q = interpolate_quat(t, r.quat, t_ori)
+        sel = t_ori > t[0] + 3.0
+        errors[preset] = ekf.summarize(q[sel], q_ori[sel]).total_rmse_deg
+    assert errors["default"] < 1.25 * errors["course"]

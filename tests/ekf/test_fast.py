@@ -47,6 +47,18 @@ SETTINGS = {
     "lowpass_course_timing": PRESETS["default"].with_changes(
         exact_discretisation=False, gyr_rate_before_sample=False, update_period_s=0.0,
         acc_nis_gate=7.8, mag_dip_from_estimate=False, mag_relearn_s=1.0, mag_settle_s=0.2),
+    # the magnetometer as the previous default handled it: strength/dip re-learning, no
+    # reference window, no bound, no hard-iron fit, no heading cap, no adaptive noise
+    "previous_magnetometer": PRESETS["default"].with_changes(
+        mag_relearn_world=False, mag_reference_s=0.0, mag_max_reject_s=math.inf,
+        mag_max_reject_no_gyro_s=math.inf, mag_hard_iron_tau_s=0.0, mag_return_s=0.0,
+        mag_noise_adapt=0.0, acc_noise_adapt=0.0, acc_range=math.inf, mag_relearn_s=1.0),
+    # every new branch within seconds: a fixed accelerometer range that the bursts reach, a
+    # short rejection bound, a quick hard-iron fit, re-learning without the turn-rate condition
+    "quick_field": PRESETS["default"].with_changes(
+        acc_range=12.0, mag_max_reject_s=0.5, mag_max_reject_no_gyro_s=0.2,
+        mag_hard_iron_tau_s=2.0, mag_hard_iron_prior=0.1, mag_relearn_min_rate=0.0,
+        mag_relearn_s=1.0, mag_return_s=0.3, mag_reference_s=0.5, mag_noise_adapt=300.0),
     # a calibrated, anisotropic R_w (the compiled path has a closed form for R_w = r I only)
     "anisotropic_rw": PRESETS["default"].with_changes(
         gyr_noise_cov=[[1e-4, 2e-5, 0.0], [2e-5, 3e-4, -1e-5], [0.0, -1e-5, 2e-4]],
