@@ -114,6 +114,11 @@ def test_the_runner_corrects_a_distorted_magnetometer_before_every_estimator(tmp
     fixed = evaluate_log(bad_log, settings=corrected)
     assert wrong.heading_rmse_deg > 3 * reference.heading_rmse_deg
     assert fixed.total_rmse_deg == pytest.approx(reference.total_rmse_deg, abs=0.05)
+    # the smoother gets the corrected readings too (filter/evaluate --smooth, Tune)
+    smoothed = evaluate_log(bad_log, settings=corrected, smooth=True)
+    assert smoothed.total_rmse_deg == pytest.approx(
+        evaluate_log(clean_log, smooth=True).total_rmse_deg, abs=0.05)
+    assert evaluate_log(bad_log, smooth=True).heading_rmse_deg > 3 * smoothed.heading_rmse_deg
     # the plot samples stay as the phone sent them
     from app.engine.runner import EstimatorRunner
     runner = EstimatorRunner(settings=corrected, collect_plot=True)

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 import ekf
+from ekf import magcal
 from ekf.metrics import ErrorSummary, interpolate_quat, intervals_mask, rmse
 from app.engine.runner import SENSORS, EstimatorRunner, Rows
 from app.stream.logfile import LogData
@@ -63,12 +64,24 @@ def _smoothed(log: LogData, estimator: str | ekf.Estimator, settings: ekf.EKFSet
         raise ValueError("--smooth runs over one session: this log's clock restarts")
     a = log.to_arrays()
     has = ~(np.isnan(a.gyr).all(1) & np.isnan(a.acc).all(1) & np.isnan(a.mag).all(1))
-    chosen = settings if settings is not None else (
-        ekf.PRESETS["course"] if estimator == "course" else None)
-    result = ekf.smooth_batch(a.t_s[has], a.gyr[has], a.acc[has], a.mag[has], chosen,
-                              sensors=tuple(sensors))
     if not np.array_equal(a.t_ms[has], t_ms):
         raise ValueError("the smoother's rows do not match the runner's")   # not expected
+    return smooth_rows(a.t_ms[has], a.gyr[has], a.acc[has], a.mag[has], estimator, settings,
+                       sensors)
+
+
+def smooth_rows(t_ms: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray,
+                estimator: str, settings: ekf.EKFSettings | None,
+                sensors: Iterable[str]) -> np.ndarray:
+    """The smoother over rows of readings (NaN: no such sample), the magnetometer corrected as
+    the runner corrects it for every estimator (settings mag_hard_iron, mag_soft_iron)."""
+    chosen = settings if settings is not None else ekf.PRESETS[
+        "course" if estimator == "course" else "default"]
+    correction = magcal.settings_correction(chosen)
+    if correction is not None:
+        mag = magcal.correct(mag, *correction)
+    result = ekf.smooth_batch(np.asarray(t_ms, np.float64) / 1000.0, gyr, acc, mag, chosen,
+                              sensors=tuple(sensors))
     return result.quat
 
 

@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 
 import ekf
-from app.engine.offline import ReferenceErrors, reference_errors, session_row_starts
+from app.engine.offline import (ReferenceErrors, reference_errors, session_row_starts,
+                                smooth_rows)
 from app.engine.runner import SENSORS, EstimatorRunner, Rows
 from app.stream.fastparse import samples_to_arrays
 from app.stream.logfile import LogData
@@ -113,18 +114,39 @@ def run_rows(prepared: PreparedLog, settings: ekf.EKFSettings | None, estimator:
 def refilter(log: LogData | PreparedLog, settings: ekf.EKFSettings | None,
              estimator: str = "ekf", sensors: Iterable[str] = SENSORS,
              intervals_ms: list | None = None, skip_s: float = 0.0,
-             label: str = "") -> RefilterResult:
+             label: str = "", smooth: bool = False) -> RefilterResult:
     """Run the whole log with `settings` and score it against ORI (see the module's docstring).
-    """
+    smooth: the estimates of the offline smoother instead (the EKF forward and a backward RTS
+    pass, as `filter --smooth`; one session only, the EKF only)."""
     prepared = prepare(log)
     started = time.perf_counter()
     rows = run_rows(prepared, settings, estimator, sensors)
+    if smooth:
+        smooth_prepared(prepared, rows, estimator, settings, sensors)
     errors = None
     if len(prepared.ori_times) and rows.has_sample.any():
         errors = reference_errors(rows, prepared.ori_times, intervals_ms, skip_s,
                                   session_row_starts(prepared.t_ms, prepared.session_starts))
     return RefilterResult(settings if settings is not None else ekf.PRESETS["default"],
                           estimator, rows, errors, time.perf_counter() - started, label)
+
+
+def smooth_prepared(prepared: PreparedLog, rows: Rows, estimator: str,
+                    settings: ekf.EKFSettings | None, sensors: Iterable[str]) -> None:
+    """Replace the estimates of `rows` (a whole run of `prepared`) by the smoother's."""
+    if estimator not in ("ekf", "course"):
+        raise ValueError(f"the smoother needs the EKF (ekf or course), not {estimator!r}")
+    if prepared.session_starts:
+        raise ValueError("the smoother runs over one session: this log's clock restarts")
+    times = rows.t_ms[rows.has_sample]
+    columns = []
+    for code in (0, 1, 2):                          # GYR, ACC, MAG at each distinct time
+        chosen = prepared.tag == code
+        column = np.full((len(times), 3), np.nan)
+        # the last of equal-time samples wins, as in the runner's rows
+        column[np.searchsorted(times, prepared.t_ms[chosen])] = prepared.values[chosen, :3]
+        columns.append(column)
+    rows.quat[rows.has_sample] = smooth_rows(times, *columns, estimator, settings, sensors)
 
 
 def ab_rows(current: RefilterResult | None,
@@ -178,6 +200,7 @@ class Refilterer:
         self.skip_s = skip_s
         self.on_result = on_result
         self.on_error = on_error
+        self.smooth = False                 # the smoother's estimates (set, then submit)
         self.current: RefilterResult | None = None
         self.ghost: RefilterResult | None = None
         self.runs = 0
@@ -239,7 +262,8 @@ class Refilterer:
                 settings, self._has_pending, self._busy = self._pending, False, True
             try:
                 result = refilter(self.prepared, settings, self.estimator, self.sensors,
-                                  self.intervals_ms, self.skip_s, label="current")
+                                  self.intervals_ms, self.skip_s, label="current",
+                                  smooth=self.smooth)
             except Exception as error:   # reported, never lost: the caller shows it
                 self._finish(None)
                 if self.on_error is not None:

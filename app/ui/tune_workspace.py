@@ -173,9 +173,16 @@ class TuneWorkspace(QtWidgets.QWidget):
         settings_box = QtWidgets.QGroupBox("Filter settings (live: the filter and the re-run)")
         QtWidgets.QVBoxLayout(settings_box).addWidget(self.settings_panel)
         self.ab_plots = ABPlots()
+        self.smooth_checkbox = QtWidgets.QCheckBox(
+            "Smoothed: our EKF forward, then a backward RTS pass (each estimate uses the whole "
+            "session)")
+        self.smooth_checkbox.setToolTip("The offline smoother of `filter --smooth`: keep the "
+                                        "forward run as the ghost to see what smoothing gives")
+        self.smooth_checkbox.toggled.connect(self.set_smoothed)
         self.ab_page = QtWidgets.QWidget()
         ab_layout = QtWidgets.QVBoxLayout(self.ab_page)
         ab_layout.setContentsMargins(0, 0, 0, 0)
+        ab_layout.addWidget(self.smooth_checkbox)
         ab_layout.addWidget(self.ab_plots, 1)
         self.tune_page = QtWidgets.QWidget()
         self.tune_message = QtWidgets.QLabel(NO_SESSION_TEXT)
@@ -245,6 +252,7 @@ class TuneWorkspace(QtWidgets.QWidget):
             f"{len(prepared.t_ms)} samples; re-filtered by our EKF at every settings change"
             + ("" if has_ori else " (no ORI: nothing to score against)"))
         self.refilterer = Refilterer(prepared, on_error=self._on_error)
+        self.refilterer.smooth = self.smooth_checkbox.isChecked()
         self.ab_view = ABCompareView(self.refilterer)
         self.ab_view.resultReady.connect(lambda _result: self.redraw())
         self.ab_view.keep_button.clicked.connect(self.redraw)
@@ -277,6 +285,16 @@ class TuneWorkspace(QtWidgets.QWidget):
         self.refilterer.submit(settings)
         self.ab_plots.show_runs(self.refilterer.current, self.refilterer.ghost,
                                 self.prepared.start_ms if self.prepared else None)
+
+    def set_smoothed(self, smoothed: bool) -> None:
+        """Re-filter with the smoother (True) or the forward filter (False)."""
+        if self.smooth_checkbox.isChecked() != bool(smoothed):
+            self.smooth_checkbox.setChecked(bool(smoothed))
+            return
+        if self.refilterer is not None:
+            self.refilterer.smooth = bool(smoothed)
+            self._submitted = None
+            self.submit(self._settings())
 
     def settings_changed(self, settings: ekf.EKFSettings) -> None:
         """The filter's settings changed (this panel, calibration, tuning, a session): show

@@ -220,3 +220,26 @@ def test_tune_loads_the_replayed_session_when_first_shown(qtbot, make_window, fa
     finally:
         window.shutdown()
     assert window.tune.refilterer is None            # stopped with the window
+
+
+def test_tune_offers_the_smoother_against_the_forward_ghost(qtbot, make_window, fake_engine,
+                                                            sim_log):
+    from app.engine.config import open_log
+    from app.engine.offline import filter_log
+    window = make_window(fake_engine)
+    tune = window.tune
+    assert tune.set_log(sim_log)
+    qtbot.waitUntil(lambda: tune.refilterer.current is not None, timeout=20_000)
+    forward = tune.refilterer.current
+    tune.ab_view.keep_button.click()
+    tune.smooth_checkbox.click()
+    qtbot.waitUntil(lambda: tune.refilterer.current is not forward, timeout=20_000)
+    smoothed = tune.refilterer.current
+    rows = smoothed.rows.select(smoothed.rows.has_sample)
+    expected = filter_log(open_log(sim_log), smooth=True)
+    np.testing.assert_allclose(rows.quat, expected.quat, atol=1e-12)   # the command's smoother
+    assert smoothed.summary.total_rmse_deg < forward.summary.total_rmse_deg
+    assert np.nanmax(tune.difference_deg()) > 0.01
+    tune.smooth_checkbox.click()                                       # back to forward
+    qtbot.waitUntil(lambda: tune.refilterer.current is not smoothed, timeout=20_000)
+    np.testing.assert_array_equal(tune.refilterer.current.rows.quat, forward.rows.quat)
