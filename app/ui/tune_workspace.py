@@ -173,11 +173,11 @@ class TuneWorkspace(QtWidgets.QWidget):
         settings_box = QtWidgets.QGroupBox("Filter settings (live: the filter and the re-run)")
         QtWidgets.QVBoxLayout(settings_box).addWidget(self.settings_panel)
         self.ab_plots = ABPlots()
-        self.smooth_checkbox = QtWidgets.QCheckBox(
-            "Smoothed: our EKF forward, then a backward RTS pass (each estimate uses the whole "
-            "session)")
-        self.smooth_checkbox.setToolTip("The offline smoother of `filter --smooth`: keep the "
-                                        "forward run as the ghost to see what smoothing gives")
+        self.smooth_checkbox = QtWidgets.QCheckBox("Smoothed (forward + backward RTS pass)")
+        self.smooth_checkbox.setToolTip("The offline smoother of `filter --smooth`: our EKF "
+                                        "forward, then a backward Rauch-Tung-Striebel pass, so "
+                                        "each estimate uses the whole session. Keep the forward "
+                                        "run as the ghost to see what smoothing gives.")
         self.smooth_checkbox.toggled.connect(self.set_smoothed)
         self.ab_page = QtWidgets.QWidget()
         ab_layout = QtWidgets.QVBoxLayout(self.ab_page)
