@@ -173,3 +173,19 @@ def test_smooth_needs_the_ekf(tmp_path, capsys):
     assert cli.main(["filter", str(log), "--smooth", "--estimator", "complementary"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--smooth" in err[0]
+
+
+def test_filter_into_a_pipe_closed_early_ends_quietly(tmp_path):
+    # `orientation-lab filter LOG | head -1`: the reader stops; no error message, status 0
+    import subprocess
+    import sys
+    log = tmp_path / "long.txt"
+    assert cli.main(["simulate", "-o", str(log), "--duration", "120", "--seed", "3"]) == 0
+    process = subprocess.Popen([sys.executable, "-c", "import sys; from app import cli; sys.exit(cli.main())", "filter",
+                                str(log)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert process.stdout.readline().startswith(b"t_ms,")
+    process.stdout.close()                     # the reader had enough
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 0, err
+    assert b"error" not in err and b"Traceback" not in err

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import sys
 from pathlib import Path
 
@@ -107,6 +108,11 @@ def cmd_filter(args: argparse.Namespace) -> int:
                 estimates.write_csv(rows, stream)
         else:
             estimates.write_csv(rows, sys.stdout)
+    except BrokenPipeError:
+        # `filter LOG | head`: the reader had enough; say nothing, and keep Python's flush at
+        # exit from failing on the closed pipe
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except OSError as error:
         raise config.ConfigError(f"cannot write {args.output}: {error.strerror or error}") \
             from None
