@@ -17,7 +17,8 @@ from app.stream.events import (AcceptConnection, IgnoreConnection, ReplayControl
 __all__ = ["SetSensorEnabled", "SetEstimator", "SetSettings", "ResetFilter", "AlignHeading",
            "SetComparisonsEnabled", "ReplayControl", "AcceptConnection", "IgnoreConnection",
            "SetAllowedNetworks", "LoadUserFilter", "UnloadUserFilter", "SetConsistencyEnabled",
-           "StartRecording", "StopRecording", "AddMarker", "SetMarkerLabel", "SetFollowTimeline"]
+           "StartRecording", "StopRecording", "AddMarker", "SetMarkerLabel", "SetFollowTimeline",
+           "SetForward"]
 
 
 @dataclass(frozen=True)
@@ -73,6 +74,15 @@ class LoadUserFilter:
 @dataclass(frozen=True)
 class UnloadUserFilter:
     """Stop running your filter."""
+
+
+@dataclass(frozen=True)
+class SetForward:
+    """Forward every line from the phone, verbatim and in order, to target ("HOST:PORT", e.g.
+    the course kit's StreamSensorDataReader in MATLAB), as ``--forward`` does; None: stop.
+    Replaces a running forward. The connection panel's "Forward to" sends it."""
+
+    target: str | None
 
 
 @dataclass(frozen=True)

@@ -52,8 +52,8 @@ from app.engine.commands import (AddMarker, AlignHeading, LoadUserFilter, Replay
                                  ResetFilter, SetComparisonsEnabled, SetConsistencyEnabled,
                                  SetEstimator, SetFollowTimeline, SetMarkerLabel,
                                  SetSensorEnabled, SetSettings, StartRecording, StopRecording,
-                                 UnloadUserFilter)
-from app.engine.config import ConfigError, megabytes
+                                 SetForward, UnloadUserFilter)
+from app.engine.config import ConfigError, forward_target, megabytes
 from app.engine.estimates import EstimatesWriter
 from app.engine.health import HealthTracker, stats_dict
 from app.engine.markers import Markers
@@ -598,6 +598,8 @@ class Engine:
             self._user.unload()
         elif isinstance(command, SetConsistencyEnabled):
             runner.set_consistency_enabled(command.enabled)
+        elif isinstance(command, SetForward):
+            self._set_forward(command.target)
         elif isinstance(command, _Mark):
             self._marks.append(command.event)        # set once published
         else:
@@ -731,6 +733,32 @@ class Engine:
             recording.close(stats_dict(self._latest.health))
 
     _last_recording_status: dict[str, Any] | None = None
+
+    def _set_forward(self, target: str | None) -> None:
+        """SetForward: stop the running forward (if any), start one to target (if given)."""
+        try:
+            address = forward_target(target) if target else None
+        except ConfigError as error:
+            self._health.warn("forward", f"forward to {target!r}: "
+                              f"{str(error).replace('--forward: ', '')}", force=True)
+            return
+        if self.forwarder is not None:
+            # its thread may be inside a send (up to 5 s): never wait for it here
+            threading.Thread(target=self.forwarder.stop, name="forward-stop",
+                             daemon=True).start()
+            self.forwarder = None
+        if address is None:
+            self._health.warn("forward", "forwarding stopped", force=True)
+            self._record_event("forward", target=None)
+            return
+        self.forwarder = LineForwarder(*address)
+        self.forwarder.start()
+        where = f"{address[0]}:{address[1]}"
+        note = "" if self.source.kind == "tcp" else " (the phone's lines only: nothing to " \
+                                                    "forward while not streaming live)"
+        self._health.warn("forward", f"forwarding the phone's lines to {where}{note}",
+                          force=True)
+        self._record_event("forward", target=where)
 
     def _record_event(self, kind: str, **data: Any) -> None:
         if self.recording is not None and self.recording.active:

@@ -5,7 +5,9 @@ lines by reason, the connections closed, clock quirks, the recording); the repla
 are in the transport bar (app/ui/transport.py). While the phone streams, a
 new device that connects waits: the panel asks "a new device at ADDRESS wants to stream:
 accept?" (Accept / Ignore send AcceptConnection / IgnoreConnection). "Allow only" restricts who
-may connect (SetAllowedNetworks; the same check as --allow).
+may connect (SetAllowedNetworks; the same check as --allow). "Forward to" hands a copy of every
+line from the phone to another server, such as the course kit's StreamSensorDataReader in MATLAB
+(SetForward; the same as --forward), and shows what was sent and dropped.
 """
 
 from __future__ import annotations
@@ -14,8 +16,9 @@ from typing import Callable
 
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from app.engine.commands import AcceptConnection, IgnoreConnection, SetAllowedNetworks
-from app.engine.config import ConfigError, allowed_networks
+from app.engine.commands import (AcceptConnection, IgnoreConnection, SetAllowedNetworks,
+                                 SetForward)
+from app.engine.config import ConfigError, allowed_networks, forward_target
 from app.engine.snapshot import StreamHealth, lag_text
 from app.stream.protocol import reasons_text
 
@@ -74,6 +77,7 @@ class ConnectionPanel(QtWidgets.QWidget):
         layout.addWidget(listen_box)
         layout.addWidget(self._build_waiting_box())
         layout.addWidget(self._build_allow_box())
+        layout.addWidget(self._build_forward_box())
 
         stream_box = QtWidgets.QGroupBox("Stream")
         form = QtWidgets.QFormLayout(stream_box)
@@ -137,6 +141,26 @@ class ConnectionPanel(QtWidgets.QWidget):
         self._allowed_shown: list[str] | None = None
         return box
 
+    def _build_forward_box(self) -> QtWidgets.QGroupBox:
+        box = QtWidgets.QGroupBox("Forward to (MATLAB kit)")
+        box.setToolTip("Every line from the phone is also sent, verbatim and in order, to this "
+                       "server, e.g. the course kit's StreamSensorDataReader in MATLAB; a slow "
+                       "or absent receiver never slows the phone (its lines are dropped and "
+                       "counted)")
+        layout = QtWidgets.QGridLayout(box)
+        self.forward_field = QtWidgets.QLineEdit()
+        self.forward_field.setPlaceholderText("off (e.g. 127.0.0.1:3400)")
+        self.forward_field.returnPressed.connect(self.toggle_forward)
+        self.forward_button = QtWidgets.QPushButton("Forward")
+        self.forward_button.clicked.connect(self.toggle_forward)
+        self.forward_status = QtWidgets.QLabel("off")
+        self.forward_status.setWordWrap(True)
+        layout.addWidget(self.forward_field, 0, 0)
+        layout.addWidget(self.forward_button, 0, 1)
+        layout.addWidget(self.forward_status, 1, 0, 1, 2)
+        self._forwarding: str | None = None
+        return box
+
     # ---- listening address ----------------------------------------------------------------
 
     def address_text(self) -> str:
@@ -173,6 +197,7 @@ class ConnectionPanel(QtWidgets.QWidget):
         self._set_text(self.quirks_label, "; ".join(clock) or "none")
         self._set_text(self.recording_label, health.recording or "off")
         self._update_waiting(health.waiting_peers)
+        self._update_forward(health)
         if health.allowed != self._allowed_shown and not self.allow_field.hasFocus():
             self._allowed_shown = list(health.allowed)
             self.allow_field.setText(", ".join(health.allowed))
@@ -213,3 +238,42 @@ class ConnectionPanel(QtWidgets.QWidget):
     def _set_text(label: QtWidgets.QLabel, text: str) -> None:
         if label.text() != text:
             label.setText(text)
+
+    # ---- forward to MATLAB ----------------------------------------------------------------
+
+    def toggle_forward(self) -> None:
+        """Forward: start forwarding to the field's HOST:PORT (a bad one is said under the
+        field); Stop: stop it."""
+        if self._forwarding is not None and self.sender() is self.forward_button:
+            self._send(SetForward(None))
+            return
+        text = self.forward_field.text().strip()
+        if not text:
+            self._send(SetForward(None))
+            return
+        try:
+            host, port = forward_target(text)
+        except ConfigError as error:
+            self._set_text(self.forward_status, "<span style='color:#b3261e'>"
+                           f"{str(error).replace('--forward: ', '')}</span>")
+            return
+        self._send(SetForward(f"{host}:{port}"))
+
+    def _update_forward(self, health: StreamHealth) -> None:
+        status = health.forward
+        target = status.target if status is not None and status.state != "stopped" else None
+        if target != self._forwarding:
+            self._forwarding = target
+            self.forward_button.setText("Stop" if target else "Forward")
+            if target and not self.forward_field.hasFocus():
+                self.forward_field.setText(target)
+        if status is None or status.state == "stopped":
+            if self._forwarding is None and "color:#b3261e" not in self.forward_status.text():
+                self._set_text(self.forward_status, "off")
+            return
+        text = status.summary().removeprefix(f"forward {status.target} ")
+        if health.connection_state not in ("connected", "waiting", "disconnected"):
+            text += " (forwards the live phone stream only)"
+        if status.last_error and status.state != "connected":
+            text += f"; {status.last_error}"
+        self._set_text(self.forward_status, text)

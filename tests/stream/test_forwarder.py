@@ -206,3 +206,33 @@ def test_forward_target(text, expected):
 def test_bad_forward_targets_are_one_line_errors(text):
     with pytest.raises(ConfigError):
         forward_target(text)
+
+
+def test_a_forward_started_and_stopped_by_command_while_the_phone_streams(receiver):
+    """SetForward (the connection panel's "Forward to"): started while the engine runs, every
+    later line arrives verbatim; stopped, nothing more is sent and the phone link goes on."""
+    from app.engine.commands import SetForward
+
+    engine = Engine(TcpSource("127.0.0.1", 0), comparisons=False)
+    with engine:
+        assert engine.snapshot_now().health.forward is None
+        engine.send(SetForward(f"127.0.0.1:{receiver.port}"))
+        status = _wait(lambda: (f := engine.snapshot_now().health.forward) is not None
+                       and f.state == "connected" and f)
+        assert status.target == f"127.0.0.1:{receiver.port}"
+        data = b"".join(_lines(2000))
+        with PhoneEmulator("127.0.0.1", engine.source.port) as phone:
+            phone.send(data)
+            _wait(lambda: receiver.received and len(receiver.received[0]) == len(data))
+            assert bytes(receiver.received[0]) == data
+            engine.send(SetForward(None))
+            _wait(lambda: engine.snapshot_now().health.forward is None)
+            phone.send(b"".join(_lines(500, 9000)))
+            _wait(lambda: engine.snapshot_now().health.lines_total >= 2500)
+        time.sleep(0.2)
+        assert bytes(receiver.received[0]) == data            # nothing after the stop
+        engine.send(SetForward("nonsense:port"))
+        note = _wait(lambda: [w for w in engine.snapshot_now().health.warnings
+                              if "nonsense" in w or "'port'" in w])
+        assert engine.snapshot_now().health.forward is None
+    assert note[0] == "forward to 'nonsense:port': not a port number: 'port'"

@@ -271,3 +271,39 @@ def test_position_text_is_minutes_and_seconds_since_the_start():
     assert position_text(5.0, 20.0) == "0:05.0 / 0:20.0"
     assert position_text(75.25, 166.0) == "1:15.2 / 2:46.0"
     assert position_text(3723.44, 3600.0 * 1.5) == "1:02:03.4 / 1:30:00.0"
+
+
+def test_connection_panel_forwards_to_the_matlab_kit_and_shows_what_was_sent(qtbot):
+    from app.engine.commands import SetForward
+    from app.stream.forwarder import ForwardStatus
+
+    sent: list[object] = []
+    panel = ConnectionPanel(sent.append)
+    qtbot.addWidget(panel)
+    panel.show()
+    health = StreamHealth(connection_state="connected", peer="192.168.1.23:51234", port=3400)
+    panel.update_health(health)
+    assert panel.forward_status.text() == "off" and panel.forward_button.text() == "Forward"
+
+    panel.forward_field.setText("localhost")                 # no port: said, nothing sent
+    qtbot.mouseClick(panel.forward_button, QtCore.Qt.MouseButton.LeftButton)
+    assert sent == [] and "port" in panel.forward_status.text()
+    panel.forward_field.setText(":3401")
+    qtbot.mouseClick(panel.forward_button, QtCore.Qt.MouseButton.LeftButton)
+    assert sent == [SetForward("127.0.0.1:3401")]
+
+    health.forward = ForwardStatus("127.0.0.1:3401", state="connected", lines_forwarded=1200,
+                                   dropped_full=3)
+    panel.update_health(health)
+    assert panel.forward_button.text() == "Stop"
+    assert panel.forward_status.text() == "connected, 1200 lines sent, 3 dropped"
+    qtbot.mouseClick(panel.forward_button, QtCore.Qt.MouseButton.LeftButton)
+    assert sent[-1] == SetForward(None)
+    health.forward = None
+    panel.update_health(health)
+    assert panel.forward_button.text() == "Forward" and panel.forward_status.text() == "off"
+
+    health.connection_state = "replaying"                    # a replay has no phone lines
+    health.forward = ForwardStatus("127.0.0.1:3401", state="connected")
+    panel.update_health(health)
+    assert "live phone stream only" in panel.forward_status.text()
