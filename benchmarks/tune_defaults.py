@@ -188,7 +188,21 @@ def main() -> int:
     ap.add_argument("--fix", default="",
                     help="comma-separated settings held at the centre of their range instead "
                          "of searched (fewer free values: less to over-fit)")
+    ap.add_argument("--range", action="append", default=[], metavar="NAME=LO,HI",
+                    help="search NAME between LO and HI instead (repeatable), e.g. "
+                         "mag_max_reject_s=2,10")
     args = ap.parse_args()
+    for item in args.range:
+        name, _, bounds = item.partition("=")
+        try:
+            lo, hi = (float(x) for x in bounds.split(","))
+        except ValueError:
+            lo = hi = math.nan
+        if name not in SPACE or not 0 < lo < hi:
+            print(f"--range: expected NAME=LO,HI with 0 < LO < HI and NAME one of "
+                  f"{', '.join(SPACE)}; got {item!r}", file=sys.stderr)
+            return 2
+        SPACE[name] = (lo, hi) + SPACE[name][2:]
     unknown = [n for n in args.fix.split(",") if n and n not in SPACE]
     if unknown:
         print(f"--fix: unknown setting(s) {', '.join(unknown)}; searched are "
