@@ -121,8 +121,8 @@ def _acc_mag_quaternion(a0, a1, a2, m0, m1, m2):
 
 
 @jit
-def _set_attitude_cov(s, scale):
-    """P[:4, :4] = scale * S̄(q) S̄(q)^T (the other blocks untouched)."""
+def _attitude_cov(s, scale, add):
+    """P[:4, :4] = scale * S̄(q) S̄(q)^T, or += with add (the other blocks untouched)."""
     q0 = s[S.x]
     q1 = s[S.x + 1]
     q2 = s[S.x + 2]
@@ -131,24 +131,23 @@ def _set_attitude_cov(s, scale):
     for i in range(4):
         for j in range(i, 4):
             m = sb[i][0] * sb[j][0] + sb[i][1] * sb[j][1] + sb[i][2] * sb[j][2]
-            s[S.P + 7 * i + j] = scale * m
-            s[S.P + 7 * j + i] = scale * m
+            v = scale * m
+            if add:
+                v += s[S.P + 7 * i + j]
+            s[S.P + 7 * i + j] = v
+            s[S.P + 7 * j + i] = v
+
+
+@jit
+def _set_attitude_cov(s, scale):
+    """P[:4, :4] = scale * S̄(q) S̄(q)^T (the other blocks untouched)."""
+    _attitude_cov(s, scale, False)
 
 
 @jit
 def _add_attitude_cov(s, scale):
     """P[:4, :4] += scale * S̄(q) S̄(q)^T."""
-    q0 = s[S.x]
-    q1 = s[S.x + 1]
-    q2 = s[S.x + 2]
-    q3 = s[S.x + 3]
-    sb = ((-q1, -q2, -q3), (q0, -q3, q2), (q3, q0, -q1), (-q2, q1, q0))
-    for i in range(4):
-        for j in range(i, 4):
-            m = sb[i][0] * sb[j][0] + sb[i][1] * sb[j][1] + sb[i][2] * sb[j][2]
-            v = s[S.P + 7 * i + j] + scale * m
-            s[S.P + 7 * i + j] = v
-            s[S.P + 7 * j + i] = v
+    _attitude_cov(s, scale, True)
 
 
 @jit_inline

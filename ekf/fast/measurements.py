@@ -304,10 +304,9 @@ def _reference_dip_deg(s):
     return math.degrees(math.acos(m2 / (math.sqrt(m0 * m0 + m1 * m1 + m2 * m2) + 1e-300)))
 
 
-@jit
-def _set_m0_from(s, c, y0, y1, y2):
-    """reference ``_set_m0_from``: m0 = (0, horizontal, vertical) of the reading in the world;
-    with mag_reference_s it starts the mean that becomes the expected field."""
+@jit_inline
+def _level_m0(s, y0, y1, y2):
+    """m0 = (0, sqrt(mx^2 + my^2), mz) of the reading expressed in the (level) world frame."""
     Q = _to_matrix(s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3])
     mw0 = Q[0] * y0 + Q[1] * y1 + Q[2] * y2
     mw1 = Q[3] * y0 + Q[4] * y1 + Q[5] * y2
@@ -315,8 +314,15 @@ def _set_m0_from(s, c, y0, y1, y2):
     s[S.m0] = 0.0
     s[S.m0 + 1] = math.hypot(mw0, mw1)
     s[S.m0 + 2] = mw2
+
+
+@jit
+def _set_m0_from(s, c, y0, y1, y2):
+    """reference ``_set_m0_from``: m0 = (0, horizontal, vertical) of the reading in the world;
+    with mag_reference_s it starts the mean that becomes the expected field."""
+    _level_m0(s, y0, y1, y2)
     s[S.m0_valid] = 1.0
-    strength = math.sqrt(s[S.m0 + 1] ** 2 + mw2 * mw2)
+    strength = math.sqrt(s[S.m0 + 1] ** 2 + s[S.m0 + 2] * s[S.m0 + 2])
     s[S.mag_strength] = strength
     s[S.mag_expected] = strength
     s[S.mag_reference_dip_deg] = _reference_dip_deg(s)
@@ -374,13 +380,7 @@ def _relearn_field(s, y0, y1, y2):
     """reference ``_relearn_field``."""
     s[S.mag_strength] = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
     if s[S.m0_valid] != 0.0:
-        Q = _to_matrix(s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3])
-        mw0 = Q[0] * y0 + Q[1] * y1 + Q[2] * y2
-        mw1 = Q[3] * y0 + Q[4] * y1 + Q[5] * y2
-        mw2 = Q[6] * y0 + Q[7] * y1 + Q[8] * y2
-        s[S.m0] = 0.0
-        s[S.m0 + 1] = math.hypot(mw0, mw1)
-        s[S.m0 + 2] = mw2
+        _level_m0(s, y0, y1, y2)
         s[S.mag_reference_dip_deg] = _reference_dip_deg(s)
     s[S.mag_rejected_since] = _NAN
 
