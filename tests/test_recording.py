@@ -5,10 +5,11 @@ session.json, and determinism: replaying a recording gives exactly the estimates
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import pytest
+
+from waiting import wait_until
 
 from ekf.simulate import simulate
 from app.engine.commands import (AddMarker, SetEstimator, SetMarkerLabel, SetSensorEnabled,
@@ -30,14 +31,7 @@ def lines() -> list[bytes]:
             for t, tag, values in session.iter_rows()]
 
 
-def wait_for(condition, timeout: float = 30.0, what: str = "condition"):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}")
+wait_for = wait_until
 
 
 def send_in_pieces(phone: PhoneEmulator, lines: list[bytes], size: int = 613) -> None:

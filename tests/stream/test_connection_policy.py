@@ -13,6 +13,8 @@ import time
 import numpy as np
 import pytest
 
+from waiting import wait_until as _wait
+
 from app.engine.commands import AcceptConnection, IgnoreConnection, SetAllowedNetworks
 from app.engine.offline import filter_log
 from app.engine.worker import Engine
@@ -21,16 +23,6 @@ from app.stream.logfile import read_log
 from app.stream.sources import TcpSource
 
 STRANGER_T0 = 999_999_000_000_000_000     # ~1e18 ms: 18 digits, the most a time may have
-
-
-def _wait(predicate, timeout: float = 30.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.02)
-    raise AssertionError("condition not reached in time")
 
 
 def _engine(**options) -> Engine:

@@ -10,6 +10,8 @@ import time
 
 import pytest
 
+from waiting import wait_until
+
 from app.engine.config import ConfigError, forward_target
 from app.engine.worker import Engine
 from app.stream.emulator import PhoneEmulator
@@ -18,13 +20,7 @@ from app.stream.sources import TcpSource
 
 
 def _wait(predicate, timeout: float = 15.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.01)
-    raise AssertionError("condition not reached in time")
+    return wait_until(predicate, timeout, poll_s=0.01)
 
 
 class Receiver:

@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from waiting import wait_until as _wait
+
 from app.engine.estimates import EstimatesWriter
 from app.engine.worker import Engine
 from app.stream.emulator import PhoneEmulator
@@ -22,16 +24,6 @@ from app.stream.sources import TcpSource
 def _lines(n: int, t0: int = 1000) -> bytes:
     return "".join(f"{t0 + 10 * k}\tGYR\t0.01\t0.0\t0.0\n{t0 + 10 * k}\tACC\t0.0\t0.0\t9.81\n"
                    for k in range(n)).encode()
-
-
-def _wait(predicate, timeout: float = 30.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.02)
-    raise AssertionError("condition not reached in time")
 
 
 class _FullDisk:

@@ -8,21 +8,13 @@ import time
 
 import pytest
 
+from waiting import wait_until as _wait
+
 from app.engine.worker import Engine
 from app.stream.emulator import PhoneEmulator, send_log
 from app.stream.sources import TcpSource
 from app.stream.events import Chunk, SourceEvent
 from app.stream.tcp_server import TcpServer
-
-
-def _wait(predicate, timeout: float = 30.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.02)
-    raise AssertionError("condition not reached in time")
 
 
 @pytest.fixture
