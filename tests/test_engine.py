@@ -8,9 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from line_helpers import parses as _parses
+from waiting import wait_for_snapshot
+
 from app.engine.worker import Engine
 from app.stream.logfile import read_log
-from app.stream.protocol import ParseError, parse_line
 from app.stream.recorder import Recorder
 from app.stream.sources import LineReplaySource, LogFileSource
 from app.engine.offline import run_offline
@@ -21,13 +23,8 @@ REALPHONE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "re
 
 
 def _wait_state(engine: Engine, state: str, timeout: float = 40.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        snapshot = engine.snapshot_now()
-        if snapshot.health.connection_state == state:
-            return snapshot
-        time.sleep(0.02)
-    raise AssertionError(f"engine never reached {state!r}")
+    return wait_for_snapshot(engine, lambda s: s.health.connection_state == state, timeout,
+                             f"the engine to reach {state!r}")
 
 
 def _log_lines(seconds: float, t0: int = 1000, turn_rate: float = 0.5,
@@ -68,13 +65,6 @@ def test_replay_matches_run_offline_bit_for_bit(tmp_path):
     again = run_offline(read_log(tmp_path / "rec" / "raw.txt").samples)
     assert np.array_equal(again.quat, offline.quat)
 
-
-def _parses(line: bytes) -> bool:
-    try:
-        parse_line(line.decode("utf-8", "replace"))
-    except ParseError:
-        return False
-    return True
 
 
 def test_poll_merges_plot_samples_and_fills_snapshot():

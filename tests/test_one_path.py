@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from waiting import wait_for_port, wait_for_snapshot
+
 import ekf
 from app.cli import main
 from app.engine import config
@@ -27,13 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _wait(engine: Engine, predicate, timeout: float = 40.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        snapshot = engine.snapshot_now()
-        if predicate(snapshot):
-            return snapshot
-        time.sleep(0.02)
-    raise AssertionError("condition never reached")
+    return wait_for_snapshot(engine, predicate, timeout)
 
 
 def _duplicated_log(path: Path) -> Path:
@@ -291,15 +287,7 @@ sys.exit(main(["serve", "--host", "127.0.0.1", "--port", "{_free_port()}", "--qu
     assert "Traceback" in err           # the log (stderr for serve) has the traceback
 
 
-def _wait_port(port: int, timeout: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
-            return
-        except OSError:
-            time.sleep(0.05)
-    raise AssertionError("serve never listened")
+_wait_port = wait_for_port
 
 
 # ---- a recording keeps what the user saw -----------------------------------------------------------

@@ -8,6 +8,8 @@ import time
 import numpy as np
 import pytest
 
+from waiting import wait_for_snapshot
+
 from ekf.simulate import simulate
 from app.engine.checkpoints import comparison_vectors
 from app.engine.commands import ReplayControl
@@ -61,13 +63,8 @@ def assert_same_state(engine: Engine, reference: Pipeline) -> None:
 
 
 def wait_indexed(engine: Engine, timeout: float = 60.0) -> dict:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        replay = engine.snapshot_now().replay
-        if replay and replay.get("indexed"):
-            return replay
-        time.sleep(0.02)
-    raise AssertionError("the replay was never indexed")
+    return wait_for_snapshot(engine, lambda s: s.replay and s.replay.get("indexed"), timeout,
+                             "the replay to be indexed").replay
 
 
 def test_index_checkpoints_are_the_states_of_playing(lines):

@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from waiting import wait_for_snapshot
+
 from app.engine.commands import (LoadUserFilter, ReplayControl, SetConsistencyEnabled,
                                  UnloadUserFilter)
 from app.engine.config import open_log
@@ -30,14 +32,8 @@ COURSE_EKF = Path(__file__).resolve().parents[1] / "examples" / "course_ekf.py"
 
 def _wait(engine: Engine, predicate, timeout: float = 30.0):
     """Poll snapshots until predicate(snapshot) holds; returns that snapshot."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        snapshot = engine.snapshot_now()
-        if predicate(snapshot):
-            return snapshot
-        time.sleep(0.02)
-    user = engine.snapshot_now().user
-    raise AssertionError(f"condition not reached; user status: {user}")
+    return wait_for_snapshot(engine, predicate, timeout,
+                             describe=lambda s: f"user status: {s.user}")
 
 
 def _log(tmp_path: Path, seconds: float = 3.0, rate_hz: float = 100.0) -> Path:

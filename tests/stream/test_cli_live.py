@@ -5,13 +5,14 @@ from __future__ import annotations
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
+from line_helpers import parses as _parses
+from waiting import wait_for_port
+
 from app.cli import main
-from app.stream.protocol import ParseError, parse_line
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -22,15 +23,7 @@ def _free_port() -> int:
         return probe.getsockname()[1]
 
 
-def _wait_port(port: int, timeout: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
-            return
-        except OSError:
-            time.sleep(0.05)
-    raise AssertionError("serve never listened")
+_wait_port = wait_for_port
 
 
 def _serve_and_send(log: Path, record: Path, *extra: str) -> tuple[str, str]:
@@ -97,13 +90,6 @@ def test_serve_with_nul_bytes_and_absurd_values_records_a_file_our_tools_read(tm
     assert estimates[0] == estimates[1] == estimates[2]
     assert (record / "estimates.csv").read_text() == estimates[0]
 
-
-def _parses(line: bytes) -> bool:
-    try:
-        parse_line(line.decode("utf-8", "replace"))
-    except ParseError:
-        return False
-    return True
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -11,9 +11,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from line_helpers import parses as _parses
 from app.stream.fastparse import FastLineParser
-from app.stream.protocol import (DEFAULT_LIMITS, LineParser, Limits, ParseError,
-                                 java_float_text, parse_line)
+from app.stream.protocol import (DEFAULT_LIMITS, LineParser, Limits, java_float_text)
 
 # bounds the generated numbers cross often (1, 7, 9, 10, 12, 0.5 ...)
 TIGHT = Limits(acc=10.0, gyr=1.0, mag=12.0, ori_tolerance=1e-7, floor=0.5)
@@ -121,13 +121,6 @@ def test_fast_parser_equals_line_parser_on_real_logs(realphone_dir):
                                    if _parses(line)), path.name
         assert fast[1].damaged == (2 if "standstill" in path.name else 0)
 
-
-def _parses(line: bytes) -> bool:
-    try:
-        parse_line(line.decode("utf-8", "replace"))
-    except ParseError:
-        return False
-    return True
 
 
 def test_java_float_text_numbers_parse_to_the_same_double():
