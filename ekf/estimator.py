@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike
 
 from ekf.outputs import Diagnostics, Flags
 from ekf.settings import PRESETS, EKFSettings, resolve_settings
-from ekf.state import check_state, initial_state, load_state, state_dict
+from ekf.state import check_state, initial_state, load_state, state_dict, upgrade_state
 
 SENSORS = ("gyr", "acc", "mag")
 
@@ -190,7 +190,10 @@ class EstimatorBase:
         return {"estimator": self.name, "settings": self.settings, "state": self._get_state()}
 
     def restore(self, snapshot: Mapping[str, Any]) -> None:
-        """Continue from a snapshot (of this estimator, or of one with the same state)."""
+        """Continue from a snapshot (of this estimator, or of one with the same state; one
+        saved by an earlier version is brought up to date first, ``ekf.state.upgrade_state``)."""
+        if isinstance(snapshot, Mapping) and "state" in snapshot:
+            snapshot = {**snapshot, "state": upgrade_state(self.state_class, snapshot["state"])}
         self._check_snapshot(snapshot)
         self._set_state(snapshot["state"])
         self.settings = snapshot["settings"]

@@ -508,21 +508,19 @@ class OrientationEKF(MagneticField, EstimatorBase):
         diag.mag_rejected_by = rejected_by
         R = np.asarray(s.mag_noise_cov, float) * self._uneven_field(t, norm)
         if rejected_by != NOT_REJECTED:
-            if math.isnan(st.mag_disturbed_since):
-                st.mag_disturbed_since = t
             if s.mag_strength_update == "accepted":
                 self._track_new_field(y, t, norm, dip)
             flags.mag_rejected = True
             flags.used_mag = False
             bound = s.mag_max_reject_s if flags.used_gyr else min(s.mag_max_reject_s,
                                                                   s.mag_max_reject_no_gyro_s)
-            if not t - st.mag_disturbed_since > bound:
+            if not self._count_disturbance(t, bound) > bound:
                 return
             # Out for longer than the bound: use the reading, trusted less, until it ends.
             R = R * s.mag_reject_noise_scale
         else:
             st.mag_rejected_since = math.nan
-            st.mag_disturbed_since = math.nan
+            self._count_passing(t)
             flags.mag_rejected = False
         if t - st.mag_updated_t < s.update_period_s:
             flags.used_mag = False
@@ -548,6 +546,29 @@ class OrientationEKF(MagneticField, EstimatorBase):
             flags.used_mag = False
             return
         flags.used_mag = True
+
+    def _count_disturbance(self, t: float, bound: float) -> float:
+        """The time a disturbance has kept the magnetometer out: a rejected (or settling)
+        reading adds the time since the previous reading when that was rejected too, as long as
+        the count is within the bound (VQF's magRejectT). Returns the count."""
+        st = self._state
+        if not math.isnan(st.mag_disturbed_t) and not st.mag_disturbed_time > bound:
+            st.mag_disturbed_time += t - st.mag_disturbed_t
+        st.mag_disturbed_t = t
+        return st.mag_disturbed_time
+
+    def _count_passing(self, t: float) -> None:
+        """A reading that passes earns disturbance time back: mag_reject_recovery seconds per
+        second since the previous reading (inf: the disturbance is over, the count is 0)."""
+        st, recovery = self._state, self.settings.mag_reject_recovery
+        if math.isinf(recovery):
+            st.mag_disturbed_time = 0.0
+        else:
+            last = st.mag_passed_t if math.isnan(st.mag_disturbed_t) else st.mag_disturbed_t
+            if not math.isnan(last):
+                st.mag_disturbed_time = max(0.0, st.mag_disturbed_time - recovery * (t - last))
+        st.mag_disturbed_t = math.nan
+        st.mag_passed_t = t
 
     def _uneven_field(self, t: float, norm: float) -> float:
         """mag_noise_adapt: where the field is uneven (a building's, along a walk), readings

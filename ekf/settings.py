@@ -166,6 +166,12 @@ class EKFSettings:
         math.inf, unit="s",
         doc="the same bound while no gyroscope drives the time update (nothing else holds the "
             "heading then)")
+    mag_reject_recovery: float = _setting(
+        math.inf, unit="s/s",
+        doc="the disturbance time counted against `mag_max_reject_s` falls this many seconds "
+            "per second of readings that pass (VQF: 2), and stops growing past the bound: a few "
+            "passing readings in a long disturbance do not buy it a new bound; inf: a passing "
+            "reading ends the disturbance")
     mag_reject_noise_scale: float = _setting(
         10.0, unit="-",
         doc="R_m is multiplied by this for readings used past the rejection bound")

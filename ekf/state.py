@@ -171,8 +171,12 @@ class EKFState:
     mag_dev_sq: float = state_field("low-pass of (‖y_m‖ − L_k)² (mag_noise_adapt)", _value(0.0),
                                     unit="µT²")
     mag_dev_t: float = state_field("time of the latest reading in mag_dev_sq", _NAN, unit="s")
-    mag_disturbed_since: float = state_field("the current disturbance (rejected or settling "
-                                             "readings) began then; NaN: none", _NAN, unit="s")
+    mag_disturbed_time: float = state_field("disturbance time counted against "
+                                            "mag_max_reject_s (rejected or settling readings)",
+                                            _value(0.0), unit="s")
+    mag_disturbed_t: float = state_field("time of the latest reading when it was rejected; NaN: "
+                                         "it passed", _NAN, unit="s")
+    mag_passed_t: float = state_field("time of the latest reading that passed", _NAN, unit="s")
     mag_reference_until: float = state_field("the expected field is learned from the readings "
                                              "until then (mag_reference_s); -inf: done",
                                              _NEVER, unit="s")
@@ -263,6 +267,23 @@ def check_state(cls: type, state: Mapping[str, Any]) -> None:
         if not np.issubdtype(np.asarray(value).dtype, np.number) and \
                 np.asarray(value).dtype != np.bool_:
             raise ValueError(f"snapshot state {f.name!r} must be numeric")
+
+
+def upgrade_state(cls: type, state: Any) -> Any:
+    """A state saved by an earlier version in today's form (a session's start_state, a
+    checkpoint): EKFState's mag_disturbed_since (the time the disturbance began; NaN: none)
+    became the counted mag_disturbed_time with the times of the latest readings. Anything else
+    is returned as it is (and checked as usual)."""
+    if cls is not EKFState or not isinstance(state, Mapping) or \
+            "mag_disturbed_since" not in state:
+        return state
+    out = {k: v for k, v in state.items() if k != "mag_disturbed_since"}
+    since, now = float(state["mag_disturbed_since"]), float(state.get("t", math.nan))
+    disturbed = math.isfinite(since) and math.isfinite(now)
+    out.setdefault("mag_disturbed_time", max(0.0, now - since) if disturbed else 0.0)
+    out.setdefault("mag_disturbed_t", now if disturbed else math.nan)
+    out.setdefault("mag_passed_t", math.nan)
+    return out
 
 
 def load_state(cls: type, state: Mapping[str, Any]) -> Any:

@@ -535,6 +535,33 @@ def _heading_gain_cap(s, c, dt):
     return 1.0
 
 
+@jit_inline
+def _count_disturbance(s, c, t, bound):
+    """reference ``_count_disturbance``: a rejected reading adds the time since the previous
+    one when that was rejected too (while the count is within the bound); returns the count."""
+    if not math.isnan(s[S.mag_disturbed_t]) and not s[S.mag_disturbed_time] > bound:
+        s[S.mag_disturbed_time] += t - s[S.mag_disturbed_t]
+    s[S.mag_disturbed_t] = t
+    return s[S.mag_disturbed_time]
+
+
+@jit_inline
+def _count_passing(s, c, t):
+    """reference ``_count_passing``: a reading that passes takes mag_reject_recovery seconds
+    per second since the previous reading off the count (inf: all of it)."""
+    recovery = c[C.mag_reject_recovery]
+    if recovery == math.inf:
+        s[S.mag_disturbed_time] = 0.0
+    else:
+        last = s[S.mag_disturbed_t]
+        if math.isnan(last):
+            last = s[S.mag_passed_t]
+        if not math.isnan(last):
+            s[S.mag_disturbed_time] = max(0.0, s[S.mag_disturbed_time] - recovery * (t - last))
+    s[S.mag_disturbed_t] = _NAN
+    s[S.mag_passed_t] = t
+
+
 @jit
 def _mag_update(s, c, y0, y1, y2, t):
     """reference ``_mag_update``: the expected field learned first (mag_reference_s), the gates
@@ -558,8 +585,6 @@ def _mag_update(s, c, y0, y1, y2, t):
     s[S.mag_rejected_by] = rejected_by
     noise_scale = _uneven_field(s, c, t, norm)
     if rejected_by != NOT_REJECTED:
-        if math.isnan(s[S.mag_disturbed_since]):
-            s[S.mag_disturbed_since] = t
         if c[C.mag_strength_accepted] != 0.0:
             _track_new_field(s, c, y0, y1, y2, t, norm, dip)
         s[S.mag_rejected] = 1.0
@@ -567,13 +592,13 @@ def _mag_update(s, c, y0, y1, y2, t):
         bound = c[C.mag_max_reject_s]
         if s[S.used_gyr] == 0.0:
             bound = min(bound, c[C.mag_max_reject_no_gyro_s])
-        if not t - s[S.mag_disturbed_since] > bound:
+        if not _count_disturbance(s, c, t, bound) > bound:
             return
         # out for longer than the bound: use the reading, trusted less, until it ends
         noise_scale *= c[C.mag_reject_noise_scale]
     else:
         s[S.mag_rejected_since] = _NAN
-        s[S.mag_disturbed_since] = _NAN
+        _count_passing(s, c, t)
         s[S.mag_rejected] = 0.0
     if t - s[S.mag_updated_t] < c[C.update_period_s]:
         s[S.used_mag] = 0.0

@@ -273,3 +273,49 @@ def test_a_phone_without_gyroscope_follows_the_magnetometer_from_the_start(realp
         sel = t_ori > t[0] + 3.0
         errors[preset] = ekf.summarize(q[sel], q_ori[sel]).total_rmse_deg
     assert errors["default"] < 1.25 * errors["course"]
+
+
+def _flicker_run(recovery: float) -> list[bool]:
+    """A still phone whose field is disturbed except for one passing reading in ten (0.1 s in
+    every second): with the count reset by each passing reading the bound of 2 s is never
+    reached; with a leaky count the disturbance time adds up and the readings are used again."""
+    s = PRESETS["default"].with_changes(update_period_s=0.0, mag_settle_s=0.0,
+                                        mag_max_reject_s=2.0, mag_reject_recovery=recovery,
+                                        mag_relearn_s=1e9)
+    f = OrientationEKF(s)
+    used_while_disturbed = []
+    for k in range(1000):
+        t = k * 0.01
+        disturbed = t >= 1.5 and (k % 100) >= 10
+        f.step(t, gyr=[0, 0, 0], acc=G0, mag=M0 * 1.5 if disturbed else M0)
+        if disturbed:
+            used_while_disturbed.append(bool(f.flags.used_mag))
+    return used_while_disturbed
+
+
+def test_a_leaky_disturbance_count_is_not_reset_by_a_few_passing_readings():
+    reset = _flicker_run(math.inf)
+    leaky = _flicker_run(2.0)
+    assert not any(reset)                 # every passing reading bought a new 2 s
+    assert any(leaky)                     # 0.9 s out, 0.1 s back at 2 s/s: 0.7 s a second
+    first = leaky.index(True)
+    assert 150 <= first <= 400            # after about 2 s / 0.7 s/s of disturbance time
+
+
+def test_a_snapshot_from_before_the_leaky_count_restores():
+    """session.json start_states of earlier versions keep mag_disturbed_since: brought up to
+    date, not refused."""
+    f = OrientationEKF(PRESETS["default"])
+    for k in range(50):
+        f.step(k * 0.01, gyr=[0, 0, 0], acc=G0, mag=M0)
+    snap = f.snapshot()
+    state = dict(snap["state"])
+    for name in ("mag_disturbed_time", "mag_disturbed_t", "mag_passed_t"):
+        del state[name]
+    state["mag_disturbed_since"] = state["t"] - 1.5
+    g = OrientationEKF(PRESETS["default"])
+    g.restore({**snap, "state": state})
+    restored = g.snapshot()["state"]
+    assert restored["mag_disturbed_time"] == pytest.approx(1.5)
+    assert restored["mag_disturbed_t"] == restored["t"]
+    np.testing.assert_array_equal(g.quat, f.quat)
