@@ -16,7 +16,13 @@ dataset the mean over its recordings of total RMSE / VQF 9D's (VQF's causal filt
 for any recording beyond 1.5x (BROAD) or 2x (Nexus 5) its VQF figure.
 
     .venv/bin/python benchmarks/tune_defaults.py [--trials 100] [--jobs 2] [--start centre|default]
-                                                 [--folds groups|halves] [--quick]
+                                                 [--folds groups|halves] [--quick] [--smoother]
+                                                 [--grid NAME=V1,V2,...]
+
+``--smoother`` chooses the offline smoother's one setting of its own (``smooth_hard_iron``: its
+forward pass with or without the online hard-iron fit) the same way, against offline VQF
+(``vqf.offlineVQF``, the peer of a smoother): per fold the choice that is better on the other
+folds, its figures on the fold held out.
 
 Each search starts from the centre of the ranges (``--start centre``, the default), so the
 held-out figures owe nothing to the held-out recordings; ``--start default`` starts from
@@ -53,7 +59,7 @@ SPACE = {
     "mag_dip_gate_deg": (10.0, 40.0, True, 1.0),
     "mag_return_s": (2.0, 20.0, True, 1.0),
     "mag_noise_adapt": (100.0, 10000.0, True, 100.0),
-    "mag_max_reject_s": (5.0, 60.0, True, 1.0),
+    "mag_reject_heading_std_deg": (1.0, 10.0, True, 0.5),
     "mag_hard_iron_tau_s": (20.0, 300.0, True, 10.0),
     "mag_hard_iron_prior": (0.3, 10.0, True, 0.1),
 }
@@ -96,6 +102,89 @@ def settings_of(params: dict[str, float]) -> ekf.EKFSettings:
 
 def errors(settings: ekf.EKFSettings, recs: list[Recording]) -> np.ndarray:
     return np.array([r.score(*run_ours(r, settings)).total_rmse_deg for r in recs])
+
+
+def smoothed_errors(settings: ekf.EKFSettings, recs: list[Recording]) -> np.ndarray:
+    return np.array([r.score(r.t_s, ekf.smooth_batch(r.t_s, r.gyr, r.acc, r.mag,
+                                                     settings=settings).quat).total_rmse_deg
+                     for r in recs])
+
+
+SMOOTHER_CHOICES = {"smooth_hard_iron=true": {"smooth_hard_iron": True},
+                    "smooth_hard_iron=false": {"smooth_hard_iron": False}}
+
+
+def cross_validate_grid(recs: list[Recording], vqf: np.ndarray, fold_set: dict, name: str,
+                        values: list[float]) -> None:
+    """One setting over listed values, every other at the default preset: per fold the value
+    best on the other folds (the objective above), and the value best on all recordings."""
+    kinds = [r.kind for r in recs]
+    errs = {v: errors(settings_of({name: v}), recs) for v in values}
+    held = np.full(len(recs), np.nan)
+    for fold, inside in fold_set.items():
+        test = np.array([inside(r) for r in recs])
+        if not test.any() or test.all():
+            continue
+        train = ~test
+        scores = {v: objective(e[train], vqf[train], [k for k, t in zip(kinds, train) if t])
+                  for v, e in errs.items()}
+        best = min(scores, key=scores.get)
+        held[test] = errs[best][test]
+        print(f"fold {fold}: {name}={best:g} (objective on the others " +
+              ", ".join(f"{v:g}: {x:.3f}" for v, x in scores.items()) + ")")
+    on_all = {v: objective(e, vqf, kinds) for v, e in errs.items()}
+    best = min(on_all, key=on_all.get)
+    print(f"on all: {name}={best:g} (" + ", ".join(f"{v:g}: {x:.3f}" for v, x in on_all.items())
+          + ")")
+    kinds_arr = np.array(kinds)
+    for kind in sorted(set(kinds)):
+        sel = kinds_arr == kind
+        v = vqf[sel].mean()
+        print(f"mean {kind}: held-out {held[sel].mean():.2f} ({held[sel].mean() / v:.2f}x VQF 9D "
+              f"{v:.2f}, worst {np.max(held[sel] / vqf[sel]):.2f}x); with {name}={best:g} "
+              f"{errs[best][sel].mean():.2f} ({errs[best][sel].mean() / v:.2f}x, worst "
+              f"{np.max(errs[best][sel] / vqf[sel]):.2f}x)")
+
+
+def cross_validate_smoother(recs: list[Recording], fold_set: dict) -> None:
+    """Leave one group out over SMOOTHER_CHOICES (the default preset otherwise), the objective
+    against offline VQF; prints the held-out figures and the choice on all recordings."""
+    off = np.array([r.score(*run_vqf(r, offline=True)).total_rmse_deg for r in recs])
+    kinds = [r.kind for r in recs]
+    errs = {name: smoothed_errors(ekf.PRESETS["default"].with_changes(**changes), recs)
+            for name, changes in SMOOTHER_CHOICES.items()}
+    held = np.full(len(recs), np.nan)
+    for fold, inside in fold_set.items():
+        test = np.array([inside(r) for r in recs])
+        if not test.any() or test.all():
+            continue
+        train = ~test
+        scores = {name: objective(e[train], off[train], [k for k, t in zip(kinds, train) if t])
+                  for name, e in errs.items()}
+        best = min(scores, key=scores.get)
+        held[test] = errs[best][test]
+        print(f"fold {fold}: on the others " +
+              ", ".join(f"{n} {v:.3f}" for n, v in scores.items()) + f" -> {best}")
+    on_all = {name: objective(e, off, kinds) for name, e in errs.items()}
+    print("on all: " + ", ".join(f"{n} {v:.3f}" for n, v in on_all.items()) +
+          f" -> {min(on_all, key=on_all.get)}")
+    names = list(errs)
+    print(f"\n{'recording':<44}{'held-out':>10}" + "".join(f"{n[-5:]:>10}" for n in names) +
+          f"{'offline VQF':>12}")
+    for i, r in enumerate(recs):
+        print(f"{r.name[:44]:<44}{held[i]:>10.2f}" + "".join(f"{errs[n][i]:>10.2f}" for n in names)
+              + f"{off[i]:>12.2f}")
+    kinds_arr = np.array(kinds)
+    for kind in sorted(set(kinds)):
+        sel = kinds_arr == kind
+        v = off[sel].mean()
+        print(f"{'mean ' + kind:<44}{held[sel].mean():>10.2f}" +
+              "".join(f"{errs[n][sel].mean():>10.2f}" for n in names) +
+              f"{v:>12.2f}   (held-out / offline VQF {held[sel].mean() / v:.2f}, worst "
+              f"{np.max(held[sel] / off[sel]):.2f}x)")
+    print(f"{'mean all':<44}{held.mean():>10.2f}" + "".join(f"{errs[n].mean():>10.2f}"
+                                                            for n in names) +
+          f"{off.mean():>12.2f}   (held-out / offline VQF {held.mean() / off.mean():.2f})")
 
 
 def objective(ours: np.ndarray, vqf: np.ndarray, kinds: list[str]) -> float:
@@ -188,6 +277,12 @@ def main() -> int:
     ap.add_argument("--fix", default="",
                     help="comma-separated settings held at the centre of their range instead "
                          "of searched (fewer free values: less to over-fit)")
+    ap.add_argument("--grid", default="", metavar="NAME=V1,V2,...",
+                    help="choose one setting among these values, every other at the default "
+                         "preset, by the same folds (a cheap check of one preset value)")
+    ap.add_argument("--smoother", action="store_true",
+                    help="choose the smoother's own setting (smooth_hard_iron) by the same "
+                         "folds, against offline VQF, instead of tuning the filter")
     ap.add_argument("--range", action="append", default=[], metavar="NAME=LO,HI",
                     help="search NAME between LO and HI instead (repeatable), e.g. "
                          "mag_max_reject_s=2,10")
@@ -219,6 +314,22 @@ def main() -> int:
     recs = load_all(("broad", "tyrex"), only)
     if not recs:
         print("no shared data (../shared/data/broad, tyrex): nothing to tune")
+        return 0
+    if args.smoother:
+        cross_validate_smoother(recs, FOLD_SETS[args.folds])
+        return 0
+    if args.grid:
+        name, _, listed = args.grid.partition("=")
+        try:
+            values = [float(x) for x in listed.split(",")]
+        except ValueError:
+            values = []
+        if not hasattr(ekf.PRESETS["default"], name) or not values:
+            print(f"--grid: expected NAME=V1,V2,... with NAME a setting; got {args.grid!r}",
+                  file=sys.stderr)
+            return 2
+        vqf_err = np.array([r.score(*run_vqf(r)).total_rmse_deg for r in recs])
+        cross_validate_grid(recs, vqf_err, FOLD_SETS[args.folds], name, values)
         return 0
     trials = 2 if args.quick else args.trials
     vqf_err = np.array([r.score(*run_vqf(r)).total_rmse_deg for r in recs])

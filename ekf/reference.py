@@ -514,9 +514,11 @@ class OrientationEKF(MagneticField, EstimatorBase):
             flags.used_mag = False
             bound = s.mag_max_reject_s if flags.used_gyr else min(s.mag_max_reject_s,
                                                                   s.mag_max_reject_no_gyro_s)
-            if not self._count_disturbance(t, bound) > bound:
+            over = self._count_disturbance(t, bound) > bound
+            if not over and not self._heading_std_deg() > s.mag_reject_heading_std_deg:
                 return
-            # Out for longer than the bound: use the reading, trusted less, until it ends.
+            # Out for longer than the bound (or the heading too uncertain): use the reading,
+            # trusted less, until it ends.
             R = R * s.mag_reject_noise_scale
         else:
             st.mag_rejected_since = math.nan
@@ -556,6 +558,14 @@ class OrientationEKF(MagneticField, EstimatorBase):
             st.mag_disturbed_time += t - st.mag_disturbed_t
         st.mag_disturbed_t = t
         return st.mag_disturbed_time
+
+    def _heading_std_deg(self) -> float:
+        """Standard deviation of the estimate's heading [deg]: a turn dpsi about world up moves
+        q by dpsi/2 along u (the unit direction of (0,0,0,1) ⊗ q), so var(psi) = 4 u^T P_qq u."""
+        q = self._x[:4]
+        u = quat.multiply(np.array([0.0, 0.0, 0.0, 1.0]), q)
+        u /= np.linalg.norm(u)
+        return math.degrees(2.0 * math.sqrt(max(0.0, float(u @ self._P[:4, :4] @ u))))
 
     def _count_passing(self, t: float) -> None:
         """A reading that passes earns disturbance time back: mag_reject_recovery seconds per

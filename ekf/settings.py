@@ -172,6 +172,12 @@ class EKFSettings:
             "per second of readings that pass (VQF: 2), and stops growing past the bound: a few "
             "passing readings in a long disturbance do not buy it a new bound; inf: a passing "
             "reading ends the disturbance")
+    mag_reject_heading_std_deg: float = _setting(
+        math.inf, unit="deg",
+        doc="a disturbance keeps the magnetometer out only while the estimate's heading "
+            "standard deviation (from P: the gyroscope's noise and bias uncertainty since the "
+            "last heading update) stays below this; past it the readings are used as past "
+            "`mag_max_reject_s`; inf: off")
     mag_reject_noise_scale: float = _setting(
         10.0, unit="-",
         doc="R_m is multiplied by this for readings used past the rejection bound")
@@ -238,6 +244,13 @@ class EKFSettings:
         0.3, unit="m/s²", doc="‖a − lowpass(a)‖ below this counts as still")
     rest_min_duration: float = _setting(
         0.5, unit="s", doc="still this long: at rest (standstill)")
+
+    # --- the offline smoother ------------------------------------------------------------
+    smooth_hard_iron: bool = _setting(
+        True, unit="-",
+        doc="the offline smoother's forward pass keeps the online hard-iron fit "
+            "(`mag_hard_iron_tau_s`); false: it runs without it (the backward pass smooths "
+            "q and b only, so the fit's changes would be spread over the whole recording)")
 
     # ---------------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
@@ -307,12 +320,15 @@ COURSE = EKFSettings()
 #   "disturbed" light), R_a growing with the shaking (running, swinging);
 # - magnetometer: heading only, following the field with a 7 s time constant at the fastest,
 #   trusted less where the field is uneven; strength and dip gates (5 uT, 20 deg, dip from the
-#   estimate) around the mean of the first second, 0.5 s of passing readings before use, a
-#   disturbance keeps it out for 5 s at most (never without a gyroscope); a changed field is
+#   estimate) around the mean of the first second, 0.5 s of passing readings before use; a
+#   disturbance keeps it out only while the heading's standard deviation (from P) stays under
+#   3 deg (chosen by `tune_defaults.py --grid`; never without a gyroscope); a changed field is
 #   re-learned from readings that agree in the world frame for 20 s while the phone turns
 #   faster than 20 deg/s; the sensor-frame offset (a magnet on the phone) fitted online over
 #   4 minutes;
-# - the slow updates (low-passed accelerometer, magnetometer, zero rate) at most every 50 ms.
+# - the slow updates (low-passed accelerometer, magnetometer, zero rate) at most every 50 ms;
+# - the offline smoother runs its forward pass without the online hard-iron fit (chosen by
+#   `tune_defaults.py --smoother`, leave one group out).
 DEFAULT = EKFSettings(
     exact_discretisation=True,
     gyr_rate_before_sample=True,
@@ -335,7 +351,8 @@ DEFAULT = EKFSettings(
     mag_dip_from_estimate=True,
     mag_settle_s=0.5,
     mag_reference_s=1.0,
-    mag_max_reject_s=5.0,
+    mag_max_reject_s=math.inf,
+    mag_reject_heading_std_deg=3.0,
     mag_max_reject_no_gyro_s=0.0,
     mag_strength_update="accepted",
     mag_relearn_s=20.0,
@@ -344,6 +361,7 @@ DEFAULT = EKFSettings(
     mag_hard_iron_tau_s=240.0,
     mag_hard_iron_prior=0.4,
     update_period_s=0.05,
+    smooth_hard_iron=False,
 )
 
 PRESETS: dict[str, EKFSettings] = {"default": DEFAULT, "course": COURSE}

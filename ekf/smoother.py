@@ -26,6 +26,13 @@ The gates and lights are the forward filter's (the smoother changes estimates, n
 its heading-only magnetometer gain is not the optimal one, so the smoother is the RTS
 smoother of the filter as it runs, not of an ideal one. Tested: never worse than the forward
 filter on simulated data with known truth.
+
+The online hard-iron fit (``mag_hard_iron_tau_s``) is not in x: it is a least-squares fit beside
+the filter whose offset, subtracted from every reading, changes along the recording. The
+backward pass cannot smooth it, and carries the late readings' heading (made with a later
+offset) back to rows filtered with an earlier one. With ``smooth_hard_iron`` false (the default
+preset, chosen by ``benchmarks/tune_defaults.py --smoother``) the forward pass runs without the
+fit; the lights are still those of the filter as set.
 """
 
 from __future__ import annotations
@@ -35,7 +42,7 @@ from numba import njit
 from numpy.typing import ArrayLike
 
 from ekf.estimator import SENSORS, BatchResult, batch_rows
-from ekf.settings import EKFSettings
+from ekf.settings import EKFSettings, resolve_settings
 
 __all__ = ["smooth_batch"]
 
@@ -206,13 +213,19 @@ def smooth_batch(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
                  sensors: tuple[str, ...] | list[str] = SENSORS) -> BatchResult:
     """The EKF (compiled, `settings` as for ``ekf.filter_batch``) forward over the rows, then
     the backward RTS pass: per row the smoothed quaternion (w-first, sensor -> ENU, w >= 0) and
-    gyro bias; the flags are the forward filter's. Same arguments as ``ekf.filter_batch``."""
+    gyro bias; the flags are the forward filter's (with `settings` as given). Same arguments as
+    ``ekf.filter_batch``; with ``smooth_hard_iron`` false the forward pass runs without the
+    online hard-iron fit (module docstring)."""
     from ekf.fast.filter import FastEKF
     from ekf.fast.layout import C
     from ekf.fast.steps import _run_batch_record
 
     t, g, a, m = batch_rows(t_s, gyr, acc, mag)
-    est = FastEKF(settings, sensors)
+    settings = resolve_settings(settings)
+    forward = settings
+    if not settings.smooth_hard_iron and settings.mag_hard_iron_tau_s > 0.0:
+        forward = settings.with_changes(mag_hard_iron_tau_s=0.0)
+    est = FastEKF(forward, sensors)
     cfg = est._cfg.copy()
     cfg[C.record_prediction] = 1.0
     n = t.shape[0]
@@ -230,5 +243,15 @@ def smooth_batch(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
         _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m_err, x_s)
     bias = x_s[:, 4:7] if est.settings.estimate_gyro_bias else np.tile(
         np.asarray(est.settings.gyr_bias, float), (n, 1))
+    if forward is not settings and n:
+        # the lights of the filter as set, not of the smoother's forward pass
+        out_flags[:, 0], out_flags[:, 1], out_flags[:, 2] = _flags_of(settings, sensors, t, g,
+                                                                      a, m)
     return BatchResult(t, x_s[:, :4].copy(), out_flags[:, 0].copy(), out_flags[:, 1].copy(),
                        out_flags[:, 2].copy(), gyro_bias=bias)
+
+
+def _flags_of(settings: EKFSettings, sensors, t, g, a, m):
+    from ekf.fast.filter import FastEKF
+    r = FastEKF(settings, sensors).run_batch(t, g, a, m)
+    return r.acc_rejected, r.mag_rejected, r.at_rest

@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+import ekf
 from app import cli
 from app.engine.offline import evaluate_log
 
@@ -163,7 +164,15 @@ def test_evaluate_and_filter_smooth(tmp_path, capsys):
     assert cli.main(["filter", str(log), "-o", str(plain)]) == 0
     a, b = list(csv.reader(out.open())), list(csv.reader(plain.open()))
     assert len(a) == len(b) and [r[0] for r in a] == [r[0] for r in b]
-    assert a[-1] == b[-1] and a[10] != b[10]     # the last row is the filter's, earlier ones not
+    assert [r[5:] for r in a] == [r[5:] for r in b]      # the lights are the filter's
+    # the default smoother's forward pass is the filter without the online hard-iron fit
+    # (smooth_hard_iron false): its last row is that filter's, earlier rows are not
+    no_fit = tmp_path / "no_fit.json"
+    ekf.PRESETS["default"].with_changes(mag_hard_iron_tau_s=0.0).save(no_fit)
+    forward_no_fit = tmp_path / "g.csv"
+    assert cli.main(["filter", str(log), "--settings", str(no_fit), "-o", str(forward_no_fit)]) == 0
+    c = list(csv.reader(forward_no_fit.open()))
+    assert a[-1][:5] == c[-1][:5] and a[10] != c[10]
 
 
 def test_smooth_needs_the_ekf(tmp_path, capsys):

@@ -40,6 +40,9 @@ ekf.fast                                    ekf.reference
 ``measurements._mag_gates``                 ``_mag_gates``
 ``measurements._uneven_field``              ``_uneven_field``
 ``measurements._heading_gain_cap``          ``_heading_gain_cap``
+``measurements._count_disturbance``         ``_count_disturbance``
+``measurements._count_passing``             ``_count_passing``
+``measurements._heading_std_deg``           ``_heading_std_deg``
 ``measurements._learn_reference``           ``_learn_reference``
 ``measurements._finish_reference``          ``_finish_reference``
 ``measurements._fit_hard_iron``             ``_fit_hard_iron``

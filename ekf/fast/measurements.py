@@ -563,6 +563,20 @@ def _count_passing(s, c, t):
 
 
 @jit
+def _heading_std_deg(s):
+    """reference ``_heading_std_deg``: 2 sqrt(u^T P_qq u), u = (-q3, -q2, q1, q0) / |q|."""
+    u0, u1, u2, u3 = -s[S.x + 3], -s[S.x + 2], s[S.x + 1], s[S.x]
+    nu2 = u0 * u0 + u1 * u1 + u2 * u2 + u3 * u3
+    P = S.P
+    v = 0.0
+    for i in range(4):
+        ui = u0 if i == 0 else (u1 if i == 1 else (u2 if i == 2 else u3))
+        v += ui * (s[P + 7 * i] * u0 + s[P + 7 * i + 1] * u1 + s[P + 7 * i + 2] * u2
+                   + s[P + 7 * i + 3] * u3)
+    return math.degrees(2.0 * math.sqrt(max(0.0, v / nu2)))
+
+
+@jit
 def _mag_update(s, c, y0, y1, y2, t):
     """reference ``_mag_update``: the expected field learned first (mag_reference_s), the gates
     (``_mag_gates``), settling, the bound on a disturbance's length, then the update (heading
@@ -592,9 +606,11 @@ def _mag_update(s, c, y0, y1, y2, t):
         bound = c[C.mag_max_reject_s]
         if s[S.used_gyr] == 0.0:
             bound = min(bound, c[C.mag_max_reject_no_gyro_s])
-        if not _count_disturbance(s, c, t, bound) > bound:
+        over = _count_disturbance(s, c, t, bound) > bound
+        if not over and not _heading_std_deg(s) > c[C.mag_reject_heading_std_deg]:
             return
-        # out for longer than the bound: use the reading, trusted less, until it ends
+        # out for longer than the bound (or the heading too uncertain): use the reading,
+        # trusted less, until it ends
         noise_scale *= c[C.mag_reject_noise_scale]
     else:
         s[S.mag_rejected_since] = _NAN

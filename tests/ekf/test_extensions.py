@@ -319,3 +319,38 @@ def test_a_snapshot_from_before_the_leaky_count_restores():
     assert restored["mag_disturbed_time"] == pytest.approx(1.5)
     assert restored["mag_disturbed_t"] == restored["t"]
     np.testing.assert_array_equal(g.quat, f.quat)
+
+
+def _turning_disturbed_run(heading_std_deg: float) -> tuple[list[bool], list[float]]:
+    """A phone turning about up at 0.3 rad/s (never at rest), its field disturbed (1.5x, the
+    strength gate rejects it) from 2 s on, no time bound: per disturbed reading whether the
+    magnetometer was used, and the heading's standard deviation [deg] before it."""
+    s = PRESETS["default"].with_changes(update_period_s=0.0, mag_settle_s=0.0,
+                                        mag_max_reject_s=math.inf, mag_relearn_s=1e9,
+                                        gyr_noise_cov=[[1e-3, 0, 0], [0, 1e-3, 0], [0, 0, 1e-3]],
+                                        mag_reject_heading_std_deg=heading_std_deg)
+    f = OrientationEKF(s)
+    used, std = [], []
+    w = 0.3
+    for k in range(1200):
+        t = k * 0.01
+        R = Q.to_matrix(Q.from_euler(w * t, 0.0, 0.0))
+        disturbed = t >= 2.0
+        if disturbed:
+            std.append(f._heading_std_deg())
+        f.step(t, gyr=[0, 0, w], acc=R.T @ G0, mag=R.T @ (M0 * 1.5 if disturbed else M0))
+        if disturbed:
+            used.append(bool(f.flags.used_mag))
+    return used, std
+
+
+def test_a_disturbance_keeps_the_magnetometer_out_until_the_heading_is_too_uncertain():
+    never, std_never = _turning_disturbed_run(math.inf)
+    bounded, std = _turning_disturbed_run(3.0)
+    assert not any(never)                       # no bound: out for the whole 10 s
+    assert std_never[-1] > 5.0                  # while the heading's uncertainty grew
+    first = bounded.index(True)
+    # used from the time update that took it past 3° (std[] is before each step's)
+    assert max(std[:first]) <= 3.0 and std[first] == pytest.approx(3.0, abs=0.01)
+    assert 100 <= first <= 800                  # seconds, not at once
+    assert max(std[first:]) < 4.5               # used, trusted less: it grows no more

@@ -38,11 +38,29 @@ def test_the_smoother_is_never_worse_than_the_forward_filter(session, preset):
 
 def test_the_last_estimate_and_the_lights_are_the_forward_filters(session):
     t, g, a, m, _ = session
-    forward = ekf.filter_batch(t, g, a, m)
-    smoothed = ekf.smooth_batch(t, g, a, m)
+    keep_fit = ekf.PRESETS["default"].with_changes(smooth_hard_iron=True)
+    forward = ekf.filter_batch(t, g, a, m, settings=keep_fit)
+    smoothed = ekf.smooth_batch(t, g, a, m, settings=keep_fit)
     np.testing.assert_array_equal(smoothed.quat[-1], forward.quat[-1])
     np.testing.assert_array_equal(smoothed.mag_rejected, forward.mag_rejected)
     np.testing.assert_array_equal(smoothed.at_rest, forward.at_rest)
+
+
+def test_without_the_hard_iron_fit_the_forward_pass_drops_only_the_fit(session):
+    """smooth_hard_iron false (the default preset): the pass forward is the filter without the
+    online fit, the lights stay those of the filter as set."""
+    t, g, a, m, _ = session
+    default = ekf.PRESETS["default"]
+    assert not default.smooth_hard_iron and default.mag_hard_iron_tau_s > 0
+    m = m + np.array([8.0, -6.0, 4.0])          # an offset for the fit to find
+    as_set = ekf.filter_batch(t, g, a, m, settings=default)
+    no_fit = ekf.filter_batch(t, g, a, m, settings=default.with_changes(mag_hard_iron_tau_s=0.0))
+    smoothed = ekf.smooth_batch(t, g, a, m, settings=default)
+    np.testing.assert_array_equal(smoothed.quat[-1], no_fit.quat[-1])
+    assert not np.array_equal(as_set.quat[-1], no_fit.quat[-1])
+    assert (as_set.mag_rejected != no_fit.mag_rejected).any()   # so the lights tell them apart
+    for light in ("acc_rejected", "mag_rejected", "at_rest"):
+        np.testing.assert_array_equal(getattr(smoothed, light), getattr(as_set, light))
 
 
 def test_the_smoother_sees_the_future_a_late_magnetometer_fixes_the_start():
