@@ -285,7 +285,7 @@ def main() -> int:
                          "folds, against offline VQF, instead of tuning the filter")
     ap.add_argument("--range", action="append", default=[], metavar="NAME=LO,HI",
                     help="search NAME between LO and HI instead (repeatable), e.g. "
-                         "mag_max_reject_s=2,10")
+                         "mag_reject_heading_std_deg=2,6")
     args = ap.parse_args()
     for item in args.range:
         name, _, bounds = item.partition("=")
