@@ -114,34 +114,43 @@ SMOOTHER_CHOICES = {"smooth_hard_iron=true": {"smooth_hard_iron": True},
                     "smooth_hard_iron=false": {"smooth_hard_iron": False}}
 
 
+def choose_per_fold(errs: dict[str, np.ndarray], peer: np.ndarray, recs: list[Recording],
+                    fold_set: dict) -> tuple[np.ndarray, str]:
+    """Leave one group out over a few fixed choices (label -> each recording's error): per fold
+    the choice with the best objective (against `peer`) on the other folds, its errors on the
+    fold. Prints each fold's pick and the pick on all; returns (held-out errors, that pick)."""
+    kinds = [r.kind for r in recs]
+
+    def scores(keep: np.ndarray) -> dict[str, float]:
+        return {label: objective(e[keep], peer[keep], [k for k, t in zip(kinds, keep) if t])
+                for label, e in errs.items()}
+
+    def show(where: str, values: dict[str, float]) -> str:
+        best = min(values, key=values.get)
+        print(f"{where}: {best} (objective " +
+              ", ".join(f"{label}: {x:.3f}" for label, x in values.items()) + ")")
+        return best
+
+    held = np.full(len(recs), np.nan)
+    for fold, inside in fold_set.items():
+        test = np.array([inside(r) for r in recs])
+        if test.any() and not test.all():
+            held[test] = errs[show(f"fold {fold}, on the others", scores(~test))][test]
+    return held, show("on all", scores(np.ones(len(recs), bool)))
+
+
 def cross_validate_grid(recs: list[Recording], vqf: np.ndarray, fold_set: dict, name: str,
                         values: list[float]) -> None:
     """One setting over listed values, every other at the default preset: per fold the value
     best on the other folds (the objective above), and the value best on all recordings."""
-    kinds = [r.kind for r in recs]
-    errs = {v: errors(settings_of({name: v}), recs) for v in values}
-    held = np.full(len(recs), np.nan)
-    for fold, inside in fold_set.items():
-        test = np.array([inside(r) for r in recs])
-        if not test.any() or test.all():
-            continue
-        train = ~test
-        scores = {v: objective(e[train], vqf[train], [k for k, t in zip(kinds, train) if t])
-                  for v, e in errs.items()}
-        best = min(scores, key=scores.get)
-        held[test] = errs[best][test]
-        print(f"fold {fold}: {name}={best:g} (objective on the others " +
-              ", ".join(f"{v:g}: {x:.3f}" for v, x in scores.items()) + ")")
-    on_all = {v: objective(e, vqf, kinds) for v, e in errs.items()}
-    best = min(on_all, key=on_all.get)
-    print(f"on all: {name}={best:g} (" + ", ".join(f"{v:g}: {x:.3f}" for v, x in on_all.items())
-          + ")")
-    kinds_arr = np.array(kinds)
-    for kind in sorted(set(kinds)):
+    errs = {f"{name}={v:g}": errors(settings_of({name: v}), recs) for v in values}
+    held, best = choose_per_fold(errs, vqf, recs, fold_set)
+    kinds_arr = np.array([r.kind for r in recs])
+    for kind in sorted(set(kinds_arr)):
         sel = kinds_arr == kind
         v = vqf[sel].mean()
         print(f"mean {kind}: held-out {held[sel].mean():.2f} ({held[sel].mean() / v:.2f}x VQF 9D "
-              f"{v:.2f}, worst {np.max(held[sel] / vqf[sel]):.2f}x); with {name}={best:g} "
+              f"{v:.2f}, worst {np.max(held[sel] / vqf[sel]):.2f}x); with {best} "
               f"{errs[best][sel].mean():.2f} ({errs[best][sel].mean() / v:.2f}x, worst "
               f"{np.max(errs[best][sel] / vqf[sel]):.2f}x)")
 
@@ -153,21 +162,7 @@ def cross_validate_smoother(recs: list[Recording], fold_set: dict) -> None:
     kinds = [r.kind for r in recs]
     errs = {name: smoothed_errors(ekf.PRESETS["default"].with_changes(**changes), recs)
             for name, changes in SMOOTHER_CHOICES.items()}
-    held = np.full(len(recs), np.nan)
-    for fold, inside in fold_set.items():
-        test = np.array([inside(r) for r in recs])
-        if not test.any() or test.all():
-            continue
-        train = ~test
-        scores = {name: objective(e[train], off[train], [k for k, t in zip(kinds, train) if t])
-                  for name, e in errs.items()}
-        best = min(scores, key=scores.get)
-        held[test] = errs[best][test]
-        print(f"fold {fold}: on the others " +
-              ", ".join(f"{n} {v:.3f}" for n, v in scores.items()) + f" -> {best}")
-    on_all = {name: objective(e, off, kinds) for name, e in errs.items()}
-    print("on all: " + ", ".join(f"{n} {v:.3f}" for n, v in on_all.items()) +
-          f" -> {min(on_all, key=on_all.get)}")
+    held, _ = choose_per_fold(errs, off, recs, fold_set)
     names = list(errs)
     print(f"\n{'recording':<44}{'held-out':>10}" + "".join(f"{n[-5:]:>10}" for n in names) +
           f"{'offline VQF':>12}")
