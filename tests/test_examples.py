@@ -25,6 +25,7 @@ QUICK_ARGS = {"headless_engine.py": ["--seconds", "1.5"],
 BENCHMARKS = [("speed.py", []),
               ("accuracy.py", ["--only", "ours-default,ours-course,ours-smoothed"]),
               ("tune_defaults.py", []),
+              ("tune_defaults.py", ["--held-out-only", "--objective", "means"]),
               ("live.py", ["--skip-no-loss"]), ("chaos.py", []), ("tuning.py", []),
               ("plugin.py", []), ("session.py", [])]
 
@@ -48,7 +49,8 @@ def test_example_runs(script, tmp_path):
     assert "Traceback" not in result.stderr
 
 
-@pytest.mark.parametrize("name, args", BENCHMARKS, ids=[b[0] for b in BENCHMARKS])
+@pytest.mark.parametrize("name, args", BENCHMARKS, ids=[" ".join([b[0], *b[1]])
+                                                        for b in BENCHMARKS])
 def test_benchmark_quick_mode_runs(name, args):
     result = _run(REPO / "benchmarks" / name, ["--quick", *args])
     assert result.returncode == 0, result.stdout + result.stderr
