@@ -55,6 +55,8 @@ def test_benchmark_quick_mode_runs(name, args):
     result = _run(REPO / "benchmarks" / name, ["--quick", *args])
     assert result.returncode == 0, result.stdout + result.stderr
     assert "Traceback" not in result.stderr
+    if name == "tune_defaults.py" and "held-out" in result.stdout:   # the shared data is here
+        assert ("fit on all" in result.stdout) != ("--held-out-only" in args), result.stdout
 
 
 @pytest.mark.gl
