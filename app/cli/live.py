@@ -147,7 +147,7 @@ class _Watch:
         self.args = args
         self.started = self.last_activity = time.monotonic()
         self.seen_lines = 0
-        self.connected_once = False
+        self.streamed_once = False
         self.failures_shown = 0
         self.recording_shown = False
         self.user_said = ""
@@ -169,8 +169,10 @@ class _Watch:
         if health.lines_total != self.seen_lines:
             self.last_activity = now
             self.seen_lines = health.lines_total
-        if health.connection_state in ("connected", "disconnected") or self.seen_lines:
-            self.connected_once = True
+        if self.seen_lines:
+            # a phone has streamed: a connection that sends nothing (a port probe, a stranger
+            # that leaves) does not start the idle timer
+            self.streamed_once = True
         for failure in snapshot.failures:
             if failure.number > self.failures_shown:
                 self.failures_shown = failure.number
@@ -187,7 +189,7 @@ class _Watch:
             return True
         idle = self.args.exit_when_idle
         waiting_since = engine.waiting_since
-        if (idle is not None and self.connected_once and waiting_since is not None
+        if (idle is not None and self.streamed_once and waiting_since is not None
                 and now - max(self.last_activity, waiting_since) >= idle):
             return True
         return not engine.running
@@ -257,6 +259,7 @@ def add_commands(sub) -> None:
     serve.add_argument("--exit-after", type=options.NON_NEGATIVE, metavar="S",
                        help="stop after S seconds")
     serve.add_argument("--exit-when-idle", type=options.NON_NEGATIVE, metavar="S",
-                       help="stop once a phone has connected and then nothing arrived for S s")
+                       help="stop once a phone has sent lines and then nothing arrived for S s "
+                            "(a connection that sends nothing does not count)")
     serve.add_argument("--quiet", action="store_true", help="print only the final summary")
     serve.set_defaults(func=cmd_serve)

@@ -33,7 +33,7 @@ def _serve_and_send(log: Path, record: Path, *extra: str) -> tuple[str, str]:
          "--record", str(record), "--exit-when-idle", "1", "--no-comparisons", *extra],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        _wait_port(port)     # this probe connection counts as a (silent) phone
+        _wait_port(port)     # a probe that sends nothing: the idle timer waits for `send`
         result = subprocess.run(
             [sys.executable, "-m", "app", "send", str(log), "--port", str(port), "--speed", "0"],
             cwd=ROOT, capture_output=True, text=True, timeout=60)
@@ -117,3 +117,31 @@ def test_send_to_nobody_is_a_clean_error(tmp_path, capsys):
                  "--speed", "0"]) == 2
     err = capsys.readouterr().err
     assert "cannot send to 127.0.0.1" in err and len(err.strip().splitlines()) == 1
+
+
+def test_exit_when_idle_waits_for_lines_not_for_a_connection(monkeypatch):
+    """serve --exit-when-idle: a connection that sends nothing (a port probe, a stranger) does
+    not start the idle timer; once lines have arrived, S seconds without any end the run."""
+    import argparse
+    from types import SimpleNamespace
+
+    from app.cli import live
+
+    clock = [100.0]
+    monkeypatch.setattr(live.time, "monotonic", lambda: clock[0])
+    watch = live._Watch(argparse.Namespace(exit_after=None, exit_when_idle=1.0))
+    engine = SimpleNamespace(waiting_since=100.0, running=True)
+
+    def snapshot(state: str, lines: int):
+        health = SimpleNamespace(lines_total=lines, connection_state=state, recording="")
+        return SimpleNamespace(health=health, failures=[], user=None)
+
+    assert not watch.done(engine, snapshot("disconnected", 0))     # the probe came and went
+    clock[0] = 105.0
+    assert not watch.done(engine, snapshot("disconnected", 0))     # 5 s later: still waiting
+    assert not watch.done(engine, snapshot("connected", 500))      # the phone streams
+    clock[0] = 105.5
+    engine.waiting_since = 105.5                                   # and hangs up
+    assert not watch.done(engine, snapshot("disconnected", 500))
+    clock[0] = 106.6
+    assert watch.done(engine, snapshot("disconnected", 500))       # 1.1 s without a line
