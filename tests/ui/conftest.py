@@ -15,6 +15,22 @@ from ui_helpers import FakeEngine
 QtCore.QCoreApplication.setAttribute(QtCore.Qt.ApplicationAttribute.AA_ShareOpenGLContexts)
 
 @pytest.fixture(autouse=True)
+def _qt_garbage_collected_between_tests():
+    """After each test (and after pytest-qt has closed its widgets): collect the Python garbage
+    and run the deferred deletions now. Left to the garbage collector, a dropped window's menus
+    were once destroyed in the middle of the next test's layout pass (shiboken's deletion in
+    the main thread), where QObject's destructor waited forever on a mutex: CI hung."""
+    yield
+    import gc
+
+    from PySide6 import QtWidgets
+    gc.collect()
+    if QtWidgets.QApplication.instance() is not None:
+        QtCore.QCoreApplication.sendPostedEvents(None, QtCore.QEvent.Type.DeferredDelete)
+        QtCore.QCoreApplication.processEvents()
+
+
+@pytest.fixture(autouse=True)
 def data_folder(tmp_path: Path, monkeypatch) -> Path:
     """Profiles and logs the window writes go to tmp_path, never the user's data folder."""
     folder = tmp_path / "data"
