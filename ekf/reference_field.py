@@ -178,7 +178,8 @@ class MagneticField:
         magnet on the phone turns with it (its strength and dip change). The time counts down
         again while readings disagree (a passing disturbance does not wipe out what was seen);
         at zero the next disagreeing reading starts a new candidate. While the expected field
-        is young (mag_first_relearn_s) the candidate needs only that long, turning or not. The
+        is young (mag_first_relearn_s) the candidate needs only that long (or mag_relearn_s if
+        shorter), turning or not. The
         new m0 has their strength and dip; its north is kept."""
         s, st = self.settings, self._state
         m_w = quat.to_matrix(self._x[:4]) @ y
@@ -196,7 +197,8 @@ class MagneticField:
             young = st.mag_confirmed_time < s.mag_first_relearn_s
             if young or self._turn_rate() >= s.mag_relearn_min_rate:
                 st.mag_candidate_time += t - st.mag_candidate_t
-            if st.mag_candidate_time >= (s.mag_first_relearn_s if young else s.mag_relearn_s):
+            needed = min(s.mag_first_relearn_s, s.mag_relearn_s) if young else s.mag_relearn_s
+            if st.mag_candidate_time >= needed:
                 # the new field's strength and dip; north stays where it was (the heading
                 # follows the new field no faster than mag_return_s)
                 horizontal = math.hypot(float(st.m0[0]), float(st.m0[1]))

@@ -192,8 +192,9 @@ class EKFSettings:
         0.0, unit="s",
         doc="with `mag_relearn_world`: until readings have passed the gates for this long in "
             "all, the expected field is young (it may have been learned in a disturbance, a "
-            "recording started beside a laptop): rejected readings that agree this long, "
-            "turning or not, are the new normal (VQF's magNewFirstTime); 0: off")
+            "recording started beside a laptop): rejected readings that agree this long (or "
+            "`mag_relearn_s` if shorter), turning or not, are the new normal (VQF's "
+            "magNewFirstTime); 0: off")
     mag_relearn_min_rate: float = _setting(
         0.0, unit="rad/s",
         doc="with `mag_relearn_world`: rejected readings count towards re-learning only while "

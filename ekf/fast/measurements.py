@@ -480,7 +480,8 @@ def _track_new_field_world(s, c, y0, y1, y2, t):
         young = s[S.mag_confirmed_time] < first
         if young or _turn_rate(s, c) >= c[C.mag_relearn_min_rate]:
             s[S.mag_candidate_time] += t - s[S.mag_candidate_t]
-        if s[S.mag_candidate_time] >= (first if young else c[C.mag_relearn_s]):
+        needed = min(first, c[C.mag_relearn_s]) if young else c[C.mag_relearn_s]
+        if s[S.mag_candidate_time] >= needed:
             # the new field's strength and dip; north stays where it was
             horizontal = math.hypot(s[S.m0], s[S.m0 + 1])
             if horizontal > 0.0:
