@@ -333,12 +333,14 @@ COURSE = EKFSettings()
 #   "disturbed" light), R_a growing with the shaking (running, swinging);
 # - magnetometer: heading only, following the field with a 7 s time constant at the fastest,
 #   trusted less where the field is uneven; strength and dip gates (5 uT, 20 deg, dip from the
-#   estimate) around the mean of the first second, 0.5 s of passing readings before use; a
-#   disturbance keeps it out only while the heading's standard deviation (from P) stays under
-#   3 deg (chosen by `tune_defaults.py --grid`; never without a gyroscope); a changed field is
-#   re-learned from readings that agree in the world frame for 20 s while the phone turns
-#   faster than 20 deg/s; the sensor-frame offset (a magnet on the phone) fitted online over
-#   4 minutes;
+#   estimate) around the mean of the first second's readings that agree, 0.5 s of passing
+#   readings before use; a disturbance keeps it out only while the heading's standard deviation
+#   (from P) stays under 3 deg (chosen by `tune_defaults.py --grid`; never without a gyroscope);
+#   a changed field is re-learned from readings that agree in the world frame for 20 s while
+#   the phone turns faster than 20 deg/s (5 s, turning or not, while the learned field is young:
+#   VQF's magNewFirstTime, confirmed by `--augment 1 --grid`); the bias learns from at most
+#   1.5 sigma of a heading innovation (`--grid`, the middle of the 1-3 plateau); the
+#   sensor-frame offset (a magnet on the phone) fitted online over 4 minutes;
 # - the slow updates (low-passed accelerometer, magnetometer, zero rate) at most every 50 ms;
 # - the offline smoother runs its forward pass without the online hard-iron fit (chosen by
 #   `tune_defaults.py --smoother`, leave one group out).
