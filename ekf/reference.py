@@ -493,7 +493,7 @@ class OrientationEKF(MagneticField, EstimatorBase):
         s, st = self.settings, self._state
         flags, diag = st.flags, st.diagnostics
         if t < st.mag_reference_until:
-            norm, dip, rejected_by = self._learn_reference(y), math.nan, NOT_REJECTED
+            norm, dip, rejected_by = self._learn_reference(y, t), math.nan, NOT_REJECTED
         else:
             if st.mag_reference_count > 0:
                 self._finish_reference()
@@ -571,6 +571,7 @@ class OrientationEKF(MagneticField, EstimatorBase):
         """A reading that passes earns disturbance time back: mag_reject_recovery seconds per
         second since the previous reading (inf: the disturbance is over, the count is 0)."""
         st, recovery = self._state, self.settings.mag_reject_recovery
+        self._count_confirmed(t)
         if math.isinf(recovery):
             st.mag_disturbed_time = 0.0
         else:
@@ -633,6 +634,9 @@ class OrientationEKF(MagneticField, EstimatorBase):
         nis = psi * psi / S
         if nis > gate:
             return nis
+        # mag_bias_innovation_limit: the bias learns from at most limit·√S of psi
+        limit = self.settings.mag_bias_innovation_limit
+        bias_weight = limit * math.sqrt(S) / abs(psi) if abs(psi) > limit * math.sqrt(S) else 1.0
         if HPH * (1.0 - gain_cap) > gain_cap * r:
             # mag_return_s: a larger r, so that at most gain_cap of psi is corrected now
             if gain_cap <= 0.0:
@@ -645,6 +649,7 @@ class OrientationEKF(MagneticField, EstimatorBase):
         u = 0.5 * quat.multiply(np.array([0.0, 0.0, 0.0, 1.0]), q)
         u /= np.linalg.norm(u)
         K[:4, :] = np.outer(u, u) @ K[:4, :]
+        K[4:, :] *= bias_weight
         innovation = -psi
         self._x = self._x + (K * innovation).ravel()
         I_KH = np.eye(n) - K @ H

@@ -31,6 +31,11 @@ HARD_IRON_RESET_RESIDUAL = 20.0
 HARD_IRON_RESET_COUNT = 5
 
 
+def _elevation_deg(v: np.ndarray) -> float:
+    """Angle of a world-frame vector above the horizontal [deg] (its dip, with the sign of up)."""
+    return math.degrees(math.atan2(float(v[2]), math.hypot(float(v[0]), float(v[1]))))
+
+
 class MagneticField:
     """The magnetometer's reference field and its offset, for OrientationEKF."""
 
@@ -79,12 +84,23 @@ class MagneticField:
         st.mag_pair_raw[:] = y
         st.mag_pair_q[:] = quat.IDENTITY
 
-    def _learn_reference(self, y: np.ndarray) -> float:
+    def _learn_reference(self, y: np.ndarray, t: float) -> float:
         """mag_reference_s: add a reading to the expected field's sums (world frame, strength);
-        meanwhile L_k is their mean. Returns ‖y‖."""
-        st = self._state
+        meanwhile L_k is their mean. A reading whose strength or dip differs from the sums'
+        mean by more than the gates (a disturbance fading in or out where the recording began)
+        starts them again from itself, for mag_reference_s more: the expected field is learned
+        from readings that agree. Returns ‖y‖."""
+        s, st = self.settings, self._state
         norm = float(np.linalg.norm(y))
-        st.mag_reference_sum[:] += quat.to_matrix(self._x[:4]) @ y
+        m_w = quat.to_matrix(self._x[:4]) @ y
+        mean = st.mag_reference_sum / st.mag_reference_count
+        if (abs(norm - st.mag_reference_norm_sum / st.mag_reference_count) > s.mag_gate
+                or abs(_elevation_deg(m_w) - _elevation_deg(mean)) > s.mag_dip_gate_deg):
+            st.mag_reference_until = t + s.mag_reference_s
+            st.mag_reference_sum[:] = 0.0
+            st.mag_reference_norm_sum = 0.0
+            st.mag_reference_count = 0.0
+        st.mag_reference_sum[:] += m_w
         st.mag_reference_norm_sum += norm
         st.mag_reference_count += 1.0
         st.mag_strength = st.mag_reference_norm_sum / st.mag_reference_count
@@ -155,23 +171,34 @@ class MagneticField:
                 self._relearn_field(y)
 
     def _track_new_field_world(self, y: np.ndarray, t: float) -> None:
-        """mag_relearn_world: the rejected readings must agree in the world frame (within
-        mag_gate of their running mean Q(q) y) while the phone turns faster than
-        mag_relearn_min_rate, for mag_relearn_s of turning: a field that changed in the building
-        stays put in the world while the phone turns, a magnet on the phone turns with it. The
+        """mag_relearn_world: the rejected readings must agree in the world frame (strength and
+        dip, measured against the estimated up, within the gates of their running mean Q(q) y)
+        while the phone turns faster than mag_relearn_min_rate, for mag_relearn_s of turning: a
+        field that changed in the building stays put in the world while the phone turns, a
+        magnet on the phone turns with it (its strength and dip change). The time counts down
+        again while readings disagree (a passing disturbance does not wipe out what was seen);
+        at zero the next disagreeing reading starts a new candidate. While the expected field
+        is young (mag_first_relearn_s) the candidate needs only that long (or mag_relearn_s if
+        shorter), turning or not. The
         new m0 has their strength and dip; its north is kept."""
         s, st = self.settings, self._state
         m_w = quat.to_matrix(self._x[:4]) @ y
         cand = st.mag_candidate_world
-        if math.isnan(st.mag_rejected_since) or np.linalg.norm(m_w - cand) > s.mag_gate:
+        agrees = (abs(float(np.linalg.norm(m_w)) - float(np.linalg.norm(cand))) <= s.mag_gate
+                  and abs(_elevation_deg(m_w) - _elevation_deg(cand)) <= s.mag_dip_gate_deg)
+        if not math.isnan(st.mag_rejected_since) and not agrees:
+            st.mag_candidate_time -= t - st.mag_candidate_t
+        if math.isnan(st.mag_rejected_since) or (not agrees and st.mag_candidate_time <= 0.0):
             st.mag_rejected_since = t
             cand[:] = m_w
             st.mag_candidate_time = 0.0
-        else:
+        elif agrees:
             cand[:] = cand + s.mag_alpha * (m_w - cand)
-            if self._turn_rate() >= s.mag_relearn_min_rate:
+            young = st.mag_confirmed_time < s.mag_first_relearn_s
+            if young or self._turn_rate() >= s.mag_relearn_min_rate:
                 st.mag_candidate_time += t - st.mag_candidate_t
-            if st.mag_candidate_time >= s.mag_relearn_s:
+            needed = min(s.mag_first_relearn_s, s.mag_relearn_s) if young else s.mag_relearn_s
+            if st.mag_candidate_time >= needed:
                 # the new field's strength and dip; north stays where it was (the heading
                 # follows the new field no faster than mag_return_s)
                 horizontal = math.hypot(float(st.m0[0]), float(st.m0[1]))
@@ -182,6 +209,13 @@ class MagneticField:
                 st.diagnostics.mag_reference_dip_deg = self._reference_dip_deg()
                 st.mag_rejected_since = math.nan
         st.mag_candidate_t = t
+
+    def _count_confirmed(self, t: float) -> None:
+        """A reading that passed the gates of the learned field (mag_first_relearn_s): the time
+        since the previous one counts towards confirming the field (gaps beyond max_dt do not)."""
+        st = self._state
+        if st.mag_reference_count == 0.0 and t - st.mag_passed_t <= self.settings.max_dt:
+            st.mag_confirmed_time += t - st.mag_passed_t
 
     def _turn_rate(self) -> float:
         """‖ω − b‖ of the latest gyroscope sample driving the filter (0: none)."""

@@ -188,6 +188,13 @@ class EKFSettings:
             "time only while the phone turns faster than `mag_relearn_min_rate`; the new m0 "
             "takes their strength and dip, north stays (the heading follows no faster than "
             "`mag_return_s`); false: strength and dip agree, m0 from the latest reading")
+    mag_first_relearn_s: float = _setting(
+        0.0, unit="s",
+        doc="with `mag_relearn_world`: until readings have passed the gates for this long in "
+            "all, the expected field is young (it may have been learned in a disturbance, a "
+            "recording started beside a laptop): rejected readings that agree this long (or "
+            "`mag_relearn_s` if shorter), turning or not, are the new normal (VQF's "
+            "magNewFirstTime); 0: off")
     mag_relearn_min_rate: float = _setting(
         0.0, unit="rad/s",
         doc="with `mag_relearn_world`: rejected readings count towards re-learning only while "
@@ -198,6 +205,12 @@ class EKFSettings:
             "heading update corrects at most dt/(dt + this) of the innovation (dt since the "
             "previous update), so the estimate comes back from a disturbance without a jump "
             "(0: off)")
+    mag_bias_innovation_limit: float = _setting(
+        math.inf, unit="σ",
+        doc="a heading update teaches the gyroscope bias from at most this many standard "
+            "deviations of its innovation (its bias gain is scaled by limit·√S/|ψ| beyond): a "
+            "heading far off says the field or the heading is wrong (a disturbance that passed "
+            "the gates, a start beside a magnet), not the bias; inf: off")
     update_period_s: float = _setting(
         0.0, unit="s",
         doc="run the low-passed accelerometer, magnetometer and zero-rate updates at most this "
@@ -320,12 +333,14 @@ COURSE = EKFSettings()
 #   "disturbed" light), R_a growing with the shaking (running, swinging);
 # - magnetometer: heading only, following the field with a 7 s time constant at the fastest,
 #   trusted less where the field is uneven; strength and dip gates (5 uT, 20 deg, dip from the
-#   estimate) around the mean of the first second, 0.5 s of passing readings before use; a
-#   disturbance keeps it out only while the heading's standard deviation (from P) stays under
-#   3 deg (chosen by `tune_defaults.py --grid`; never without a gyroscope); a changed field is
-#   re-learned from readings that agree in the world frame for 20 s while the phone turns
-#   faster than 20 deg/s; the sensor-frame offset (a magnet on the phone) fitted online over
-#   4 minutes;
+#   estimate) around the mean of the first second's readings that agree, 0.5 s of passing
+#   readings before use; a disturbance keeps it out only while the heading's standard deviation
+#   (from P) stays under 3 deg (chosen by `tune_defaults.py --grid`; never without a gyroscope);
+#   a changed field is re-learned from readings that agree in the world frame for 20 s while
+#   the phone turns faster than 20 deg/s (5 s, turning or not, while the learned field is young:
+#   VQF's magNewFirstTime, confirmed by `--augment 1 --grid`); the bias learns from at most
+#   1.5 sigma of a heading innovation (`--grid`, the middle of the 1-3 plateau); the
+#   sensor-frame offset (a magnet on the phone) fitted online over 4 minutes;
 # - the slow updates (low-passed accelerometer, magnetometer, zero rate) at most every 50 ms;
 # - the offline smoother runs its forward pass without the online hard-iron fit (chosen by
 #   `tune_defaults.py --smoother`, leave one group out).
@@ -358,6 +373,8 @@ DEFAULT = EKFSettings(
     mag_relearn_s=20.0,
     mag_relearn_world=True,
     mag_relearn_min_rate=round(math.radians(20.0), 4),
+    mag_first_relearn_s=5.0,
+    mag_bias_innovation_limit=1.5,
     mag_hard_iron_tau_s=240.0,
     mag_hard_iron_prior=0.4,
     update_period_s=0.05,

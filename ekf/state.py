@@ -177,6 +177,9 @@ class EKFState:
     mag_disturbed_t: float = state_field("time of the latest reading when it was rejected; NaN: "
                                          "it passed", _NAN, unit="s")
     mag_passed_t: float = state_field("time of the latest reading that passed", _NAN, unit="s")
+    mag_confirmed_time: float = state_field("how long readings have passed the gates of the "
+                                            "learned field in all (mag_first_relearn_s)",
+                                            _value(0.0), unit="s")
     mag_reference_until: float = state_field("the expected field is learned from the readings "
                                              "until then (mag_reference_s); -inf: done",
                                              _NEVER, unit="s")
@@ -271,18 +274,21 @@ def check_state(cls: type, state: Mapping[str, Any]) -> None:
 
 def upgrade_state(cls: type, state: Any) -> Any:
     """A state saved by an earlier version in today's form (a session's start_state, a
-    checkpoint): EKFState's mag_disturbed_since (the time the disturbance began; NaN: none)
-    became the counted mag_disturbed_time with the times of the latest readings. Anything else
-    is returned as it is (and checked as usual)."""
-    if cls is not EKFState or not isinstance(state, Mapping) or \
-            "mag_disturbed_since" not in state:
+    checkpoint). EKFState's mag_disturbed_since (the time the disturbance began; NaN: none)
+    became the counted mag_disturbed_time with the times of the latest readings; a state saved
+    before mag_confirmed_time existed counts a field it had learned as confirmed (it filtered
+    with that field before). Anything else is returned as it is (and checked as usual)."""
+    if cls is not EKFState or not isinstance(state, Mapping):
         return state
-    out = {k: v for k, v in state.items() if k != "mag_disturbed_since"}
-    since, now = float(state["mag_disturbed_since"]), float(state.get("t", math.nan))
-    disturbed = math.isfinite(since) and math.isfinite(now)
-    out.setdefault("mag_disturbed_time", max(0.0, now - since) if disturbed else 0.0)
-    out.setdefault("mag_disturbed_t", now if disturbed else math.nan)
-    out.setdefault("mag_passed_t", math.nan)
+    out = dict(state)
+    if "mag_disturbed_since" in out:
+        since, now = float(out.pop("mag_disturbed_since")), float(state.get("t", math.nan))
+        disturbed = math.isfinite(since) and math.isfinite(now)
+        out.setdefault("mag_disturbed_time", max(0.0, now - since) if disturbed else 0.0)
+        out.setdefault("mag_disturbed_t", now if disturbed else math.nan)
+        out.setdefault("mag_passed_t", math.nan)
+    if "mag_confirmed_time" not in out and "m0_valid" in out:
+        out["mag_confirmed_time"] = math.inf if bool(out["m0_valid"]) else 0.0
     return out
 
 

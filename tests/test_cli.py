@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 
 import numpy as np
 import pytest
@@ -166,9 +167,11 @@ def test_evaluate_and_filter_smooth(tmp_path, capsys):
     assert len(a) == len(b) and [r[0] for r in a] == [r[0] for r in b]
     assert [r[5:] for r in a] == [r[5:] for r in b]      # the lights are the filter's
     # the default smoother's forward pass is the filter without the online hard-iron fit
-    # (smooth_hard_iron false): its last row is that filter's, earlier rows are not
+    # (smooth_hard_iron false) and without the bias innovation limit: its last row is that
+    # filter's, earlier rows are not
     no_fit = tmp_path / "no_fit.json"
-    ekf.PRESETS["default"].with_changes(mag_hard_iron_tau_s=0.0).save(no_fit)
+    ekf.PRESETS["default"].with_changes(mag_hard_iron_tau_s=0.0,
+                                        mag_bias_innovation_limit=math.inf).save(no_fit)
     forward_no_fit = tmp_path / "g.csv"
     assert cli.main(["filter", str(log), "--settings", str(no_fit), "-o", str(forward_no_fit)]) == 0
     c = list(csv.reader(forward_no_fit.open()))

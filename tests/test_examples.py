@@ -26,6 +26,7 @@ BENCHMARKS = [("speed.py", []),
               ("accuracy.py", ["--only", "ours-default,ours-course,ours-smoothed"]),
               ("tune_defaults.py", []),
               ("tune_defaults.py", ["--held-out-only", "--objective", "means"]),
+              ("tune_defaults.py", ["--held-out-only", "--augment", "1"]), ("robustness.py", []),
               ("live.py", ["--skip-no-loss"]), ("chaos.py", []), ("tuning.py", []),
               ("plugin.py", []), ("session.py", [])]
 

@@ -41,7 +41,7 @@ ekf.fast                                    ekf.reference
 ``measurements._uneven_field``              ``_uneven_field``
 ``measurements._heading_gain_cap``          ``_heading_gain_cap``
 ``measurements._count_disturbance``         ``_count_disturbance``
-``measurements._count_passing``             ``_count_passing``
+``measurements._count_passing``             ``_count_passing`` (with ``_count_confirmed``)
 ``measurements._heading_std_deg``           ``_heading_std_deg``
 ``measurements._learn_reference``           ``_learn_reference``
 ``measurements._finish_reference``          ``_finish_reference``
@@ -56,6 +56,7 @@ ekf.fast                                    ekf.reference
 ``measurements._relearn_field``             ``_relearn_field``
 ``measurements._dip_deg``                   ``_dip_deg``
 ``measurements._reference_dip_deg``         ``_reference_dip_deg``
+``measurements._elevation_deg``             ``ekf.reference_field._elevation_deg``
 ``algebra._joseph_update``                  ``_update`` (B = P H^T and S given by the caller)
 ``algebra._measurement_update_q``           ``_update`` with H non-zero in the q columns only
 ``algebra._zero_rate_update``               ``_zero_rate_update``

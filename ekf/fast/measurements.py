@@ -246,6 +246,9 @@ def _mag_heading_update_n(s, c, y0, y1, y2, n, gate, noise_scale, gain_cap):
     nis = psi * psi / S_psi
     if nis > gate:
         return nis
+    # mag_bias_innovation_limit: the bias learns from at most limit·√S of psi
+    limit = c[C.mag_bias_innovation_limit] * math.sqrt(S_psi)
+    bias_weight = limit / abs(psi) if abs(psi) > limit else 1.0
     if HPH * (1.0 - gain_cap) > gain_cap * r:
         # mag_return_s: a larger r, so that at most gain_cap of psi is corrected now
         if gain_cap <= 0.0:
@@ -271,6 +274,8 @@ def _mag_heading_update_n(s, c, y0, y1, y2, n, gate, noise_scale, gain_cap):
     s[K + 1] = u1 * uk
     s[K + 2] = u2 * uk
     s[K + 3] = u3 * uk
+    for i in range(4, n):
+        s[K + i] *= bias_weight
     innovation = -psi
     for i in range(n):
         s[S.x + i] += s[K + i] * innovation
@@ -334,15 +339,37 @@ def _set_m0_from(s, c, y0, y1, y2):
         s[S.mag_reference_count] = 1.0
 
 
+@jit_inline
+def _elevation_deg(v0, v1, v2):
+    """reference ``_elevation_deg``: angle of a world-frame vector above the horizontal."""
+    return math.degrees(math.atan2(v2, math.hypot(v0, v1)))
+
+
 @jit
-def _learn_reference(s, c, y0, y1, y2):
-    """reference ``_learn_reference``: add a reading to the expected field's sums; meanwhile
-    L_k is their mean. Returns ‖y‖."""
+def _learn_reference(s, c, y0, y1, y2, t):
+    """reference ``_learn_reference``: add a reading to the expected field's sums (restarted
+    from it when it disagrees with their mean beyond the gates); meanwhile L_k is their mean.
+    Returns ‖y‖."""
     norm = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
     Q = _to_matrix(s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3])
-    s[S.mag_reference_sum] += Q[0] * y0 + Q[1] * y1 + Q[2] * y2
-    s[S.mag_reference_sum + 1] += Q[3] * y0 + Q[4] * y1 + Q[5] * y2
-    s[S.mag_reference_sum + 2] += Q[6] * y0 + Q[7] * y1 + Q[8] * y2
+    w0 = Q[0] * y0 + Q[1] * y1 + Q[2] * y2
+    w1 = Q[3] * y0 + Q[4] * y1 + Q[5] * y2
+    w2 = Q[6] * y0 + Q[7] * y1 + Q[8] * y2
+    R = S.mag_reference_sum
+    count = s[S.mag_reference_count]
+    if (abs(norm - s[S.mag_reference_norm_sum] / count) > c[C.mag_gate]
+            or abs(_elevation_deg(w0, w1, w2)
+                   - _elevation_deg(s[R] / count, s[R + 1] / count, s[R + 2] / count))
+            > c[C.mag_dip_gate_deg]):
+        s[S.mag_reference_until] = t + c[C.mag_reference_s]
+        s[R] = 0.0
+        s[R + 1] = 0.0
+        s[R + 2] = 0.0
+        s[S.mag_reference_norm_sum] = 0.0
+        s[S.mag_reference_count] = 0.0
+    s[R] += w0
+    s[R + 1] += w1
+    s[R + 2] += w2
     s[S.mag_reference_norm_sum] += norm
     s[S.mag_reference_count] += 1.0
     s[S.mag_strength] = s[S.mag_reference_norm_sum] / s[S.mag_reference_count]
@@ -431,24 +458,30 @@ def _track_new_field_world(s, c, y0, y1, y2, t):
     mw1 = Q[3] * y0 + Q[4] * y1 + Q[5] * y2
     mw2 = Q[6] * y0 + Q[7] * y1 + Q[8] * y2
     W = S.mag_candidate_world
-    d0 = mw0 - s[W]
-    d1 = mw1 - s[W + 1]
-    d2 = mw2 - s[W + 2]
-    if (math.isnan(s[S.mag_rejected_since])
-            or math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) > c[C.mag_gate]):
+    agrees = (abs(math.sqrt(mw0 * mw0 + mw1 * mw1 + mw2 * mw2)
+                  - math.sqrt(s[W] ** 2 + s[W + 1] ** 2 + s[W + 2] ** 2)) <= c[C.mag_gate]
+              and abs(_elevation_deg(mw0, mw1, mw2) - _elevation_deg(s[W], s[W + 1], s[W + 2]))
+              <= c[C.mag_dip_gate_deg])
+    fresh = math.isnan(s[S.mag_rejected_since])
+    if not fresh and not agrees:
+        s[S.mag_candidate_time] -= t - s[S.mag_candidate_t]
+    if fresh or (not agrees and s[S.mag_candidate_time] <= 0.0):
         s[S.mag_rejected_since] = t
         s[W] = mw0
         s[W + 1] = mw1
         s[W + 2] = mw2
         s[S.mag_candidate_time] = 0.0
-    else:
+    elif agrees:
         alpha = c[C.mag_alpha]
-        s[W] += alpha * d0
-        s[W + 1] += alpha * d1
-        s[W + 2] += alpha * d2
-        if _turn_rate(s, c) >= c[C.mag_relearn_min_rate]:
+        s[W] += alpha * (mw0 - s[W])
+        s[W + 1] += alpha * (mw1 - s[W + 1])
+        s[W + 2] += alpha * (mw2 - s[W + 2])
+        first = c[C.mag_first_relearn_s]
+        young = s[S.mag_confirmed_time] < first
+        if young or _turn_rate(s, c) >= c[C.mag_relearn_min_rate]:
             s[S.mag_candidate_time] += t - s[S.mag_candidate_t]
-        if s[S.mag_candidate_time] >= c[C.mag_relearn_s]:
+        needed = min(first, c[C.mag_relearn_s]) if young else c[C.mag_relearn_s]
+        if s[S.mag_candidate_time] >= needed:
             # the new field's strength and dip; north stays where it was
             horizontal = math.hypot(s[S.m0], s[S.m0 + 1])
             if horizontal > 0.0:
@@ -549,6 +582,8 @@ def _count_disturbance(s, c, t, bound):
 def _count_passing(s, c, t):
     """reference ``_count_passing``: a reading that passes takes mag_reject_recovery seconds
     per second since the previous reading off the count (inf: all of it)."""
+    if s[S.mag_reference_count] == 0.0 and t - s[S.mag_passed_t] <= c[C.max_dt]:
+        s[S.mag_confirmed_time] += t - s[S.mag_passed_t]   # reference ``_count_confirmed``
     recovery = c[C.mag_reject_recovery]
     if recovery == math.inf:
         s[S.mag_disturbed_time] = 0.0
@@ -582,7 +617,7 @@ def _mag_update(s, c, y0, y1, y2, t):
     (``_mag_gates``), settling, the bound on a disturbance's length, then the update (heading
     only, or the full one of task 9) behind the NIS gate."""
     if t < s[S.mag_reference_until]:
-        norm = _learn_reference(s, c, y0, y1, y2)
+        norm = _learn_reference(s, c, y0, y1, y2, t)
         dip = _NAN
         rejected_by = NOT_REJECTED
     else:

@@ -195,9 +195,11 @@ def test_a_changed_field_is_relearned_in_the_world_frame_while_turning():
 
 def test_a_still_phone_learns_no_new_field_but_the_bound_brings_the_magnetometer_back():
     """Still, a changed field and a magnet on the phone look alike: nothing is re-learned; after
-    mag_max_reject_s the readings are used again (trusted less), no faster than mag_return_s."""
+    mag_max_reject_s the readings are used again (trusted less), no faster than mag_return_s.
+    (The field learned 2 s before is an established one here: a young field is the next
+    tests'.)"""
     s = PRESETS["default"].with_changes(mag_relearn_s=3.0, update_period_s=0.0,
-                                        mag_max_reject_s=4.0)
+                                        mag_max_reject_s=4.0, mag_first_relearn_s=0.0)
     f = OrientationEKF(s)
     turned = Q.to_matrix(Q.from_axis_angle([0, 0, 1], math.radians(30))) @ M0
     headings = []
@@ -211,6 +213,107 @@ def test_a_still_phone_learns_no_new_field_but_the_bound_brings_the_magnetometer
     assert f.flags.mag_rejected and f.flags.used_mag       # disturbed, but used again
     steps = np.abs(np.diff(np.unwrap(headings)))
     assert math.degrees(steps.max()) < 1.0                # no jump: at most 1 deg per sample
+
+
+def _still_field_run(field_at, settings, seconds: float = 14.0):
+    """A still, level phone whose field is field_at(t) (world frame): per 10 ms sample the
+    expected strength L_k and whether the reading was used."""
+    f = OrientationEKF(settings)
+    strength, used = [], []
+    for k in range(int(seconds * 100)):
+        t = k * 0.01
+        f.step(t, gyr=[0, 0, 0], acc=G0, mag=field_at(t))
+        strength.append(f.diagnostics.mag_expected)
+        used.append(f.flags.used_mag)
+    return np.array(strength), np.array(used)
+
+
+def test_the_expected_field_is_learned_from_readings_that_agree():
+    """A recording that starts beside a laptop: 20 uT more fading out over the first 0.6 s.
+    The first second's mean would be ~7 uT too strong (every later reading rejected by the
+    5 uT gate); readings that disagree start the mean again, so it is the undisturbed field."""
+    def field(t):
+        return M0 + np.array([0.0, 0.0, -20.0]) * max(0.0, 1.0 - t / 0.6)
+    strength, used = _still_field_run(field, PRESETS["default"].with_changes(
+        update_period_s=0.0), seconds=4.0)
+    assert strength[-1] == pytest.approx(np.linalg.norm(M0), abs=0.5)
+    assert used[-100:].all()
+    mean_first_second = np.mean([np.linalg.norm(field(k * 0.01)) for k in range(100)])
+    assert mean_first_second - np.linalg.norm(M0) > 5.0      # what the plain mean would be
+
+
+def test_a_field_learned_in_a_disturbance_is_replaced_while_it_is_young():
+    """A disturbance that stays put for the first 2 s is learned as the expected field (the
+    readings agree); the real field then fails the gate. Until readings have passed for
+    mag_first_relearn_s, agreeing readings replace the field after that long, turning or not;
+    with it off, a still phone keeps the wrong field (nothing tells it from a magnet)."""
+    def field(t):
+        return M0 * (1.4 if t < 2.0 else 1.0)
+    s = PRESETS["default"].with_changes(update_period_s=0.0, mag_max_reject_s=math.inf,
+                                        mag_reject_heading_std_deg=math.inf)
+    strength, used = _still_field_run(field, s.with_changes(mag_first_relearn_s=5.0))
+    k_new = int(np.argmax(np.abs(strength - np.linalg.norm(M0)) < 1.0))
+    assert 6.5 <= k_new * 0.01 <= 7.5                # 2 s + 5 s of agreeing readings
+    assert used[-100:].all()
+    strength_off, used_off = _still_field_run(field, s.with_changes(mag_first_relearn_s=0.0))
+    assert strength_off[-1] == pytest.approx(1.4 * np.linalg.norm(M0), rel=0.02)
+    assert not used_off[300:].any()
+
+
+def test_a_passing_disturbance_does_not_wipe_out_a_new_field():
+    """The same wrong start, then the real field with a 0.2 s disturbance every second: the
+    candidate's time counts down while readings disagree instead of starting again, so the
+    real field is still learned (net 0.6 s a second: ~8 s for the 5 s); a reset on every
+    disagreeing reading would never get past 0.8 s."""
+    def field(t):
+        if t < 2.0:
+            return M0 * 1.4
+        return M0 * (1.5 if (t % 1.0) > 0.8 else 1.0)
+    s = PRESETS["default"].with_changes(update_period_s=0.0, mag_max_reject_s=math.inf,
+                                        mag_reject_heading_std_deg=math.inf,
+                                        mag_first_relearn_s=5.0)
+    strength, _ = _still_field_run(field, s, seconds=16.0)
+    k_new = int(np.argmax(np.abs(strength - np.linalg.norm(M0)) < 1.0))
+    assert 8.0 <= k_new * 0.01 <= 13.0
+
+
+def _bias_after_turned_field(limit: float) -> np.ndarray:
+    """A still, level phone whose field turns by 60 deg about up at 3 s (same strength and dip:
+    it passes every gate); the gyroscope bias estimate at 13 s."""
+    turned = Q.to_matrix(Q.from_axis_angle([0, 0, 1], math.radians(60))) @ M0
+    s = PRESETS["default"].with_changes(update_period_s=0.0, mag_bias_innovation_limit=limit)
+    f = OrientationEKF(s)
+    for k in range(1300):
+        t = k * 0.01
+        # moving a little, so the filter never sees rest (no zero-rate update)
+        w = np.array([0.0, 0.0, 0.3 * math.sin(3.0 * t)])
+        f.step(t, gyr=w, acc=G0, mag=M0 if t < 3.0 else turned)
+    return f.gyro_bias
+
+
+def test_a_heading_far_off_teaches_the_bias_little():
+    """The heading follows the turned field no faster than mag_return_s either way; without the
+    limit the persistent 60 deg innovation is also read as a gyroscope bias about up, with it
+    the bias learns from at most 1.5 sigma of it."""
+    free = _bias_after_turned_field(math.inf)
+    limited = _bias_after_turned_field(1.5)
+    assert abs(free[2]) > 0.01                        # rad/s: 0.6 deg/s and more, wrongly
+    assert abs(limited[2]) < 0.3 * abs(free[2])
+
+
+def test_a_snapshot_from_before_the_confirmed_field_restores():
+    """A state saved before mag_confirmed_time existed: a field it had learned counts as
+    confirmed (no young re-learning in the middle of a session)."""
+    f = OrientationEKF(PRESETS["default"])
+    for k in range(50):
+        f.step(k * 0.01, gyr=[0, 0, 0], acc=G0, mag=M0)
+    snap = f.snapshot()
+    state = dict(snap["state"])
+    del state["mag_confirmed_time"]
+    g = OrientationEKF(PRESETS["default"])
+    g.restore({**snap, "state": state})
+    assert g.snapshot()["state"]["mag_confirmed_time"] == math.inf
+    np.testing.assert_array_equal(g.quat, f.quat)
 
 
 def test_dip_from_the_estimate_ignores_accelerations():
@@ -324,9 +427,11 @@ def test_a_snapshot_from_before_the_leaky_count_restores():
 def _turning_disturbed_run(heading_std_deg: float) -> tuple[list[bool], list[float]]:
     """A phone turning about up at 0.3 rad/s (never at rest), its field disturbed (1.5x, the
     strength gate rejects it) from 2 s on, no time bound: per disturbed reading whether the
-    magnetometer was used, and the heading's standard deviation [deg] before it."""
+    magnetometer was used, and the heading's standard deviation [deg] before it. (The field
+    learned in the first 2 s counts as established: no young re-learning.)"""
     s = PRESETS["default"].with_changes(update_period_s=0.0, mag_settle_s=0.0,
                                         mag_max_reject_s=math.inf, mag_relearn_s=1e9,
+                                        mag_first_relearn_s=0.0,
                                         gyr_noise_cov=[[1e-3, 0, 0], [0, 1e-3, 0], [0, 0, 1e-3]],
                                         mag_reject_heading_std_deg=heading_std_deg)
     f = OrientationEKF(s)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -38,12 +40,30 @@ def test_the_smoother_is_never_worse_than_the_forward_filter(session, preset):
 
 def test_the_last_estimate_and_the_lights_are_the_forward_filters(session):
     t, g, a, m, _ = session
-    keep_fit = ekf.PRESETS["default"].with_changes(smooth_hard_iron=True)
+    keep_fit = ekf.PRESETS["default"].with_changes(smooth_hard_iron=True,
+                                                   mag_bias_innovation_limit=math.inf)
     forward = ekf.filter_batch(t, g, a, m, settings=keep_fit)
     smoothed = ekf.smooth_batch(t, g, a, m, settings=keep_fit)
     np.testing.assert_array_equal(smoothed.quat[-1], forward.quat[-1])
     np.testing.assert_array_equal(smoothed.mag_rejected, forward.mag_rejected)
     np.testing.assert_array_equal(smoothed.at_rest, forward.at_rest)
+
+
+def test_the_forward_pass_runs_without_the_bias_innovation_limit(session):
+    """The limit holds back a gain the forward covariance asks for; the backward pass trusts
+    those covariances, so the smoother's forward pass always runs without it (its lights are
+    still those of the filter as set)."""
+    t, g, a, m, _ = session
+    limited = ekf.PRESETS["default"].with_changes(smooth_hard_iron=True,
+                                                  mag_bias_innovation_limit=0.5)
+    as_set = ekf.filter_batch(t, g, a, m, settings=limited)
+    unlimited = ekf.filter_batch(t, g, a, m, settings=limited.with_changes(
+        mag_bias_innovation_limit=math.inf))
+    smoothed = ekf.smooth_batch(t, g, a, m, settings=limited)
+    np.testing.assert_array_equal(smoothed.quat[-1], unlimited.quat[-1])
+    assert not np.array_equal(as_set.quat[-1], unlimited.quat[-1])    # the limit did something
+    for light in ("acc_rejected", "mag_rejected", "at_rest"):
+        np.testing.assert_array_equal(getattr(smoothed, light), getattr(as_set, light))
 
 
 def test_without_the_hard_iron_fit_the_forward_pass_drops_only_the_fit(session):
@@ -54,7 +74,8 @@ def test_without_the_hard_iron_fit_the_forward_pass_drops_only_the_fit(session):
     assert not default.smooth_hard_iron and default.mag_hard_iron_tau_s > 0
     m = m + np.array([8.0, -6.0, 4.0])          # an offset for the fit to find
     as_set = ekf.filter_batch(t, g, a, m, settings=default)
-    no_fit = ekf.filter_batch(t, g, a, m, settings=default.with_changes(mag_hard_iron_tau_s=0.0))
+    no_fit = ekf.filter_batch(t, g, a, m, settings=default.with_changes(
+        mag_hard_iron_tau_s=0.0, mag_bias_innovation_limit=math.inf))
     smoothed = ekf.smooth_batch(t, g, a, m, settings=default)
     np.testing.assert_array_equal(smoothed.quat[-1], no_fit.quat[-1])
     assert not np.array_equal(as_set.quat[-1], no_fit.quat[-1])

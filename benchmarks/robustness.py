@@ -1,0 +1,87 @@
+"""Robustness: the Nexus 5 recordings made harder (``benchmarks/augment.py``), ours beside VQF.
+
+The real recordings are one person's in one room; the scenarios add what other people, other
+buildings and other phones bring (stronger world-frame disturbances, a disturbed start, a
+magnet in the case, more gyroscope bias) to the real sensor readings, so the optical truth
+still holds. Every estimator gets the same perturbed samples and is scored like
+``benchmarks/accuracy.py`` (total RMSE at the truth's time stamps over the score intervals).
+
+    .venv/bin/python benchmarks/robustness.py [--copies 3] [--only NAME,...] [--settings FILE]
+                                              [--scenarios building-50,desk-start,...] [--quick]
+
+Prints per scenario the mean total RMSE of ours (the default preset, or ``--settings``) and of
+VQF 9D, their ratio, the worst recording's ratio and how many recordings are beyond 2x VQF; the
+unperturbed recordings first, from the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import ekf  # noqa: E402
+from augment import SCENARIOS, perturbed  # noqa: E402
+from datasets import load_all, run_ours, run_vqf  # noqa: E402
+
+
+def summary(label: str, ours: np.ndarray, vqf: np.ndarray, names: list[str]) -> str:
+    ratio = ours / vqf
+    worst = int(np.argmax(ratio))
+    return (f"{label:<14}{ours.mean():>8.2f}{vqf.mean():>8.2f}{ours.mean() / vqf.mean():>8.2f}x"
+            f"{ratio[worst]:>8.2f}x  {int(np.sum(ratio > 2.0)):>3}   {names[worst]}")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--copies", type=int, default=3, help="perturbed copies per recording and "
+                    "scenario (each seeded differently)")
+    ap.add_argument("--scenarios", default=",".join(SCENARIOS),
+                    help=f"comma-separated, from {', '.join(SCENARIOS)}")
+    ap.add_argument("--only", default="", help="recordings whose names contain one of these")
+    ap.add_argument("--settings", default="", help="a settings JSON file instead of the default")
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke run: one recording, one copy of two scenarios")
+    args = ap.parse_args()
+    if args.quick:
+        args.copies, args.scenarios, args.only = 1, "desk-start,magnet-20", "NoDist_Texting"
+    scenarios = [s for s in args.scenarios.split(",") if s]
+    unknown = [s for s in scenarios if s not in SCENARIOS]
+    if unknown:
+        print(f"--scenarios: unknown {', '.join(unknown)}; choose from {', '.join(SCENARIOS)}",
+              file=sys.stderr)
+        return 2
+    try:
+        import vqf  # noqa: F401
+    except ImportError as error:
+        print(f"needs the bench extra ({error}); `make bench` installs it")
+        return 0
+    settings = ekf.EKFSettings.load(args.settings) if args.settings else ekf.PRESETS["default"]
+    recs = load_all(("tyrex",), [o for o in args.only.split(",") if o] or None)
+    if not recs:
+        print("no shared data (../shared/data/tyrex): nothing to measure")
+        return 0
+    print(f"{len(recs)} Nexus 5 recordings, {args.copies} copies per scenario; mean total RMSE "
+          f"[deg] at the truth's time stamps\n")
+    print(f"{'scenario':<14}{'ours':>8}{'VQF 9D':>8}{'ratio':>9}{'worst':>9}  >2x   worst "
+          f"recording")
+    rows = [("real", [(r, 0) for r in recs])]
+    rows += [(s, [(r, k) for r in recs for k in range(args.copies)]) for s in scenarios]
+    for scenario, items in rows:
+        ours, peer, names = [], [], []
+        for rec, k in items:
+            r = rec if scenario == "real" else perturbed(rec, scenario, k)
+            ours.append(r.score(*run_ours(r, settings)).total_rmse_deg)
+            peer.append(r.score(*run_vqf(r)).total_rmse_deg)
+            names.append(r.name)
+        print(summary(scenario, np.array(ours), np.array(peer), names), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
