@@ -568,7 +568,8 @@ class OrientationEKF(MagneticField, EstimatorBase):
         return math.degrees(2.0 * math.sqrt(max(0.0, float(u @ self._P[:4, :4] @ u))))
 
     def _count_passing(self, t: float) -> None:
-        """A reading that passes earns disturbance time back: mag_reject_recovery seconds per
+        """A reading that passes counts towards confirming the learned field
+        (``_count_confirmed``) and earns disturbance time back: mag_reject_recovery seconds per
         second since the previous reading (inf: the disturbance is over, the count is 0)."""
         st, recovery = self._state, self.settings.mag_reject_recovery
         self._count_confirmed(t)

@@ -179,8 +179,7 @@ class MagneticField:
         again while readings disagree (a passing disturbance does not wipe out what was seen);
         at zero the next disagreeing reading starts a new candidate. While the expected field
         is young (mag_first_relearn_s) the candidate needs only that long (or mag_relearn_s if
-        shorter), turning or not. The
-        new m0 has their strength and dip; its north is kept."""
+        shorter), turning or not. The new m0 has their strength and dip; its north is kept."""
         s, st = self.settings, self._state
         m_w = quat.to_matrix(self._x[:4]) @ y
         cand = st.mag_candidate_world

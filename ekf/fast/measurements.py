@@ -580,8 +580,9 @@ def _count_disturbance(s, c, t, bound):
 
 @jit_inline
 def _count_passing(s, c, t):
-    """reference ``_count_passing``: a reading that passes takes mag_reject_recovery seconds
-    per second since the previous reading off the count (inf: all of it)."""
+    """reference ``_count_passing``: a reading that passes counts towards confirming the
+    learned field (``_count_confirmed``) and takes mag_reject_recovery seconds per second since
+    the previous reading off the disturbance count (inf: all of it)."""
     if s[S.mag_reference_count] == 0.0 and t - s[S.mag_passed_t] <= c[C.max_dt]:
         s[S.mag_confirmed_time] += t - s[S.mag_passed_t]   # reference ``_count_confirmed``
     recovery = c[C.mag_reject_recovery]
