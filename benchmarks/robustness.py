@@ -12,11 +12,18 @@ still holds. Every estimator gets the same perturbed samples and is scored like
 Prints per scenario the mean total RMSE of ours (the default preset, or ``--settings``) and of
 VQF 9D, their ratio, the worst recording's ratio and how many recordings are beyond 2x VQF; the
 unperturbed recordings first, from the same run.
+
+``mag-off`` (a scenario of this benchmark only): the magnetometer switched off 8 s into each
+real recording (the app's sensor switch, a phone whose magnetometer gives out), scored from
+there on. The peer is VQF fed the same way: 9D for the first 8 s, then 6D, its last heading
+correction (``getDelta``) kept, which is what its 9D estimate does once no reading comes.
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
+import math
 import sys
 from pathlib import Path
 
@@ -26,6 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import ekf  # noqa: E402
+from ekf import quaternion as Q  # noqa: E402
 from augment import SCENARIOS, perturbed  # noqa: E402
 from datasets import load_all, run_ours, run_vqf  # noqa: E402
 
@@ -37,24 +45,52 @@ def summary(label: str, ours: np.ndarray, vqf: np.ndarray, names: list[str]) -> 
             f"{ratio[worst]:>8.2f}x  {int(np.sum(ratio > 2.0)):>3}   {names[worst]}")
 
 
+MAG_OFF_S = 8.0
+
+
+def magnetometer_off(rec, after_s: float = MAG_OFF_S):
+    """A copy of `rec` without magnetometer readings from `after_s` on, scored from there."""
+    out = copy.copy(rec)
+    out._sync = None
+    out.name = f"{rec.name}+mag-off"
+    out.mag = rec.mag.copy()
+    out.mag[rec.t_s >= rec.t_s[0] + after_s] = np.nan
+    out.skip_s = max(rec.skip_s, after_s)
+    return out
+
+
+def run_vqf_mag_off(rec, after_s: float = MAG_OFF_S):
+    """VQF 9D until `after_s`, then 6D with its last heading correction: (t, quaternions)."""
+    import vqf
+    t, g, a, m, Ts = rec.sync
+    k = int(np.searchsorted(t, t[0] + after_s))
+    f = vqf.VQF(Ts)
+    first = f.updateBatch(g[:k], a[:k], m[:k])["quat9D"]
+    delta = f.getDelta()
+    rest = f.updateBatch(g[k:], a[k:])["quat6D"]
+    turn = np.array([math.cos(delta / 2), 0.0, 0.0, math.sin(delta / 2)])
+    return t, np.vstack([first, Q.multiply(np.tile(turn, (len(rest), 1)), rest)])
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--copies", type=int, default=3, help="perturbed copies per recording and "
                     "scenario (each seeded differently)")
-    ap.add_argument("--scenarios", default=",".join(SCENARIOS),
-                    help=f"comma-separated, from {', '.join(SCENARIOS)}")
+    ap.add_argument("--scenarios", default=",".join(SCENARIOS + ("mag-off",)),
+                    help=f"comma-separated, from {', '.join(SCENARIOS)}, mag-off")
     ap.add_argument("--only", default="", help="recordings whose names contain one of these")
     ap.add_argument("--settings", default="", help="a settings JSON file instead of the default")
     ap.add_argument("--quick", action="store_true",
                     help="smoke run: one recording, one copy of two scenarios")
     args = ap.parse_args()
     if args.quick:
-        args.copies, args.scenarios, args.only = 1, "desk-start,magnet-20", "NoDist_Texting"
+        args.copies, args.scenarios, args.only = 1, "desk-start,magnet-20,mag-off", \
+            "NoDist_Texting"
     scenarios = [s for s in args.scenarios.split(",") if s]
-    unknown = [s for s in scenarios if s not in SCENARIOS]
+    unknown = [s for s in scenarios if s not in SCENARIOS + ("mag-off",)]
     if unknown:
-        print(f"--scenarios: unknown {', '.join(unknown)}; choose from {', '.join(SCENARIOS)}",
-              file=sys.stderr)
+        print(f"--scenarios: unknown {', '.join(unknown)}; choose from {', '.join(SCENARIOS)}, "
+              "mag-off", file=sys.stderr)
         return 2
     try:
         import vqf  # noqa: F401
@@ -71,13 +107,18 @@ def main() -> int:
     print(f"{'scenario':<14}{'ours':>8}{'VQF 9D':>8}{'ratio':>9}{'worst':>9}  >2x   worst "
           f"recording")
     rows = [("real", [(r, 0) for r in recs])]
-    rows += [(s, [(r, k) for r in recs for k in range(args.copies)]) for s in scenarios]
+    rows += [(s, [(r, k) for r in recs for k in range(args.copies if s != "mag-off" else 1)])
+             for s in scenarios]
     for scenario, items in rows:
         ours, peer, names = [], [], []
         for rec, k in items:
-            r = rec if scenario == "real" else perturbed(rec, scenario, k)
+            if scenario == "mag-off":
+                r = magnetometer_off(rec)
+                peer.append(r.score(*run_vqf_mag_off(r)).total_rmse_deg)
+            else:
+                r = rec if scenario == "real" else perturbed(rec, scenario, k)
+                peer.append(r.score(*run_vqf(r)).total_rmse_deg)
             ours.append(r.score(*run_ours(r, settings)).total_rmse_deg)
-            peer.append(r.score(*run_vqf(r)).total_rmse_deg)
             names.append(r.name)
         print(summary(scenario, np.array(ours), np.array(peer), names), flush=True)
     return 0

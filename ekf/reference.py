@@ -450,12 +450,32 @@ class OrientationEKF(MagneticField, EstimatorBase):
         for i, dQi in enumerate(quat.dQ_dq(q)):
             H[:, i] = dQi.T @ g0
         R = np.asarray(s.acc_noise_cov, float) * noise_scale
-        nis = self._update(y - y_hat, H, R, gate=s.acc_nis_gate)
+        keep = self._tilt_only(q) if self._magnetometer_silent() else None
+        nis = self._update(y - y_hat, H, R, gate=s.acc_nis_gate, keep=keep)
         diag.acc_nis = nis
         accepted = nis <= s.acc_nis_gate
         flags.acc_rejected = not accepted
         flags.used_acc = accepted
         diag.acc_rejected_by = NOT_REJECTED if accepted else ACC_NIS_GATE
+
+    def _magnetometer_silent(self) -> bool:
+        """acc_tilt_only_after_s: no magnetometer update for that long (or none ever)."""
+        st, after = self._state, self.settings.acc_tilt_only_after_s
+        return after < math.inf and not st.t - st.mag_updated_t < after
+
+    def _tilt_only(self, q: np.ndarray) -> np.ndarray:
+        """The projection that takes from a gain what gravity cannot observe: in q, a turn
+        about world up (the direction u of (0,0,0,1) ⊗ q); in the bias, the rate about up
+        (v = Q(q)^T e_z, up in the sensor frame)."""
+        n = self._state.n
+        u = quat.multiply(np.array([0.0, 0.0, 0.0, 1.0]), q)
+        u /= np.linalg.norm(u)
+        keep = np.eye(n)
+        keep[:4, :4] -= np.outer(u, u)
+        if n == 7:
+            v = quat.to_matrix(q).T @ np.array([0.0, 0.0, 1.0])
+            keep[4:, 4:] -= np.outer(v, v) / float(v @ v)
+        return keep
 
     def _acc_lowpass_update(self, t: float, y: np.ndarray) -> None:
         """The accelerometer through a first-order low-pass (time constant acc_lowpass_s) that
@@ -659,9 +679,11 @@ class OrientationEKF(MagneticField, EstimatorBase):
         return nis
 
     def _update(self, innovation: np.ndarray, H: np.ndarray, R: np.ndarray,
-                gate: float = math.inf) -> float:
+                gate: float = math.inf, keep: np.ndarray | None = None) -> float:
         """Standard EKF measurement update in Joseph form; returns the NIS. Skipped (state
-        untouched) when the NIS exceeds `gate`."""
+        untouched) when the NIS exceeds `gate`. `keep`: a projection applied to the gain
+        (K <- keep K), the directions the measurement must not move; the Joseph form holds
+        for any gain, so P stays the covariance of the estimate."""
         P = self._P
         S = H @ P @ H.T + R
         S_inv = np.linalg.inv(S)
@@ -669,6 +691,8 @@ class OrientationEKF(MagneticField, EstimatorBase):
         if nis > gate:
             return nis
         K = P @ H.T @ S_inv
+        if keep is not None:
+            K = keep @ K
         self._x = self._x + K @ innovation
         I_KH = np.eye(self._state.n) - K @ H
         self._P = I_KH @ P @ I_KH.T + K @ R @ K.T

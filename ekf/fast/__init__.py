@@ -59,6 +59,7 @@ ekf.fast                                    ekf.reference
 ``measurements._elevation_deg``             ``ekf.reference_field._elevation_deg``
 ``algebra._joseph_update``                  ``_update`` (B = P H^T and S given by the caller)
 ``algebra._measurement_update_q``           ``_update`` with H non-zero in the q columns only
+``algebra._tilt_only_update_n``             ``_update`` with keep = ``_tilt_only``(q)
 ``algebra._zero_rate_update``               ``_zero_rate_update``
 ``algebra._normalise``                      ``_normalise``
 ``algebra._flip_sign``                      ``_flip_sign``

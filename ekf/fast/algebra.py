@@ -285,9 +285,70 @@ def _joseph_update(s, e0, e1, e2, gate):
 
 
 @jit_inline
-def _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, n, scale):
+def _tilt_only_update_n(s, e0, e1, e2, gate, n):
+    """reference ``_update`` with ``keep = _tilt_only(q)``: the gain K = B S^-1 (B, S as for
+    ``_joseph_update_n``) without its component along a turn about world up in q (u, the unit
+    direction of (0,0,0,1) ⊗ q) and along up in the bias (v, the third row of Q(q)); for a
+    gain that is not the optimal one the Joseph form is P - K B^T - B K^T + K S K^T."""
+    _inverse3(s, S.work_s, S.work_s_inv)
+    Si = S.work_s_inv
+    t0 = s[Si + 0] * e0 + s[Si + 1] * e1 + s[Si + 2] * e2
+    t1 = s[Si + 3] * e0 + s[Si + 4] * e1 + s[Si + 5] * e2
+    t2 = s[Si + 6] * e0 + s[Si + 7] * e1 + s[Si + 8] * e2
+    nis = e0 * t0 + e1 * t1 + e2 * t2
+    if nis > gate:
+        return nis
+    q0, q1, q2, q3 = s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3]
+    u = (-q3, -q2, q1, q0)
+    inv_uu = 1.0 / (q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+    v = (2 * (q1 * q3 - q0 * q2), 2 * (q2 * q3 + q0 * q1), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3)
+    inv_vv = 1.0 / (v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    B = S.work_pht
+    K = S.work_gain
+    for i in range(n):
+        b0 = s[B + 3 * i]
+        b1 = s[B + 3 * i + 1]
+        b2 = s[B + 3 * i + 2]
+        s[K + 3 * i] = b0 * s[Si + 0] + b1 * s[Si + 3] + b2 * s[Si + 6]
+        s[K + 3 * i + 1] = b0 * s[Si + 1] + b1 * s[Si + 4] + b2 * s[Si + 7]
+        s[K + 3 * i + 2] = b0 * s[Si + 2] + b1 * s[Si + 5] + b2 * s[Si + 8]
+    for r in range(3):
+        uk = (u[0] * s[K + r] + u[1] * s[K + 3 + r] + u[2] * s[K + 6 + r]
+              + u[3] * s[K + 9 + r]) * inv_uu
+        for i in range(4):
+            s[K + 3 * i + r] -= uk * u[i]
+        if n == 7:
+            vk = (v[0] * s[K + 12 + r] + v[1] * s[K + 15 + r] + v[2] * s[K + 18 + r]) * inv_vv
+            for i in range(3):
+                s[K + 3 * (4 + i) + r] -= vk * v[i]
+    for i in range(n):
+        s[S.x + i] += s[K + 3 * i] * e0 + s[K + 3 * i + 1] * e1 + s[K + 3 * i + 2] * e2
+    W = S.work_s
+    for i in range(n):
+        # (K S)[i, :]
+        ks0 = s[K + 3 * i] * s[W] + s[K + 3 * i + 1] * s[W + 3] + s[K + 3 * i + 2] * s[W + 6]
+        ks1 = s[K + 3 * i] * s[W + 1] + s[K + 3 * i + 1] * s[W + 4] + s[K + 3 * i + 2] * s[W + 7]
+        ks2 = s[K + 3 * i] * s[W + 2] + s[K + 3 * i + 1] * s[W + 5] + s[K + 3 * i + 2] * s[W + 8]
+        for j in range(i, n):
+            kj0 = s[K + 3 * j]
+            kj1 = s[K + 3 * j + 1]
+            kj2 = s[K + 3 * j + 2]
+            v_ij = (s[S.P + 7 * i + j]
+                    - (s[K + 3 * i] * s[B + 3 * j] + s[K + 3 * i + 1] * s[B + 3 * j + 1]
+                       + s[K + 3 * i + 2] * s[B + 3 * j + 2])
+                    - (s[B + 3 * i] * kj0 + s[B + 3 * i + 1] * kj1 + s[B + 3 * i + 2] * kj2)
+                    + ks0 * kj0 + ks1 * kj1 + ks2 * kj2)
+            s[S.P + 7 * i + j] = v_ij
+            s[S.P + 7 * j + i] = v_ij
+    _normalise(s)
+    return nis
+
+
+@jit_inline
+def _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, n, scale, tilt_only):
     """Update with a measurement whose H (3 x n) is non-zero only in the q columns:
-    h = the 3x4 block (row-major 12-tuple), cov = offset of R in the settings, R x scale."""
+    h = the 3x4 block (row-major 12-tuple), cov = offset of R in the settings, R x scale;
+    tilt_only: the gain without what gravity cannot observe (``_tilt_only_update_n``)."""
     B = S.work_pht
     P = S.P
     for i in range(n):
@@ -304,15 +365,17 @@ def _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, n, scale):
                                          + h[4 * r + 2] * s[B + 6 + col]
                                          + h[4 * r + 3] * s[B + 9 + col]) \
                 + c[cov + 3 * r + col] * scale
+    if tilt_only:
+        return _tilt_only_update_n(s, e0, e1, e2, gate, n)
     return _joseph_update(s, e0, e1, e2, gate)
 
 
 @jit
-def _measurement_update_q(s, c, h, e0, e1, e2, cov, gate, scale=1.0):
+def _measurement_update_q(s, c, h, e0, e1, e2, cov, gate, scale=1.0, tilt_only=False):
     # n = 4 or 7 as a compile-time constant: fixed loops are unrolled.
     if int(s[S.n]) == 7:
-        return _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, 7, scale)
-    return _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, 4, scale)
+        return _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, 7, scale, tilt_only)
+    return _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, 4, scale, tilt_only)
 
 
 @jit

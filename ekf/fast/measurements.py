@@ -151,8 +151,10 @@ def _acc_update(s, c, y0, y1, y2, norm_gate, noise_scale=1.0):
          g * (2 * q1), g * (2 * q0), g * (2 * q3), g * (2 * q2),
          g * (2 * (2 * q0)), 0.0, 0.0, g * (2 * (2 * q3)))
     gate = c[C.acc_nis_gate]
+    after = c[C.acc_tilt_only_after_s]   # reference ``_magnetometer_silent``
+    silent = after < _INF and not s[S.t] - s[S.mag_updated_t] < after
     nis = _measurement_update_q(s, c, h, y0 - yh0, y1 - yh1, y2 - yh2, C.acc_noise_cov, gate,
-                                noise_scale)
+                                noise_scale, silent)
     s[S.acc_nis] = nis
     accepted = nis <= gate
     s[S.acc_rejected] = 0.0 if accepted else 1.0

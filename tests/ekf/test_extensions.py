@@ -459,3 +459,68 @@ def test_a_disturbance_keeps_the_magnetometer_out_until_the_heading_is_too_uncer
     assert max(std[:first]) <= 3.0 and std[first] == pytest.approx(3.0, abs=0.01)
     assert 100 <= first <= 800                  # seconds, not at once
     assert max(std[first:]) < 4.5               # used, trusted less: it grows no more
+
+
+def _silent_magnetometer_step(after: float) -> tuple[float, float, float]:
+    """A phone turning about a tilted axis for 4 s with the magnetometer, then 3 s without it
+    (switched off), then one accelerometer reading with a sideways acceleration of 3 m/s^2.
+    Returns that update's turn about world up [rad], its change of the bias about up [rad/s]
+    and its tilt correction [rad]."""
+    s = PRESETS["default"].with_changes(update_period_s=0.0, acc_lowpass_s=0.0,
+                                        acc_tilt_only_after_s=after)
+    f = OrientationEKF(s)
+    rate = np.array([0.4, -0.3, 0.8])
+    t, q = _turning(rate, 7.0, hz=100.0, q0=Q.from_euler(0.3, 0.4, -0.2))
+    for k in range(t.size):
+        R = Q.to_matrix(q[k])
+        if k == 400:
+            f.set_enabled(mag=False)
+        f.step(t[k], gyr=rate, acc=R.T @ G0, mag=R.T @ M0)
+    R = Q.to_matrix(q[-1])
+    q_before, b_before = f.quat.copy(), f.gyro_bias.copy()
+    up = Q.to_matrix(q_before).T @ np.array([0.0, 0.0, 1.0])    # up in the sensor frame
+    f.update_acc(t[-1], R.T @ (G0 + np.array([3.0, 0.0, 0.0])))
+    turn = Q.multiply(f.quat, Q.conjugate(q_before))             # world-frame change
+    return (2.0 * float(turn[3]) * (1.0 if turn[0] >= 0 else -1.0),
+            float(up @ (f.gyro_bias - b_before)), 2.0 * float(np.hypot(turn[1], turn[2])))
+
+
+def test_without_the_magnetometer_the_accelerometer_corrects_only_tilt():
+    """Gravity says nothing about the heading or the rate about up. Through the correlations
+    in P an accelerometer update would still turn both (an acceleration read as tilt moves
+    what is correlated with tilt); once the magnetometer has been silent for
+    acc_tilt_only_after_s that part of the gain is projected out."""
+    heading, bias_up, tilt = _silent_magnetometer_step(2.0)
+    assert abs(heading) < 1e-12 and abs(bias_up) < 1e-12
+    assert tilt > 1e-4                                  # the tilt is still corrected
+    heading_off, bias_up_off, _ = _silent_magnetometer_step(math.inf)
+    assert abs(heading_off) > 1e-5 and abs(bias_up_off) > 1e-7
+
+
+def test_a_silent_magnetometer_keeps_the_heading_through_accelerations():
+    """Two minutes of a phone swinging (turning back and forth about changing axes) and shaken
+    (1.3 Hz, 4 m/s^2) with the magnetometer off after 5 s: the heading drifts far less when the
+    accelerometer no longer turns it."""
+    hz = 100.0
+    t = np.arange(0.0, 120.0, 1.0 / hz)
+    w = np.column_stack([1.5 * np.sin(2 * np.pi * 0.9 * t), 1.0 * np.sin(2 * np.pi * 0.5 * t + 1),
+                         0.6 * np.sin(2 * np.pi * 0.2 * t)])
+    q = np.empty((t.size, 4))
+    q[0] = Q.from_euler(0.5, 0.3, 0.1)
+    for k in range(1, t.size):
+        q[k] = Q.normalize(Q.multiply(q[k - 1], Q.from_rotation_vector(w[k - 1] / hz)))
+    R = Q.to_matrix(q)
+    force = 4.0 * np.column_stack([np.sin(2 * np.pi * 1.3 * t), np.cos(2 * np.pi * 1.3 * t),
+                                   0.5 * np.sin(2 * np.pi * 2.6 * t)])
+    rng = np.random.default_rng(7)
+    acc = np.einsum("nji,nj->ni", R, G0 + force) + rng.normal(0, 0.05, (t.size, 3))
+    gyr = w + rng.normal(0, 2e-3, (t.size, 3))
+    mag = np.einsum("nji,nj->ni", R, np.tile(M0, (t.size, 1))) + rng.normal(0, 0.3, (t.size, 3))
+    mag[t > 5.0] = np.nan
+    drift = {}
+    for after in (2.0, math.inf):
+        r = ekf.filter_batch(t, gyr, acc, mag,
+                             settings=PRESETS["default"].with_changes(acc_tilt_only_after_s=after))
+        _, heading, _ = ekf.error_angles_deg(r.quat[t > 5], q[t > 5])
+        drift[after] = float(np.sqrt(np.mean(heading ** 2)))
+    assert drift[2.0] < 0.5 * drift[math.inf], drift
