@@ -234,14 +234,9 @@ def _inverse3(s, src, dst):
 
 
 @jit_inline
-def _joseph_update_n(s, e0, e1, e2, gate, n):
-    """reference ``_update`` for a 3-vector measurement, given B = P H^T (n x 3) at S.work_pht
-    and the innovation covariance H P H^T + R (3x3) at S.work_s. Returns the NIS; the state is
-    untouched when NIS > gate.
-
-    With the optimal gain K = B S^-1 (K S = B), the Joseph form
-    (I - KH) P (I - KH)^T + K R K^T = P - K B^T - B K^T + K S K^T equals P - K B^T exactly;
-    that (symmetric: upper triangle, mirrored) is what is evaluated."""
+def _gain_n(s, e0, e1, e2, gate, n):
+    """The NIS and, when it passes the gate, the optimal gain K = B S^-1 (n x 3) at S.work_gain,
+    given B = P H^T (n x 3) at S.work_pht and S = H P H^T + R (3x3) at S.work_s."""
     _inverse3(s, S.work_s, S.work_s_inv)
     Si = S.work_s_inv
     t0 = s[Si + 0] * e0 + s[Si + 1] * e1 + s[Si + 2] * e2
@@ -256,13 +251,35 @@ def _joseph_update_n(s, e0, e1, e2, gate, n):
         b0 = s[B + 3 * i]
         b1 = s[B + 3 * i + 1]
         b2 = s[B + 3 * i + 2]
-        k0 = b0 * s[Si + 0] + b1 * s[Si + 3] + b2 * s[Si + 6]
-        k1 = b0 * s[Si + 1] + b1 * s[Si + 4] + b2 * s[Si + 7]
-        k2 = b0 * s[Si + 2] + b1 * s[Si + 5] + b2 * s[Si + 8]
-        s[K + 3 * i] = k0
-        s[K + 3 * i + 1] = k1
-        s[K + 3 * i + 2] = k2
-        s[S.x + i] += k0 * e0 + k1 * e1 + k2 * e2
+        s[K + 3 * i] = b0 * s[Si + 0] + b1 * s[Si + 3] + b2 * s[Si + 6]
+        s[K + 3 * i + 1] = b0 * s[Si + 1] + b1 * s[Si + 4] + b2 * s[Si + 7]
+        s[K + 3 * i + 2] = b0 * s[Si + 2] + b1 * s[Si + 5] + b2 * s[Si + 8]
+    return nis
+
+
+@jit_inline
+def _correct_state_n(s, e0, e1, e2, n):
+    """x <- x + K e with the gain at S.work_gain."""
+    K = S.work_gain
+    for i in range(n):
+        s[S.x + i] += s[K + 3 * i] * e0 + s[K + 3 * i + 1] * e1 + s[K + 3 * i + 2] * e2
+
+
+@jit_inline
+def _joseph_update_n(s, e0, e1, e2, gate, n):
+    """reference ``_update`` for a 3-vector measurement, given B = P H^T (n x 3) at S.work_pht
+    and the innovation covariance H P H^T + R (3x3) at S.work_s. Returns the NIS; the state is
+    untouched when NIS > gate.
+
+    With the optimal gain K = B S^-1 (K S = B), the Joseph form
+    (I - KH) P (I - KH)^T + K R K^T = P - K B^T - B K^T + K S K^T equals P - K B^T exactly;
+    that (symmetric: upper triangle, mirrored) is what is evaluated."""
+    nis = _gain_n(s, e0, e1, e2, gate, n)
+    if nis > gate:
+        return nis
+    _correct_state_n(s, e0, e1, e2, n)
+    B = S.work_pht
+    K = S.work_gain
     for i in range(n):
         k0 = s[K + 3 * i]
         k1 = s[K + 3 * i + 1]
@@ -286,16 +303,11 @@ def _joseph_update(s, e0, e1, e2, gate):
 
 @jit_inline
 def _tilt_only_update_n(s, e0, e1, e2, gate, n):
-    """reference ``_update`` with ``keep = _tilt_only(q)``: the gain K = B S^-1 (B, S as for
-    ``_joseph_update_n``) without its component along a turn about world up in q (u, the unit
-    direction of (0,0,0,1) ⊗ q) and along up in the bias (v, the third row of Q(q)); for a
-    gain that is not the optimal one the Joseph form is P - K B^T - B K^T + K S K^T."""
-    _inverse3(s, S.work_s, S.work_s_inv)
-    Si = S.work_s_inv
-    t0 = s[Si + 0] * e0 + s[Si + 1] * e1 + s[Si + 2] * e2
-    t1 = s[Si + 3] * e0 + s[Si + 4] * e1 + s[Si + 5] * e2
-    t2 = s[Si + 6] * e0 + s[Si + 7] * e1 + s[Si + 8] * e2
-    nis = e0 * t0 + e1 * t1 + e2 * t2
+    """reference ``_update`` with ``keep = _tilt_only(q)``: the gain K = B S^-1 (``_gain_n``)
+    without its component along a turn about world up in q (u, the direction of
+    (0,0,0,1) ⊗ q) and along up in the bias (v, the third row of Q(q)); for a gain that is not
+    the optimal one the Joseph form is P - K B^T - B K^T + K S K^T."""
+    nis = _gain_n(s, e0, e1, e2, gate, n)
     if nis > gate:
         return nis
     q0, q1, q2, q3 = s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3]
@@ -305,13 +317,6 @@ def _tilt_only_update_n(s, e0, e1, e2, gate, n):
     inv_vv = 1.0 / (v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
     B = S.work_pht
     K = S.work_gain
-    for i in range(n):
-        b0 = s[B + 3 * i]
-        b1 = s[B + 3 * i + 1]
-        b2 = s[B + 3 * i + 2]
-        s[K + 3 * i] = b0 * s[Si + 0] + b1 * s[Si + 3] + b2 * s[Si + 6]
-        s[K + 3 * i + 1] = b0 * s[Si + 1] + b1 * s[Si + 4] + b2 * s[Si + 7]
-        s[K + 3 * i + 2] = b0 * s[Si + 2] + b1 * s[Si + 5] + b2 * s[Si + 8]
     for r in range(3):
         uk = (u[0] * s[K + r] + u[1] * s[K + 3 + r] + u[2] * s[K + 6 + r]
               + u[3] * s[K + 9 + r]) * inv_uu
@@ -321,8 +326,7 @@ def _tilt_only_update_n(s, e0, e1, e2, gate, n):
             vk = (v[0] * s[K + 12 + r] + v[1] * s[K + 15 + r] + v[2] * s[K + 18 + r]) * inv_vv
             for i in range(3):
                 s[K + 3 * (4 + i) + r] -= vk * v[i]
-    for i in range(n):
-        s[S.x + i] += s[K + 3 * i] * e0 + s[K + 3 * i + 1] * e1 + s[K + 3 * i + 2] * e2
+    _correct_state_n(s, e0, e1, e2, n)
     W = S.work_s
     for i in range(n):
         # (K S)[i, :]
