@@ -26,11 +26,13 @@ MAG_STRENGTH_GATE = 1   # | ||y_m|| - L_k | > mag_gate (task 11)
 MAG_DIP_GATE = 2        # | dip - reference dip | > mag_dip_gate_deg
 MAG_SETTLING = 3        # passing the gates, but not yet for mag_settle_s
 MAG_NIS_GATE = 4        # normalised innovation squared > mag_nis_gate
+MAG_UNCALIBRATED = 5    # beyond any Earth field from the start: the offset is being acquired
 
 ACC_REJECTED_BY = {NOT_REJECTED: "not rejected", ACC_NORM_GATE: "norm gate",
                    ACC_NIS_GATE: "NIS gate", ACC_CLIPPED: "clipped"}
 MAG_REJECTED_BY = {NOT_REJECTED: "not rejected", MAG_STRENGTH_GATE: "strength gate",
-                   MAG_DIP_GATE: "dip gate", MAG_SETTLING: "settling", MAG_NIS_GATE: "NIS gate"}
+                   MAG_DIP_GATE: "dip gate", MAG_SETTLING: "settling", MAG_NIS_GATE: "NIS gate",
+                   MAG_UNCALIBRATED: "uncalibrated"}
 
 
 def _output(default: object, kind: type, unit: str, doc: str):
@@ -89,7 +91,8 @@ class Diagnostics:
         "deg", "angle between the reference field m0 and up: the dip gate's centre")
     mag_rejected_by: int = _code(
         "which gate rejected the latest magnetometer reading: 0 none, 1 strength gate, "
-        "2 dip gate, 3 settling, 4 NIS gate")
+        "2 dip gate, 3 settling, 4 NIS gate, 5 uncalibrated (beyond any Earth field from the "
+        "start: its offset is being acquired)")
     mag_offset_norm: float = _number(
         "µT", "‖b_m‖, the online hard-iron estimate subtracted from the readings")
     refused_samples: int = _output(

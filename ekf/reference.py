@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike
 import ekf.quaternion as quat
 from ekf.estimator import SENSORS, EstimatorBase, ekf_name
 from ekf.outputs import (ACC_CLIPPED, ACC_NIS_GATE, ACC_NORM_GATE, MAG_NIS_GATE, MAG_SETTLING,
-                         NOT_REJECTED)
+                         MAG_UNCALIBRATED, NOT_REJECTED)
 from ekf.settings import EKFSettings
 from ekf.reference_field import MagneticField
 from ekf.state import EKFState
@@ -291,10 +291,18 @@ class OrientationEKF(MagneticField, EstimatorBase):
             if not st.acc_enabled:
                 self._initialise(t)
             return
+        if st.mag_waiting and st.flags.used_gyr:
+            # uncalibrated: its offset is being acquired (_check_uncalibrated)
+            st.flags.used_mag = False
+            st.flags.mag_rejected = True
+            st.diagnostics.mag_rejected_by = MAG_UNCALIBRATED
+            st.diagnostics.mag_norm = float(np.linalg.norm(y))
+            return
         if not st.heading_from_mag:
             self._take_heading_from_mag(y)
             return
         self._mag_update(y, t)
+        self._check_uncalibrated()
 
     def step(self, t: float, gyr: ArrayLike | None = None, acc: ArrayLike | None = None,
              mag: ArrayLike | None = None) -> None:

@@ -29,6 +29,16 @@ HARD_IRON_RESIDUAL = 5.0
 # offset itself changed (a magnet was put on the phone): the fit starts again from the new pairs.
 HARD_IRON_RESET_RESIDUAL = 20.0
 HARD_IRON_RESET_COUNT = 5
+# A reading stronger than this [uT] is no Earth field (22-67 uT on the surface, up to ~100 near
+# steel): where the field learned at the start is beyond it, the magnetometer is uncalibrated
+# (a raw sensor: hard iron of hundreds of uT) and the offset is acquired before any use.
+EARTH_FIELD_MAX = 100.0
+# The acquisition's measure of "known": this much of the fit's normal matrix Σ Dᵀ D in a
+# direction (a 20 deg pair adds ~0.12 across its turn's axis; 0.25: the offset's error there is
+# about HARD_IRON_RESIDUAL / √0.25 = 10 uT at the fit's typical residual).
+ACQUIRED_INFO = 0.25
+# The acquisition's prior: numerical only (an offset of hundreds of uT must not be shrunk).
+ACQUIRING_PRIOR = 1e-3
 
 
 def _elevation_deg(v: np.ndarray) -> float:
@@ -68,15 +78,62 @@ class MagneticField:
                   if math.isfinite(st.mag_offset_t) else 0.0)
         st.mag_offset_outliers = st.mag_offset_outliers + 1 if (
             residual > HARD_IRON_RESET_RESIDUAL) else 0.0
+        if st.mag_acquiring:
+            w, st.mag_offset_outliers = 1.0, 0.0   # large residuals: the offset is far, not new
         if st.mag_offset_outliers >= HARD_IRON_RESET_COUNT:
             forget, w, st.mag_offset_outliers = 0.0, 1.0, 0.0   # a new offset: start again
         st.mag_offset_info[:] = forget * st.mag_offset_info + w * (D.T @ D)
         st.mag_offset_rhs[:] = forget * st.mag_offset_rhs + w * (D.T @ e)
         st.mag_offset_t = t
-        st.mag_offset[:] = np.linalg.solve(st.mag_offset_info + s.mag_hard_iron_prior * np.eye(3),
-                                           st.mag_offset_rhs)
+        prior = ACQUIRING_PRIOR if st.mag_acquiring else s.mag_hard_iron_prior
+        st.mag_offset[:] = np.linalg.solve(st.mag_offset_info + prior * np.eye(3),
+                                           st.mag_offset_rhs + prior * st.mag_offset_prior)
+        self._acquisition_progress(y)
         st.diagnostics.mag_offset_norm = float(np.linalg.norm(st.mag_offset))
         self._open_pair(t, y)
+
+    def _check_uncalibrated(self) -> None:
+        """The expected field, learned, is beyond any Earth field (EARTH_FIELD_MAX): the
+        magnetometer is uncalibrated (a raw sensor, hundreds of uT of hard iron). Its offset is
+        acquired while the phone turns (mag_acquiring: the fit unweighted, without its prior),
+        and the magnetometer waits meanwhile (mag_waiting)."""
+        st = self._state
+        if (self.settings.mag_hard_iron_tau_s > 0.0 and not st.mag_waiting
+                and st.mag_strength > EARTH_FIELD_MAX):
+            st.mag_acquiring = True
+            st.mag_waiting = True
+
+    def _acquisition_progress(self, y: np.ndarray) -> None:
+        """After a pair, during the acquisition: once every direction of the offset is known
+        (the normal matrix's smallest eigenvalue >= ACQUIRED_INFO) the fit is weighted again
+        and drawn to this offset (mag_offset_prior) instead of 0; once it is known where it
+        turns the heading (the world's horizontal plane at the attitude now: the largest
+        eigenvalue of H M^-1 H^T <= 1 / ACQUIRED_INFO) and the corrected reading is an Earth
+        field, the magnetometer is used again (``_offset_acquired``)."""
+        st = self._state
+        info = st.mag_offset_info
+        if st.mag_acquiring and np.linalg.eigvalsh(info)[0] >= ACQUIRED_INFO:
+            st.mag_acquiring = False
+            st.mag_offset_prior[:] = st.mag_offset
+        if st.mag_waiting and np.linalg.norm(y - st.mag_offset) <= EARTH_FIELD_MAX:
+            H = quat.to_matrix(self._x[:4])[:2]
+            cov = H @ np.linalg.inv(info + ACQUIRING_PRIOR * np.eye(3)) @ H.T
+            if np.linalg.eigvalsh(cov)[-1] * ACQUIRED_INFO <= 1.0:
+                self._offset_acquired()
+
+    def _offset_acquired(self) -> None:
+        """The magnetometer is used again: the field and the heading are taken afresh from the
+        next corrected reading (the heading may jump once, the learned field is young again)."""
+        st = self._state
+        st.mag_waiting = False
+        st.heading_from_mag = False
+        st.m0_valid = False
+        st.mag_strength = math.nan
+        st.mag_confirmed_time = 0.0
+        st.mag_disturbed_time = 0.0
+        st.mag_disturbed_t = math.nan
+        st.mag_passing_since = math.nan
+        st.mag_rejected_since = math.nan
 
     def _open_pair(self, t: float, y: np.ndarray) -> None:
         st = self._state

@@ -152,6 +152,14 @@ class EKFState:
     mag_offset_rhs: np.ndarray = state_field("its right-hand side Σ w Dᵀ e", _zeros3, unit="µT",
                                              shape=(3,))
     mag_offset_t: float = state_field("time of the latest pair in the fit", _NAN, unit="s")
+    mag_offset_prior: np.ndarray = state_field("the offset the fit is drawn to: 0, or the phone's "
+                                               "own hard iron once acquired", _zeros3, unit="µT",
+                                               shape=(3,))
+    mag_acquiring: bool = state_field("the readings were beyond any Earth field: the offset is "
+                                      "being acquired (fit unweighted, no prior) until every "
+                                      "direction of it is known", _value(False), kind=bool)
+    mag_waiting: bool = state_field("the magnetometer waits for the acquisition to know the "
+                                    "offset where it turns the heading", _value(False), kind=bool)
     mag_offset_outliers: float = state_field("pairs in a row whose residual says the offset "
                                              "changed", _value(0.0))
     mag_pair_raw: np.ndarray = state_field("the first reading of the open pair (raw)", _zeros3,

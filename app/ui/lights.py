@@ -23,11 +23,13 @@ STATE_COLORS = {
     "ok": QtGui.QColor(40, 170, 70),
     "acc disturbed": QtGui.QColor(225, 55, 45),
     "mag disturbed": QtGui.QColor(240, 160, 20),
+    "calibrating": QtGui.QColor(160, 100, 210),
     "moving": QtGui.QColor(150, 152, 158),
     "still": QtGui.QColor(60, 140, 245),
 }
 CAPTIONS = {"off": "off", "no data": "no data", "ok": "OK", "acc disturbed": "disturbed",
-            "mag disturbed": "disturbed", "moving": "moving", "still": "still"}
+            "mag disturbed": "disturbed", "calibrating": "calibrating", "moving": "moving",
+            "still": "still"}
 
 
 class Light(QtWidgets.QWidget):
@@ -108,6 +110,10 @@ def _mag_light(status: FilterStatus, has_data: bool) -> tuple[str, str]:
     numbers = strength + (f"\n{dip}" if dip else "")
     if not status.flags.mag_rejected:
         return "ok", numbers
+    if d.mag_rejected_by == outputs.MAG_UNCALIBRATED:
+        return "calibrating", ("uncalibrated: beyond any Earth field; its offset is being "
+                               "learned while the phone turns (turn it about every axis)\n"
+                               + numbers)
     reason = {outputs.MAG_STRENGTH_GATE: "strength gate fired: |‖m‖ − L| > gate",
               outputs.MAG_DIP_GATE: "dip gate fired: the field's angle to up is off",
               outputs.MAG_SETTLING: "settling: readings pass the gates again, but not yet for "

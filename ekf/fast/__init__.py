@@ -47,6 +47,13 @@ ekf.fast                                    ekf.reference
 ``measurements._finish_reference``          ``_finish_reference``
 ``measurements._fit_hard_iron``             ``_fit_hard_iron``
 ``measurements._open_pair``                 ``_open_pair``
+``measurements._acquisition_progress``      ``_acquisition_progress``
+``measurements._known_everywhere``          its smallest-eigenvalue test (the principal
+                                            minors of M − ACQUIRED_INFO·I, not eigvalsh)
+``measurements._inverse_plus``              (M + d·I)⁻¹ of ``_fit_hard_iron`` and
+                                            ``_acquisition_progress`` (by the adjugate)
+``measurements._check_uncalibrated``        ``_check_uncalibrated``
+``measurements._offset_acquired``           ``_offset_acquired``
 ``measurements._turn_rate``                 ``_turn_rate``
 ``measurements._track_new_field``           ``_track_new_field``
 ``measurements._track_new_field_world``     ``_track_new_field_world``

@@ -14,6 +14,7 @@ from ekf.fast.algebra import _measurement_update_q, _normalise, _to_matrix
 from ekf.fast.layout import C, S
 from ekf.outputs import (ACC_NIS_GATE, ACC_NORM_GATE, MAG_DIP_GATE, MAG_NIS_GATE, MAG_SETTLING,
                          MAG_STRENGTH_GATE, NOT_REJECTED)
+from ekf.reference_field import ACQUIRED_INFO, ACQUIRING_PRIOR, EARTH_FIELD_MAX
 
 _INF = math.inf
 _NAN = math.nan
@@ -74,6 +75,9 @@ def _fit_hard_iron(s, c, t, y0, y1, y2):
         s[S.mag_offset_outliers] += 1.0
     else:
         s[S.mag_offset_outliers] = 0.0
+    if s[S.mag_acquiring] != 0.0:
+        w = 1.0                          # large residuals: the offset is far, not new
+        s[S.mag_offset_outliers] = 0.0
     if s[S.mag_offset_outliers] >= _RESET_COUNT:
         forget = 0.0
         w = 1.0
@@ -88,29 +92,113 @@ def _fit_hard_iron(s, c, t, y0, y1, y2):
         dte = s[D + r] * s[e] + s[D + 3 + r] * s[e + 1] + s[D + 6 + r] * s[e + 2]
         s[V + r] = forget * s[V + r] + w * dte
     s[S.mag_offset_t] = t
-    # b = (M + prior I)^-1 v by the adjugate (M symmetric positive semi-definite)
-    prior = c[C.mag_hard_iron_prior]
-    a00 = s[M] + prior
+    # b = (M + prior I)^-1 (v + prior b_prior) (M symmetric positive semi-definite)
+    prior = ACQUIRING_PRIOR if s[S.mag_acquiring] != 0.0 else c[C.mag_hard_iron_prior]
+    c00, c01, c02, c11, c12, c22, inv_det = _inverse_plus(s, prior)
+    v0 = s[V] + prior * s[S.mag_offset_prior]
+    v1 = s[V + 1] + prior * s[S.mag_offset_prior + 1]
+    v2 = s[V + 2] + prior * s[S.mag_offset_prior + 2]
+    s[B] = (c00 * v0 + c01 * v1 + c02 * v2) * inv_det
+    s[B + 1] = (c01 * v0 + c11 * v1 + c12 * v2) * inv_det
+    s[B + 2] = (c02 * v0 + c12 * v1 + c22 * v2) * inv_det
+    _acquisition_progress(s, y0, y1, y2)
+    s[S.mag_offset_norm] = math.sqrt(s[B] ** 2 + s[B + 1] ** 2 + s[B + 2] ** 2)
+    _open_pair(s, t, y0, y1, y2)
+
+
+@jit
+def _inverse_plus(s, d):
+    """(M + d I)^-1 of the fit's normal matrix M by the adjugate: its upper triangle c00, c01,
+    c02, c11, c12, c22 (to be multiplied by) 1 / det."""
+    M = S.mag_offset_info
+    a00 = s[M] + d
     a01 = s[M + 1]
     a02 = s[M + 2]
-    a11 = s[M + 4] + prior
+    a11 = s[M + 4] + d
     a12 = s[M + 5]
-    a22 = s[M + 8] + prior
+    a22 = s[M + 8] + d
     c00 = a11 * a22 - a12 * a12
     c01 = a02 * a12 - a01 * a22
     c02 = a01 * a12 - a02 * a11
     c11 = a00 * a22 - a02 * a02
     c12 = a01 * a02 - a00 * a12
     c22 = a00 * a11 - a01 * a01
-    inv_det = 1.0 / (a00 * c00 + a01 * c01 + a02 * c02)
-    v0 = s[V]
-    v1 = s[V + 1]
-    v2 = s[V + 2]
-    s[B] = (c00 * v0 + c01 * v1 + c02 * v2) * inv_det
-    s[B + 1] = (c01 * v0 + c11 * v1 + c12 * v2) * inv_det
-    s[B + 2] = (c02 * v0 + c12 * v1 + c22 * v2) * inv_det
-    s[S.mag_offset_norm] = math.sqrt(s[B] ** 2 + s[B + 1] ** 2 + s[B + 2] ** 2)
-    _open_pair(s, t, y0, y1, y2)
+    return c00, c01, c02, c11, c12, c22, 1.0 / (a00 * c00 + a01 * c01 + a02 * c02)
+
+
+@jit
+def _known_everywhere(s):
+    """The normal matrix's smallest eigenvalue >= ACQUIRED_INFO: M - ACQUIRED_INFO I positive
+    semi-definite, i.e. every principal minor of it >= 0."""
+    M = S.mag_offset_info
+    a00 = s[M] - ACQUIRED_INFO
+    a01 = s[M + 1]
+    a02 = s[M + 2]
+    a11 = s[M + 4] - ACQUIRED_INFO
+    a12 = s[M + 5]
+    a22 = s[M + 8] - ACQUIRED_INFO
+    if a00 < 0.0 or a11 < 0.0 or a22 < 0.0:
+        return False
+    m01 = a00 * a11 - a01 * a01
+    m02 = a00 * a22 - a02 * a02
+    m12 = a11 * a22 - a12 * a12
+    if m01 < 0.0 or m02 < 0.0 or m12 < 0.0:
+        return False
+    return a00 * m12 - a01 * (a01 * a22 - a12 * a02) + a02 * (a01 * a12 - a11 * a02) >= 0.0
+
+
+@jit
+def _acquisition_progress(s, y0, y1, y2):
+    """reference ``_acquisition_progress``."""
+    B = S.mag_offset
+    if s[S.mag_acquiring] != 0.0 and _known_everywhere(s):
+        s[S.mag_acquiring] = 0.0
+        for i in range(3):
+            s[S.mag_offset_prior + i] = s[B + i]
+    if s[S.mag_waiting] == 0.0:
+        return
+    if math.sqrt((y0 - s[B]) ** 2 + (y1 - s[B + 1]) ** 2 + (y2 - s[B + 2]) ** 2) \
+            > EARTH_FIELD_MAX:
+        return
+    # H M^-1 H^T with H the rows x, y of Q(q): the offset's uncertainty in the horizontal plane
+    c00, c01, c02, c11, c12, c22, inv_det = _inverse_plus(s, ACQUIRING_PRIOR)
+    Q = _to_matrix(s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3])
+    # rows of H times the inverse
+    g0 = (Q[0] * c00 + Q[1] * c01 + Q[2] * c02) * inv_det
+    g1 = (Q[0] * c01 + Q[1] * c11 + Q[2] * c12) * inv_det
+    g2 = (Q[0] * c02 + Q[1] * c12 + Q[2] * c22) * inv_det
+    k0 = (Q[3] * c00 + Q[4] * c01 + Q[5] * c02) * inv_det
+    k1 = (Q[3] * c01 + Q[4] * c11 + Q[5] * c12) * inv_det
+    k2 = (Q[3] * c02 + Q[4] * c12 + Q[5] * c22) * inv_det
+    a = g0 * Q[0] + g1 * Q[1] + g2 * Q[2]
+    b = g0 * Q[3] + g1 * Q[4] + g2 * Q[5]
+    d = k0 * Q[3] + k1 * Q[4] + k2 * Q[5]
+    largest = 0.5 * (a + d) + math.sqrt(0.25 * (a - d) ** 2 + b * b)
+    if largest * ACQUIRED_INFO <= 1.0:
+        _offset_acquired(s)
+
+
+@jit
+def _check_uncalibrated(s, c):
+    """reference ``_check_uncalibrated``."""
+    if (c[C.mag_hard_iron_tau_s] > 0.0 and s[S.mag_waiting] == 0.0
+            and s[S.mag_strength] > EARTH_FIELD_MAX):
+        s[S.mag_acquiring] = 1.0
+        s[S.mag_waiting] = 1.0
+
+
+@jit
+def _offset_acquired(s):
+    """reference ``_offset_acquired``."""
+    s[S.mag_waiting] = 0.0
+    s[S.heading_from_mag] = 0.0
+    s[S.m0_valid] = 0.0
+    s[S.mag_strength] = _NAN
+    s[S.mag_confirmed_time] = 0.0
+    s[S.mag_disturbed_time] = 0.0
+    s[S.mag_disturbed_t] = _NAN
+    s[S.mag_passing_since] = _NAN
+    s[S.mag_rejected_since] = _NAN
 
 
 @jit

@@ -11,10 +11,11 @@ from ekf.fast.algebra import (_acc_mag_quaternion, _add_attitude_cov, _cross, _q
                               _rotate_world_about_up, _set_attitude_cov, _tilt_quaternion,
                               _to_matrix, _zero_rate_update)
 from ekf.fast.layout import C, S
-from ekf.fast.measurements import (_acc_lowpass_update, _acc_update, _fit_hard_iron,
-                                   _heading_error, _mag_update, _set_m0_from, _shaking)
+from ekf.fast.measurements import (_acc_lowpass_update, _acc_update, _check_uncalibrated,
+                                   _fit_hard_iron, _heading_error, _mag_update, _set_m0_from,
+                                   _shaking)
 from ekf.fast.time_update import _advance
-from ekf.outputs import ACC_CLIPPED
+from ekf.outputs import ACC_CLIPPED, MAG_UNCALIBRATED
 
 # bits of _step's `present` mask
 GYR = 1
@@ -289,10 +290,18 @@ def _update_mag(s, c, t, v0, v1, v2):
         if s[S.acc_enabled] == 0.0:
             _initialise(s, c, t)
         return
+    if s[S.mag_waiting] != 0.0 and s[S.used_gyr] != 0.0:
+        # uncalibrated: its offset is being acquired (_check_uncalibrated)
+        s[S.used_mag] = 0.0
+        s[S.mag_rejected] = 1.0
+        s[S.mag_rejected_by] = MAG_UNCALIBRATED
+        s[S.mag_norm] = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        return
     if s[S.heading_from_mag] == 0.0:
         _take_heading_from_mag(s, c, v0, v1, v2)
         return
     _mag_update(s, c, v0, v1, v2, t)
+    _check_uncalibrated(s, c)
 
 
 @jit_inline

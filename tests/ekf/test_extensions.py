@@ -13,7 +13,7 @@ import pytest
 
 import ekf
 from ekf import quaternion as Q
-from ekf.outputs import ACC_NORM_GATE
+from ekf.outputs import ACC_NORM_GATE, MAG_UNCALIBRATED
 from ekf.reference import OrientationEKF
 from ekf.settings import PRESETS
 
@@ -171,6 +171,56 @@ def test_a_magnet_on_the_phone_becomes_a_calibration():
     assert np.linalg.norm(b - offset) < 0.25 * np.linalg.norm(offset)
     assert np.mean(used) > 0.9 and not f.flags.mag_rejected
     assert math.degrees(Q.angle_between(f.quat, q[-1])) < 2.0
+
+
+def _raw_magnetometer_run(settings, offset, duration_s=60.0, hz=100.0):
+    """A phone turning about every axis whose magnetometer is raw (a sensor-frame offset of
+    hundreds of uT from the first reading). Returns (truth, filter, per-row (t, rejected-by,
+    used, error [deg], rejected))."""
+    t = np.arange(0.0, duration_s, 1.0 / hz)
+    rates = np.column_stack([1.2 * np.sin(0.31 * t), -0.8 + np.cos(0.17 * t),
+                             1.5 * np.cos(0.23 * t)])
+    q = np.empty((t.size, 4))
+    q[0] = Q.IDENTITY
+    for k in range(1, t.size):
+        q[k] = Q.normalize(Q.multiply(q[k - 1], Q.from_rotation_vector(rates[k] / hz)))
+    f = OrientationEKF(settings)
+    rows = []
+    for k in range(t.size):
+        R = Q.to_matrix(q[k])
+        f.step(t[k], gyr=rates[k], acc=R.T @ G0, mag=R.T @ M0 + offset)
+        rows.append((t[k], f.diagnostics.mag_rejected_by, f.flags.used_mag,
+                     math.degrees(Q.angle_between(f.quat, q[k])), f.flags.mag_rejected))
+    return q, f, rows
+
+
+def test_an_uncalibrated_magnetometer_is_calibrated_while_the_phone_turns():
+    """A raw magnetometer (400 uT of hard iron: a field no place on Earth has) is not used
+    while its offset is acquired from the turns; then the heading is taken from the corrected
+    readings and follows them. Without the online fit the estimate is 13 deg off by the end."""
+    offset = np.array([60.0, -55.0, 400.0])
+    q, f, rows = _raw_magnetometer_run(PRESETS["default"], offset)
+    waiting = [r for r in rows if r[1] == MAG_UNCALIBRATED]
+    assert waiting and not any(r[2] for r in waiting)          # never used while acquired
+    end = max(r[0] for r in waiting)
+    assert 0.0 < end < 20.0                                    # it does end, while turning
+    b = f.snapshot()["state"]["mag_offset"]
+    assert np.linalg.norm(b - offset) < 3.0
+    late = [r for r in rows if r[0] > 40.0]
+    assert np.mean([not r[4] for r in late]) > 0.9             # the magnetometer is back
+    assert any(r[2] for r in late)
+    assert max(r[3] for r in late) < 2.0
+    assert f.snapshot()["state"]["mag_strength"] == pytest.approx(np.linalg.norm(M0), rel=0.05)
+    _, without, rows_without = _raw_magnetometer_run(
+        PRESETS["default"].with_changes(mag_hard_iron_tau_s=0.0), offset)
+    assert max(r[3] for r in rows_without if r[0] > 40.0) > 10.0
+
+
+def test_an_earth_field_never_starts_an_acquisition():
+    """A calibrated magnetometer (45 uT, turning the same way) is never taken for a raw one."""
+    _, f, rows = _raw_magnetometer_run(PRESETS["default"], np.zeros(3), duration_s=20.0)
+    assert not any(r[1] == MAG_UNCALIBRATED for r in rows)
+    assert not f.snapshot()["state"]["mag_acquiring"]
 
 
 def test_a_changed_field_is_relearned_in_the_world_frame_while_turning():

@@ -476,3 +476,16 @@ def test_a_silent_magnetometer_matches_reference():
 
 def _angle_deg(p, q) -> float:
     return math.degrees(float(quat.angle_between(p, q)))
+
+
+def test_an_uncalibrated_magnetometer_matches_reference():
+    """A raw magnetometer (an offset of hundreds of uT from the start): the acquisition of the
+    offset (the magnetometer waiting, the unweighted fit, the hand-over), compiled and readable
+    row by row; and it really ran (the last readings are used, the offset found)."""
+    t, gyr, acc, mag = synthetic(seed=6, duration_s=12.0)
+    mag = mag + np.array([60.0, -55.0, 400.0])
+    s = PRESETS["default"].with_changes(update_period_s=0.0)
+    ref, fast, _ = _run_both(s, t, gyr, acc, mag)
+    offset = fast.snapshot()["state"]["mag_offset"]
+    assert np.linalg.norm(offset - [60.0, -55.0, 400.0]) < 20.0
+    assert not fast.snapshot()["state"]["mag_waiting"]

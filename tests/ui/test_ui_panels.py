@@ -45,6 +45,10 @@ def test_lights_say_off_ok_or_disturbed_with_the_gate_that_fired():
     assert states["mag"][1].startswith("dip gate fired") and "reference 58.0°" in states["mag"][1]
     status.diagnostics.mag_rejected_by = outputs.MAG_SETTLING
     assert light_states(status)["mag"][1].startswith("settling")
+    # a raw magnetometer whose offset is being acquired is not "disturbed"
+    status.diagnostics.mag_rejected_by = outputs.MAG_UNCALIBRATED
+    state, reason = light_states(status)["mag"]
+    assert state == "calibrating" and reason.startswith("uncalibrated") and "µT" in reason
 
     status.flags.at_rest = True
     status.sensors_enabled = {"gyr": True, "acc": False, "mag": False}
@@ -59,7 +63,7 @@ def test_no_data_is_grey_and_disturbed_is_never_green():
     states = light_states(FilterStatus(), has_data=False)
     assert {state for state, _ in states.values()} == {"no data"}
     green = STATE_COLORS["ok"]
-    for state in ("acc disturbed", "mag disturbed", "off", "no data"):
+    for state in ("acc disturbed", "mag disturbed", "calibrating", "off", "no data"):
         color = STATE_COLORS[state]
         assert not (color.green() > 1.5 * color.red() and color.green() > 1.5 * color.blue()), \
             state
