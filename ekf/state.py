@@ -285,7 +285,9 @@ def upgrade_state(cls: type, state: Any) -> Any:
     checkpoint). EKFState's mag_disturbed_since (the time the disturbance began; NaN: none)
     became the counted mag_disturbed_time with the times of the latest readings; a state saved
     before mag_confirmed_time existed counts a field it had learned as confirmed (it filtered
-    with that field before). Anything else is returned as it is (and checked as usual)."""
+    with that field before); one saved before the raw magnetometer's acquisition existed was
+    not acquiring (offset drawn to 0). Anything else is returned as it is (and checked as
+    usual)."""
     if cls is not EKFState or not isinstance(state, Mapping):
         return state
     out = dict(state)
@@ -297,6 +299,10 @@ def upgrade_state(cls: type, state: Any) -> Any:
         out.setdefault("mag_passed_t", math.nan)
     if "mag_confirmed_time" not in out and "m0_valid" in out:
         out["mag_confirmed_time"] = math.inf if bool(out["m0_valid"]) else 0.0
+    if "mag_offset" in out and "mag_waiting" not in out:
+        out.setdefault("mag_offset_prior", np.zeros(3))
+        out.setdefault("mag_acquiring", False)
+        out["mag_waiting"] = False
     return out
 
 

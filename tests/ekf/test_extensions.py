@@ -366,6 +366,23 @@ def test_a_snapshot_from_before_the_confirmed_field_restores():
     np.testing.assert_array_equal(g.quat, f.quat)
 
 
+def test_a_snapshot_from_before_the_acquisition_restores():
+    """A state saved before the raw magnetometer's acquisition existed restores as one that is
+    not acquiring, its fit drawn to 0 as it was."""
+    f = OrientationEKF(PRESETS["default"])
+    for k in range(50):
+        f.step(k * 0.01, gyr=[0, 0, 0], acc=G0, mag=M0)
+    snap = f.snapshot()
+    state = {k: v for k, v in snap["state"].items()
+             if k not in ("mag_offset_prior", "mag_acquiring", "mag_waiting")}
+    g = OrientationEKF(PRESETS["default"])
+    g.restore({**snap, "state": state})
+    restored = g.snapshot()["state"]
+    assert not restored["mag_waiting"] and not restored["mag_acquiring"]
+    np.testing.assert_array_equal(restored["mag_offset_prior"], np.zeros(3))
+    np.testing.assert_array_equal(g.quat, f.quat)
+
+
 def test_dip_from_the_estimate_ignores_accelerations():
     s = PRESETS["default"].with_changes(update_period_s=0.0)
     ref = math.degrees(math.acos(M0[2] / np.linalg.norm(M0)))
