@@ -32,7 +32,10 @@ the filter whose offset, subtracted from every reading, changes along the record
 backward pass cannot smooth it, and carries the late readings' heading (made with a later
 offset) back to rows filtered with an earlier one. With ``smooth_hard_iron`` false (the default
 preset, chosen by ``benchmarks/tune_defaults.py --smoother``) the forward pass runs without the
-fit; the lights are still those of the filter as set.
+fit; the lights are still those of the filter as set. A raw magnetometer (hundreds of uT of hard
+iron, whose offset the filter acquires: ``ekf.reference_field._check_uncalibrated``) would leave
+that pass without a heading: there the offset the filter as set found by the recording's end is
+subtracted from every reading first, as an offline calibration.
 
 The forward pass also runs without ``mag_bias_innovation_limit`` (always: it is no choice of the
 smoother's). That limit keeps a live filter from reading a heading far off as a gyroscope bias,
@@ -238,6 +241,19 @@ def smooth_batch(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
     if settings.mag_bias_innovation_limit != math.inf:
         changes["mag_bias_innovation_limit"] = math.inf
     forward = settings.with_changes(**changes) if changes else settings
+    flags = None
+    if forward is not settings and t.shape[0]:
+        # the lights of the filter as set, not of the smoother's forward pass
+        as_set = FastEKF(settings, sensors)
+        r = as_set.run_batch(t, g, a, m)
+        flags = (r.acc_rejected, r.mag_rejected, r.at_rest)
+        state = as_set.snapshot()["state"]
+        if "mag_hard_iron_tau_s" in changes and (state["mag_acquiring"] or state["mag_waiting"]
+                                                 or np.any(state["mag_offset_prior"] != 0.0)):
+            # a raw magnetometer (its offset acquired, ekf.reference_field): without the fit
+            # the forward pass would have no heading; the offset the filter found over the
+            # whole recording is subtracted instead, a calibration as calibrate-mag's
+            m = m - np.asarray(state["mag_offset"], float)
     est = FastEKF(forward, sensors)
     cfg = est._cfg.copy()
     cfg[C.record_prediction] = 1.0
@@ -256,15 +272,9 @@ def smooth_batch(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
         _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m_err, x_s)
     bias = x_s[:, 4:7] if est.settings.estimate_gyro_bias else np.tile(
         np.asarray(est.settings.gyr_bias, float), (n, 1))
-    if forward is not settings and n:
-        # the lights of the filter as set, not of the smoother's forward pass
-        out_flags[:, 0], out_flags[:, 1], out_flags[:, 2] = _flags_of(settings, sensors, t, g,
-                                                                      a, m)
+    if flags is not None:
+        out_flags[:, 0], out_flags[:, 1], out_flags[:, 2] = flags
     return BatchResult(t, x_s[:, :4].copy(), out_flags[:, 0].copy(), out_flags[:, 1].copy(),
                        out_flags[:, 2].copy(), gyro_bias=bias)
 
 
-def _flags_of(settings: EKFSettings, sensors, t, g, a, m):
-    from ekf.fast.filter import FastEKF
-    r = FastEKF(settings, sensors).run_batch(t, g, a, m)
-    return r.acc_rejected, r.mag_rejected, r.at_rest
