@@ -6,6 +6,8 @@ Recordings (``benchmarks/datasets.py``):
 * the Nexus 5 recordings (``../shared/data/tyrex``): optical truth from ``NAME.truth.txt``,
   scored over ``NAME.json``'s intervals; the phone's own estimate (the log's ORI) is a row of
   its own; means for the undisturbed and the magnetically disturbed ones;
+* the three Nexus 5 logs with a raw magnetometer (``NAME.uncalibrated.txt``, about 410 uT of
+  hard iron), scored like their calibrated twins (``datasets.load_tyrex_raw``);
 * the real phone logs that carry ORI (``../shared/data/realphone``): scored against the
   phone's own estimate after the first 3 s (no truth there).
 
@@ -114,15 +116,17 @@ GROUPS = {
     "nexus5 undisturbed": lambda r: r.kind == "tyrex" and not r.disturbed,
     "nexus5 disturbed": lambda r: r.kind == "tyrex" and r.disturbed,
     "nexus5 all": lambda r: r.kind == "tyrex",
+    "nexus5 raw magnetometer": lambda r: r.kind == "tyrex-raw",
     "phone logs (vs ORI)": lambda r: r.kind == "phone",
 }
 
 
 def _recordings(quick: bool) -> list[Recording]:
+    kinds = ("broad", "tyrex", "tyrex-raw", "phone")
     if not quick:
-        return load_all()
-    return load_all(only=["01_undisturbed", "06_undisturbed", "NoDist_Texting",
-                          "tsrt14_lab2_rotation"])
+        return load_all(kinds)
+    return load_all(kinds, only=["01_undisturbed", "06_undisturbed", "NoDist_Texting",
+                                 "tsrt14_lab2_rotation"])
 
 
 def _table(results, names, recs, col: int, metric: str) -> None:
@@ -155,7 +159,8 @@ def _ratio(results, recs, a: str, b: str) -> str:
 
 def _summary(results, recs) -> None:
     print("\nsummary (mean total RMSE, same run):")
-    for group in ("broad", "nexus5 undisturbed", "nexus5 disturbed", "nexus5 all"):
+    for group in ("broad", "nexus5 undisturbed", "nexus5 disturbed", "nexus5 all",
+                  "nexus5 raw magnetometer"):
         chosen = [r for r in recs if GROUPS[group](r)]
         if not chosen:
             continue

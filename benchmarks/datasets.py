@@ -124,6 +124,22 @@ def load_tyrex(path: Path) -> Recording:
                      t, g, a, m, rt, rq, intervals_mask(rt, meta["score_intervals_ms"]), pt, pq)
 
 
+def load_tyrex_raw(path: Path) -> Recording:
+    """A ``NAME.uncalibrated.txt`` Nexus 5 log (raw gyroscope and magnetometer: hundreds of uT
+    of hard iron), scored like ``NAME.txt`` against ``NAME.truth.txt`` over ``NAME.json``'s
+    intervals. Kind "tyrex-raw": never among the recordings that choose the defaults."""
+    t, g, a, m, pt, pq = _rows(path)
+    name = path.name[: -len(".uncalibrated.txt")]
+    truth = read_log(path.with_name(name + ".truth.txt")).to_arrays()
+    has = ~np.isnan(truth.ori).any(axis=1)
+    rt, rq = truth.t_ms[has].astype(float), truth.ori[has]
+    meta = json.loads(path.with_name(name + ".json").read_text())
+    motion = meta.get("motion", name.split("_")[-1]).lower()
+    return Recording(name + "+raw", "tyrex-raw", "tyrex-raw-" + motion,
+                     bool(meta.get("magnetic_disturbance")), t, g, a, m, rt, rq,
+                     intervals_mask(rt, meta["score_intervals_ms"]), pt, pq)
+
+
 def load_phone(path: Path) -> Recording:
     t, g, a, m, ot, oq = _rows(path)
     return Recording(path.stem, "phone", "phone", "disturbance" in path.stem, t, g, a, m, ot, oq,
@@ -140,6 +156,10 @@ def tyrex_paths() -> list[Path]:
                   if not p.name.endswith((".truth.txt", ".uncalibrated.txt")))
 
 
+def tyrex_raw_paths() -> list[Path]:
+    return sorted((SHARED / "tyrex").glob("*.uncalibrated.txt"))
+
+
 def phone_paths() -> list[Path]:
     out = []
     for p in sorted((SHARED / "realphone").glob("*.txt")):
@@ -153,11 +173,11 @@ def load_all(kinds: tuple[str, ...] = ("broad", "tyrex", "phone"),
              only: list[str] | None = None) -> list[Recording]:
     """Every shared recording of the given kinds (names containing one of `only`, if given)."""
     loaders = {"broad": (broad_paths, load_broad), "tyrex": (tyrex_paths, load_tyrex),
-               "phone": (phone_paths, load_phone)}
+               "tyrex-raw": (tyrex_raw_paths, load_tyrex_raw), "phone": (phone_paths, load_phone)}
     out = []
     for kind in kinds:
         paths, load = loaders[kind]
-        if not (SHARED / {"phone": "realphone"}.get(kind, kind)).is_dir():
+        if not (SHARED / {"phone": "realphone", "tyrex-raw": "tyrex"}.get(kind, kind)).is_dir():
             continue
         for p in paths():
             if only and not any(o in p.stem for o in only):
