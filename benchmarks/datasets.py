@@ -112,32 +112,25 @@ def load_broad(path: Path) -> Recording:
     return Recording(name, "broad", group, disturbed, t, g, a, m, ot, oq, intervals_mask(ot, iv))
 
 
-def load_tyrex(path: Path) -> Recording:
+def load_tyrex(path: Path, kind: str = "tyrex") -> Recording:
+    """A Nexus 5 log ``NAME.txt`` scored against ``NAME.truth.txt`` over ``NAME.json``'s
+    intervals; with kind "tyrex-raw", ``path`` is its ``NAME.uncalibrated.txt`` twin (raw
+    gyroscope and magnetometer: hundreds of uT of hard iron), scored the same way and never
+    among the recordings that choose the defaults."""
     t, g, a, m, pt, pq = _rows(path)
-    name = path.stem
-    truth = read_log(path.with_name(name + ".truth.txt")).to_arrays()
-    has = ~np.isnan(truth.ori).any(axis=1)
-    rt, rq = truth.t_ms[has].astype(float), truth.ori[has]
-    meta = json.loads(path.with_suffix(".json").read_text())
-    motion = meta.get("motion", name.split("_")[-1]).lower()
-    return Recording(name, "tyrex", "tyrex-" + motion, bool(meta.get("magnetic_disturbance")),
-                     t, g, a, m, rt, rq, intervals_mask(rt, meta["score_intervals_ms"]), pt, pq)
-
-
-def load_tyrex_raw(path: Path) -> Recording:
-    """A ``NAME.uncalibrated.txt`` Nexus 5 log (raw gyroscope and magnetometer: hundreds of uT
-    of hard iron), scored like ``NAME.txt`` against ``NAME.truth.txt`` over ``NAME.json``'s
-    intervals. Kind "tyrex-raw": never among the recordings that choose the defaults."""
-    t, g, a, m, pt, pq = _rows(path)
-    name = path.name[: -len(".uncalibrated.txt")]
+    name = path.name[: -len(".uncalibrated.txt")] if kind == "tyrex-raw" else path.stem
     truth = read_log(path.with_name(name + ".truth.txt")).to_arrays()
     has = ~np.isnan(truth.ori).any(axis=1)
     rt, rq = truth.t_ms[has].astype(float), truth.ori[has]
     meta = json.loads(path.with_name(name + ".json").read_text())
     motion = meta.get("motion", name.split("_")[-1]).lower()
-    return Recording(name + "+raw", "tyrex-raw", "tyrex-raw-" + motion,
-                     bool(meta.get("magnetic_disturbance")), t, g, a, m, rt, rq,
-                     intervals_mask(rt, meta["score_intervals_ms"]), pt, pq)
+    label = name + "+raw" if kind == "tyrex-raw" else name
+    return Recording(label, kind, kind + "-" + motion, bool(meta.get("magnetic_disturbance")),
+                     t, g, a, m, rt, rq, intervals_mask(rt, meta["score_intervals_ms"]), pt, pq)
+
+
+def load_tyrex_raw(path: Path) -> Recording:
+    return load_tyrex(path, "tyrex-raw")
 
 
 def load_phone(path: Path) -> Recording:
