@@ -1,0 +1,34 @@
+"""benchmarks/tune_defaults.py: what a search returns (--top K) is the centre of its K best
+trials, geometric on a log-scale range, and the single best trial for K = 1."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+from tune_defaults import centre_of_best  # noqa: E402
+
+SPACE = {"a_log": (0.1, 10.0, True, 0.1), "b_lin": (0.0, 4.0, False, 1.0)}
+DONE = [(0.9, {"a_log": 1.0, "b_lin": 1.0}),
+        (0.5, {"a_log": 4.0, "b_lin": 3.0}),      # best
+        (0.6, {"a_log": 1.0, "b_lin": 1.0}),      # second
+        (2.0, {"a_log": 9.0, "b_lin": 4.0})]
+
+
+def test_one_is_the_best_trial():
+    assert centre_of_best(DONE, 1, SPACE) == {"a_log": 4.0, "b_lin": 3.0}
+
+
+def test_the_centre_of_the_best_is_geometric_on_a_log_scale():
+    picked = centre_of_best(DONE, 2, SPACE)
+    assert picked["a_log"] == pytest.approx(2.0)      # sqrt(4 * 1), not the mean 2.5
+    assert picked["b_lin"] == pytest.approx(2.0)      # (3 + 1) / 2
+
+
+def test_more_than_there_are_takes_them_all_and_the_worst_counts_last():
+    assert centre_of_best(DONE, 10, SPACE)["b_lin"] == pytest.approx(9.0 / 4.0)
+    assert centre_of_best(DONE, 3, SPACE)["b_lin"] == pytest.approx(5.0 / 3.0)
