@@ -63,6 +63,7 @@ class MagneticField:
         |e - D b|); b = (M + mag_hard_iron_prior I)^-1 v. Residuals that stay large
         (HARD_IRON_RESET_*) mean a new offset: the sums start again."""
         s, st = self.settings, self._state
+        y = self._turned_to_stamp(y)
         if math.isnan(st.mag_pair_t) or t - st.mag_pair_t > HARD_IRON_PAIR_MAX_S:
             self._open_pair(t, y)
             return
@@ -91,6 +92,23 @@ class MagneticField:
         self._acquisition_progress(y)
         st.diagnostics.mag_offset_norm = float(np.linalg.norm(st.mag_offset))
         self._open_pair(t, y)
+
+    def _turned_to_stamp(self, y: np.ndarray) -> np.ndarray:
+        """mag_delay_s: the reading was taken that long before its stamp; the field (y - b, b
+        the offset so far) is turned on by the gyroscope's latest rate to the stamp: a field
+        fixed in the world, seen from a body turning at w, turns by -w dt. Not while the offset
+        is acquired (b is far from known) or without a gyroscope."""
+        s, st = self.settings, self._state
+        if not (s.mag_delay_s > 0.0 and st.omega_valid and st.gyr_enabled) or (
+                st.mag_acquiring or st.mag_waiting):
+            return y
+        bias = self._x[4:7] if st.n == 7 else np.asarray(s.gyr_bias, float)
+        w = st.omega - bias
+        rate = float(np.linalg.norm(w))
+        if rate == 0.0:
+            return y
+        R = quat.to_matrix(quat.from_axis_angle(w / rate, -rate * s.mag_delay_s))
+        return st.mag_offset + R @ (y - st.mag_offset)
 
     def _check_uncalibrated(self) -> None:
         """The expected field, learned, is beyond any Earth field (EARTH_FIELD_MAX): the

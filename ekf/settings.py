@@ -154,6 +154,12 @@ class EKFSettings:
         doc="weight of the prior b_m = 0 in that fit, in pairs of a full turn's worth: small "
             "offsets (a field that is not quite uniform) stay near zero, a magnet's hundreds of "
             "µT do not")
+    mag_delay_s: float = _setting(
+        0.0, unit="s",
+        doc="the magnetometer's readings are this much older than their time stamps (its own "
+            "filtering and delivery): that fit turns each reading on to its stamp by the "
+            "gyroscope, y ← b + R(−(ω − b_ω)·this)(y − b), so that a pair's turn is the turn "
+            "between its readings (the heading update is not turned); 0: off")
     mag_noise_adapt: float = _setting(
         0.0, unit="-",
         doc="R_m grows where the field is uneven: R_m (1 + this · d²/L_k²), d² the low-pass "
@@ -349,7 +355,8 @@ COURSE = EKFSettings()
 #   the phone turns faster than 20 deg/s (5 s, turning or not, while the learned field is young:
 #   VQF's magNewFirstTime, confirmed by `--augment 1 --grid`); the bias learns from at most
 #   1.5 sigma of a heading innovation (`--grid`, the middle of the 1-3 plateau); the
-#   sensor-frame offset (a magnet on the phone) fitted online over 4 minutes;
+#   sensor-frame offset (a magnet on the phone) fitted online over 4 minutes, each reading
+#   turned on by the gyroscope to its stamp (30 ms late: every fold of `--grid` chose it);
 # - the slow updates (low-passed accelerometer, magnetometer, zero rate) at most every 50 ms;
 # - the offline smoother runs its forward pass without the online hard-iron fit (chosen by
 #   `tune_defaults.py --smoother`, leave one group out).
@@ -387,6 +394,7 @@ DEFAULT = EKFSettings(
     mag_bias_innovation_limit=1.5,
     mag_hard_iron_tau_s=240.0,
     mag_hard_iron_prior=0.4,
+    mag_delay_s=0.03,
     update_period_s=0.05,
     smooth_hard_iron=False,
 )

@@ -42,6 +42,7 @@ def _fit_hard_iron(s, c, t, y0, y1, y2):
     """reference ``_fit_hard_iron``: pairs of readings turned >= 20 deg apart (the turn
     integrated from the gyroscope, mag_pair_q), D b = e with D = I - A, e = y_j - A y_i,
     A = Q(turn)^T; weighted sums with forgetting; b solved."""
+    y0, y1, y2 = _turned_to_stamp(s, c, y0, y1, y2)
     if math.isnan(s[S.mag_pair_t]) or t - s[S.mag_pair_t] > _PAIR_MAX_S:
         _open_pair(s, t, y0, y1, y2)
         return
@@ -104,6 +105,43 @@ def _fit_hard_iron(s, c, t, y0, y1, y2):
     _acquisition_progress(s, y0, y1, y2)
     s[S.mag_offset_norm] = math.sqrt(s[B] ** 2 + s[B + 1] ** 2 + s[B + 2] ** 2)
     _open_pair(s, t, y0, y1, y2)
+
+
+@jit_inline
+def _turned_to_stamp(s, c, y0, y1, y2):
+    """reference ``_turned_to_stamp``: y <- b + R(-(w - b_w) mag_delay_s) (y - b) (Rodrigues),
+    not while the offset is acquired or without a gyroscope."""
+    delay = c[C.mag_delay_s]
+    if (not delay > 0.0 or s[S.omega_valid] == 0.0 or s[S.gyr_enabled] == 0.0
+            or s[S.mag_acquiring] != 0.0 or s[S.mag_waiting] != 0.0):
+        return y0, y1, y2
+    if int(s[S.n]) == 7:
+        w0 = s[S.omega] - s[S.x + 4]
+        w1 = s[S.omega + 1] - s[S.x + 5]
+        w2 = s[S.omega + 2] - s[S.x + 6]
+    else:
+        w0 = s[S.omega] - c[C.gyr_bias]
+        w1 = s[S.omega + 1] - c[C.gyr_bias + 1]
+        w2 = s[S.omega + 2] - c[C.gyr_bias + 2]
+    rate = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    if rate == 0.0:
+        return y0, y1, y2
+    k0 = w0 / rate
+    k1 = w1 / rate
+    k2 = w2 / rate
+    angle = -rate * delay
+    ca = math.cos(angle)
+    sa = math.sin(angle)
+    b0 = s[S.mag_offset]
+    b1 = s[S.mag_offset + 1]
+    b2 = s[S.mag_offset + 2]
+    x0 = y0 - b0
+    x1 = y1 - b1
+    x2 = y2 - b2
+    kx = (k0 * x0 + k1 * x1 + k2 * x2) * (1.0 - ca)
+    return (b0 + x0 * ca + (k1 * x2 - k2 * x1) * sa + k0 * kx,
+            b1 + x1 * ca + (k2 * x0 - k0 * x2) * sa + k1 * kx,
+            b2 + x2 * ca + (k0 * x1 - k1 * x0) * sa + k2 * kx)
 
 
 @jit

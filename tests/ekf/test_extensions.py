@@ -173,6 +173,31 @@ def test_a_magnet_on_the_phone_becomes_a_calibration():
     assert math.degrees(Q.angle_between(f.quat, q[-1])) < 2.0
 
 
+def test_a_late_magnetometer_reading_is_turned_on_to_its_stamp_for_the_fit():
+    """mag_delay_s: a reading taken 30 ms before its stamp, while the phone turns at 3 rad/s,
+    is the field turned 5 deg back (2.7 deg of it across the field); the fit gets it turned on
+    by the gyroscope to the stamp (exact at a constant rate), the offset (a magnet on the
+    phone) untouched; with the setting 0 the reading is as it came."""
+    rate = np.array([1.0, -2.0, 2.0])       # 3 rad/s
+    hz, delay = 200.0, 0.03
+    t, q = _turning(rate, 1.0, hz)
+    offset = np.array([12.0, -5.0, 3.0])
+    for d, expect_turned in ((delay, True), (0.0, False)):
+        f = OrientationEKF(PRESETS["default"].with_changes(mag_delay_s=d,
+                                                           initial_gyro_bias_std=1e-9))
+        for k in range(t.size):
+            f.step(t[k], gyr=rate, acc=Q.to_matrix(q[k]).T @ G0)
+        f._state.mag_offset[:] = offset
+        late = Q.to_matrix(Q.multiply(q[-1], Q.from_rotation_vector(-rate * delay))).T @ M0
+        now = Q.to_matrix(q[-1]).T @ M0
+        turned = f._turned_to_stamp(late + offset)
+        assert np.degrees(np.arccos(np.dot(late, now) / np.dot(now, now))) > 2.0   # 2.7 deg
+        if expect_turned:
+            np.testing.assert_allclose(turned, now + offset, atol=0.05)
+        else:
+            np.testing.assert_array_equal(turned, late + offset)
+
+
 def _raw_magnetometer_run(settings, offset, duration_s=60.0, hz=100.0):
     """A phone turning about every axis whose magnetometer is raw (a sensor-frame offset of
     hundreds of uT from the first reading). Returns (truth, filter, per-row (t, rejected-by,
