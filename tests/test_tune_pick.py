@@ -29,6 +29,6 @@ def test_the_centre_of_the_best_is_geometric_on_a_log_scale():
     assert picked["b_lin"] == pytest.approx(2.0)      # (3 + 1) / 2
 
 
-def test_more_than_there_are_takes_them_all_and_the_worst_counts_last():
+def test_k_takes_the_k_lowest_objectives_or_all_there_are():
     assert centre_of_best(DONE, 10, SPACE)["b_lin"] == pytest.approx(9.0 / 4.0)
     assert centre_of_best(DONE, 3, SPACE)["b_lin"] == pytest.approx(5.0 / 3.0)
