@@ -102,8 +102,7 @@ class MagneticField:
         if not (s.mag_delay_s > 0.0 and st.omega_valid and st.gyr_enabled) or (
                 st.mag_acquiring or st.mag_waiting):
             return y
-        bias = self._x[4:7] if st.n == 7 else np.asarray(s.gyr_bias, float)
-        w = st.omega - bias
+        w = self._unbiased_rate()
         rate = float(np.linalg.norm(w))
         if rate == 0.0:
             return y
@@ -296,8 +295,14 @@ class MagneticField:
         st = self._state
         if not (st.omega_valid and st.gyr_enabled):
             return 0.0
+        return float(np.linalg.norm(self._unbiased_rate()))
+
+    def _unbiased_rate(self) -> np.ndarray:
+        """ω − b of the latest gyroscope sample (b the estimate, or the setting gyr_bias
+        without the bias in the state)."""
+        st = self._state
         bias = self._x[4:7] if st.n == 7 else np.asarray(self.settings.gyr_bias, float)
-        return float(np.linalg.norm(st.omega - bias))
+        return st.omega - bias
 
     def _set_m0_from(self, y: np.ndarray) -> None:
         """m0 = (0, sqrt(mx^2 + my^2), mz) of the reading expressed in the (level) world frame."""

@@ -56,6 +56,7 @@ ekf.fast                                    ekf.reference
 ``measurements._check_uncalibrated``        ``_check_uncalibrated``
 ``measurements._offset_acquired``           ``_offset_acquired``
 ``measurements._turn_rate``                 ``_turn_rate``
+``measurements._unbiased_rate``             ``_unbiased_rate``
 ``measurements._track_new_field``           ``_track_new_field``
 ``measurements._track_new_field_world``     ``_track_new_field_world``
 ``measurements._mag_heading_update``        ``_mag_heading_update``

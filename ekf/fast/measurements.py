@@ -115,14 +115,7 @@ def _turned_to_stamp(s, c, y0, y1, y2):
     if (not delay > 0.0 or s[S.omega_valid] == 0.0 or s[S.gyr_enabled] == 0.0
             or s[S.mag_acquiring] != 0.0 or s[S.mag_waiting] != 0.0):
         return y0, y1, y2
-    if int(s[S.n]) == 7:
-        w0 = s[S.omega] - s[S.x + 4]
-        w1 = s[S.omega + 1] - s[S.x + 5]
-        w2 = s[S.omega + 2] - s[S.x + 6]
-    else:
-        w0 = s[S.omega] - c[C.gyr_bias]
-        w1 = s[S.omega + 1] - c[C.gyr_bias + 1]
-        w2 = s[S.omega + 2] - c[C.gyr_bias + 2]
+    w0, w1, w2 = _unbiased_rate(s, c)
     rate = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
     if rate == 0.0:
         return y0, y1, y2
@@ -560,19 +553,23 @@ def _dip_deg(s, c, y0, y1, y2):
     return math.degrees(math.acos(max(-1.0, min(1.0, cv))))
 
 
+@jit_inline
+def _unbiased_rate(s, c):
+    """reference ``_unbiased_rate``: w - b of the latest gyroscope sample (b the estimate, or
+    the setting gyr_bias without the bias in the state)."""
+    if int(s[S.n]) == 7:
+        return (s[S.omega] - s[S.x + 4], s[S.omega + 1] - s[S.x + 5],
+                s[S.omega + 2] - s[S.x + 6])
+    return (s[S.omega] - c[C.gyr_bias], s[S.omega + 1] - c[C.gyr_bias + 1],
+            s[S.omega + 2] - c[C.gyr_bias + 2])
+
+
 @jit
 def _turn_rate(s, c):
     """reference ``_turn_rate``: ‖w - b‖ of the latest gyroscope sample (0: none)."""
     if s[S.omega_valid] == 0.0 or s[S.gyr_enabled] == 0.0:
         return 0.0
-    if int(s[S.n]) == 7:
-        d0 = s[S.omega] - s[S.x + 4]
-        d1 = s[S.omega + 1] - s[S.x + 5]
-        d2 = s[S.omega + 2] - s[S.x + 6]
-    else:
-        d0 = s[S.omega] - c[C.gyr_bias]
-        d1 = s[S.omega + 1] - c[C.gyr_bias + 1]
-        d2 = s[S.omega + 2] - c[C.gyr_bias + 2]
+    d0, d1, d2 = _unbiased_rate(s, c)
     return math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
 
 
