@@ -354,7 +354,8 @@ COURSE = EKFSettings()
 #   a changed field is re-learned from readings that agree in the world frame for 20 s while
 #   the phone turns faster than 20 deg/s (5 s, turning or not, while the learned field is young:
 #   VQF's magNewFirstTime, confirmed by `--augment 1 --grid`); the bias learns from at most
-#   1.5 sigma of a heading innovation (`--grid`, the middle of the 1-3 plateau); the
+#   1.345 sigma of a heading innovation (Huber's constant, not searched: every fold of `--grid`
+#   chose 1.345 or 1.5); the
 #   sensor-frame offset (a magnet on the phone) fitted online over 4 minutes, each reading
 #   turned on by the gyroscope to its stamp (30 ms late: every fold of `--grid` chose it);
 # - the slow updates (low-passed accelerometer, magnetometer, zero rate) at most every 50 ms;
@@ -391,7 +392,7 @@ DEFAULT = EKFSettings(
     mag_relearn_world=True,
     mag_relearn_min_rate=round(math.radians(20.0), 4),
     mag_first_relearn_s=5.0,
-    mag_bias_innovation_limit=1.5,
+    mag_bias_innovation_limit=1.345,
     mag_hard_iron_tau_s=240.0,
     mag_hard_iron_prior=0.4,
     mag_delay_s=0.03,
