@@ -134,9 +134,10 @@ def _magnet_on_phone(settings, seconds=30.0, hz=100.0):
 
 
 def test_settling_keeps_a_magnet_on_the_phone_out_and_is_never_learned():
-    """Without the hard-iron fit and the rejection bound, a magnet on the phone stays out."""
+    """Without the hard-iron fit and the rejection bounds, a magnet on the phone stays out."""
     s = PRESETS["default"].with_changes(mag_relearn_s=5.0, update_period_s=0.0,
-                                        mag_hard_iron_tau_s=0.0, mag_max_reject_s=math.inf)
+                                        mag_hard_iron_tau_s=0.0, mag_max_reject_s=math.inf,
+                                        mag_reject_heading_std_deg=math.inf)
     used, m0 = _magnet_on_phone(s)
     # now and then the disturbed reading looks right; settling keeps those out
     assert used.mean() < 0.02
