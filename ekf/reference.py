@@ -612,13 +612,17 @@ class OrientationEKF(MagneticField, EstimatorBase):
 
     def _uneven_field(self, t: float, norm: float) -> float:
         """mag_noise_adapt: where the field is uneven (a building's, along a walk), readings
-        that pass the gates are still bent: d² <- low-pass (mag_return_s) of (‖y‖ - L_k)², and
-        R_m is scaled by 1 + mag_noise_adapt d² / L_k²."""
+        that pass the gates are still bent: d² <- low-pass (mag_return_s) of (‖y‖ - L_k)², the
+        deviation clipped at mag_noise_adapt_clip gates, and R_m is scaled by
+        1 + mag_noise_adapt d² / L_k²."""
         s, st = self.settings, self._state
         if (s.mag_noise_adapt == 0.0 or not math.isfinite(st.mag_strength)
                 or not st.flags.used_gyr):
             return 1.0   # off, or no gyroscope: then the magnetometer is all the heading there is
         d = norm - st.mag_strength
+        clip = s.mag_noise_adapt_clip * s.mag_gate     # a magnet counts as this much at most
+        if abs(d) > clip:
+            d = math.copysign(clip, d)
         alpha = 1.0
         if math.isfinite(st.mag_dev_t):
             dt = t - st.mag_dev_t

@@ -669,11 +669,15 @@ def _mag_gates(s, c, y0, y1, y2):
 
 @jit
 def _uneven_field(s, c, t, norm):
-    """reference ``_uneven_field``: d² <- low-pass of (‖y‖ - L_k)²; returns 1 + k d² / L_k²."""
+    """reference ``_uneven_field``: d² <- low-pass of (‖y‖ - L_k)² (the deviation clipped at
+    mag_noise_adapt_clip gates); returns 1 + k d² / L_k²."""
     if (c[C.mag_noise_adapt] == 0.0 or not math.isfinite(s[S.mag_strength])
             or s[S.used_gyr] == 0.0):
         return 1.0
     d = norm - s[S.mag_strength]
+    clip = c[C.mag_noise_adapt_clip] * c[C.mag_gate]
+    if abs(d) > clip:
+        d = math.copysign(clip, d)
     alpha = 1.0
     if math.isfinite(s[S.mag_dev_t]):
         dt = t - s[S.mag_dev_t]

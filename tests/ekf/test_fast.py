@@ -69,6 +69,9 @@ SETTINGS = {
         acc_range=12.0, mag_max_reject_s=math.inf, mag_reject_heading_std_deg=1.0,
         mag_hard_iron_tau_s=2.0, mag_hard_iron_prior=0.1, mag_relearn_min_rate=0.0,
         mag_relearn_s=1.0, mag_return_s=0.3, mag_reference_s=0.5, mag_noise_adapt=300.0),
+    # the unevenness low-pass strong, every deviation counted at most one gate off
+    "uneven_field_clipped": PRESETS["default"].with_changes(
+        mag_noise_adapt=3000.0, mag_noise_adapt_clip=1.0, mag_relearn_s=1.0),
     # a calibrated, anisotropic R_w (the compiled path has a closed form for R_w = r I only)
     "anisotropic_rw": PRESETS["default"].with_changes(
         gyr_noise_cov=[[1e-4, 2e-5, 0.0], [2e-5, 3e-4, -1e-5], [0.0, -1e-5, 2e-4]],
