@@ -547,7 +547,7 @@ class OrientationEKF(MagneticField, EstimatorBase):
                 return
             # Out for longer than the bound (or the heading too uncertain): use the reading,
             # trusted less, until it ends.
-            R = R * s.mag_reject_noise_scale
+            R = self._rejected_noise(R, norm, dip)
         else:
             st.mag_rejected_since = math.nan
             self._count_passing(t)
@@ -576,6 +576,19 @@ class OrientationEKF(MagneticField, EstimatorBase):
             flags.used_mag = False
             return
         flags.used_mag = True
+
+    def _rejected_noise(self, R: np.ndarray, norm: float, dip: float) -> np.ndarray:
+        """R_m for a reading used past the rejection bound: x mag_reject_noise_scale, then,
+        while the gyroscope drives and the expected field is no longer young, no more trust
+        than its disturbance allows (mag_reject_floor: R_m + floor · D² I, written as a scale
+        so that an anisotropic R_m keeps its shape)."""
+        s, st = self.settings, self._state
+        R = R * s.mag_reject_noise_scale
+        r_mean = float(np.trace(R)) / 3.0
+        if (s.mag_reject_floor > 0.0 and r_mean > 0.0 and st.flags.used_gyr
+                and not st.mag_confirmed_time < s.mag_first_relearn_s):
+            R = R * (1.0 + s.mag_reject_floor * self._disturbance_sq(norm, dip) / r_mean)
+        return R
 
     def _count_disturbance(self, t: float, bound: float) -> float:
         """The time a disturbance has kept the magnetometer out: a rejected (or settling)

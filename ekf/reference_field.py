@@ -345,3 +345,17 @@ class MagneticField:
 
     def _reference_dip_deg(self) -> float:
         return reference_dip_deg(self._state.m0) if self._state.m0_valid else math.nan
+
+    def _disturbance_sq(self, norm: float, dip: float) -> float:
+        """D² [µT²]: the squared distance of a reading (strength ‖y‖, angle `dip` from up) from
+        the nearest field the filter expects (strength L_k at the reference dip, any heading),
+        the least a disturbance that turned the expected field into the reading can be:
+        ‖y‖² + L_k² − 2 ‖y‖ L_k cos(dip − dip_0); (‖y‖ − L_k)² when either dip is unknown."""
+        L = self._state.mag_strength
+        if not math.isfinite(L):
+            return 0.0
+        dip0 = self._reference_dip_deg()
+        if not (math.isfinite(dip) and math.isfinite(dip0)):
+            return (norm - L) ** 2
+        return max(0.0, norm * norm + L * L
+                   - 2.0 * norm * L * math.cos(math.radians(dip - dip0)))

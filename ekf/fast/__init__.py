@@ -65,6 +65,8 @@ ekf.fast                                    ekf.reference
 ``measurements._relearn_field``             ``_relearn_field``
 ``measurements._dip_deg``                   ``_dip_deg``
 ``measurements._reference_dip_deg``         ``_reference_dip_deg``
+``measurements._disturbance_sq``            ``_disturbance_sq``
+``measurements._rejected_noise_scale``      ``_rejected_noise`` (as a scale of R_m)
 ``measurements._elevation_deg``             ``ekf.reference_field._elevation_deg``
 ``algebra._joseph_update``                  ``_update`` (B = P H^T and S given by the caller)
 ``algebra._measurement_update_q``           ``_update`` with H non-zero in the q columns only

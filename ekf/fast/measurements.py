@@ -430,6 +430,19 @@ def _reference_dip_deg(s):
     return math.degrees(math.acos(m2 / (math.sqrt(m0 * m0 + m1 * m1 + m2 * m2) + 1e-300)))
 
 
+@jit
+def _disturbance_sq(s, norm, dip):
+    """reference ``_disturbance_sq``: ‖y‖² + L_k² − 2 ‖y‖ L_k cos(dip − dip_0) [µT²], the
+    squared distance of the reading from the nearest expected field; (‖y‖ − L_k)² without dips."""
+    L = s[S.mag_strength]
+    if not math.isfinite(L):
+        return 0.0
+    dip0 = _reference_dip_deg(s)
+    if not (math.isfinite(dip) and math.isfinite(dip0)):
+        return (norm - L) ** 2
+    return max(0.0, norm * norm + L * L - 2.0 * norm * L * math.cos(math.radians(dip - dip0)))
+
+
 @jit_inline
 def _level_m0(s, y0, y1, y2):
     """m0 = (0, sqrt(mx^2 + my^2), mz) of the reading expressed in the (level) world frame."""
@@ -742,6 +755,20 @@ def _heading_std_deg(s):
 
 
 @jit
+def _rejected_noise_scale(s, c, noise_scale, norm, dip):
+    """reference ``_rejected_noise``: R_m's scale for a reading used past the rejection bound,
+    x mag_reject_noise_scale, then while the gyroscope drives and the expected field is no
+    longer young, no more trust than its disturbance allows (mag_reject_floor)."""
+    noise_scale *= c[C.mag_reject_noise_scale]
+    R = C.mag_noise_cov
+    r_mean = noise_scale * (c[R] + c[R + 4] + c[R + 8]) / 3.0
+    if (c[C.mag_reject_floor] > 0.0 and r_mean > 0.0 and s[S.used_gyr] != 0.0
+            and not s[S.mag_confirmed_time] < c[C.mag_first_relearn_s]):
+        noise_scale *= 1.0 + c[C.mag_reject_floor] * _disturbance_sq(s, norm, dip) / r_mean
+    return noise_scale
+
+
+@jit
 def _mag_update(s, c, y0, y1, y2, t):
     """reference ``_mag_update``: the expected field learned first (mag_reference_s), the gates
     (``_mag_gates``), settling, the bound on a disturbance's length, then the update (heading
@@ -776,7 +803,7 @@ def _mag_update(s, c, y0, y1, y2, t):
             return
         # out for longer than the bound (or the heading too uncertain): use the reading,
         # trusted less, until it ends
-        noise_scale *= c[C.mag_reject_noise_scale]
+        noise_scale = _rejected_noise_scale(s, c, noise_scale, norm, dip)
     else:
         s[S.mag_rejected_since] = _NAN
         _count_passing(s, c, t)

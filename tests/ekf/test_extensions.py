@@ -653,3 +653,50 @@ def test_a_magnet_passing_by_does_not_silence_the_magnetometer_after_it():
     unclipped, dev_unclipped = _turned_past_a_magnet(s.with_changes(mag_noise_adapt_clip=math.inf))
     assert dev_unclipped[950] > 10 * dev_sq[950]
     assert unclipped[2000] > 7.0 and unclipped[2999] > 5.5
+
+
+def _walked_through_a_turned_field(settings, gyroscope=True, turned_s=(10.0, 16.0)):
+    """A phone turned back and forth about up (1 rad/s peaks, exact gyroscope) for 30 s; from
+    10 s to 16 s (`turned_s`) the field keeps its strength but is turned (dip 30 deg off, its
+    horizontal part 60 deg round): the dip gate rejects every reading, and past the heading-σ
+    bound they are used. Per 10 ms sample the heading's error [deg] (gyroscope=False: left
+    out)."""
+    f = OrientationEKF(settings)
+    turned = Q.to_matrix(Q.from_axis_angle([0, 0, 1], math.radians(60.0))) @ \
+        Q.to_matrix(Q.from_axis_angle([1, 0, 0], math.radians(30.0))) @ M0
+    psi, errors = 0.0, []
+    for k in range(3000):
+        t = k * 0.01
+        rate = math.sin(2.0 * math.pi * 0.3 * t)
+        psi += rate * 0.01
+        q = Q.from_axis_angle([0, 0, 1], psi)
+        R = Q.to_matrix(q)
+        field = turned if turned_s[0] <= t < turned_s[1] else M0
+        f.step(t, gyr=[0.0, 0.0, rate] if gyroscope else None, acc=R.T @ G0, mag=R.T @ field)
+        errors.append(math.degrees(Q.angle_between(f.quat, q)))
+    return np.array(errors)
+
+
+def test_a_reading_used_past_the_rejection_bound_counts_no_more_than_its_disturbance():
+    """mag_reject_floor: a reading used although the gates reject it (past the heading-σ bound)
+    gets R_m + D² I, D the least disturbance that makes it out of the expected field (here
+    24 uT: the same strength, 30 deg of dip). With mag_return_s off (its cap on each heading
+    correction would hide the difference) the turned field, used with R_m alone, takes the
+    heading most of its 60 deg within the six seconds; floored, a few degrees."""
+    s = PRESETS["default"].with_changes(mag_reject_heading_std_deg=0.5, mag_return_s=0.0)
+    assert PRESETS["default"].mag_reject_floor == 1.0 and PRESETS["course"].mag_reject_floor == 0.0
+    floored = _walked_through_a_turned_field(s)
+    bare = _walked_through_a_turned_field(s.with_changes(mag_reject_floor=0.0))
+    assert floored[999] < 0.5 and bare[999] < 0.5           # before: both on the truth
+    assert bare[1099] > 20.0 and bare[1599] > 45.0          # pulled towards the turned field
+    assert floored[1099] < 2.0 and floored[1599] < 12.0, (floored[1099], floored[1599])
+    assert floored[2999] < 1.0 and bare[2999] > 4.0         # and back
+    # without a gyroscope the field is all the heading there is: no floor
+    alone = _walked_through_a_turned_field(s, gyroscope=False)
+    assert np.array_equal(alone, _walked_through_a_turned_field(
+        s.with_changes(mag_reject_floor=0.0), gyroscope=False))
+    # nor while the expected field is young: learned in the turned field (a recording started
+    # beside a laptop), every reading of the real one is rejected and D says nothing
+    desk = _walked_through_a_turned_field(s, turned_s=(0.0, 3.0))
+    assert np.array_equal(desk, _walked_through_a_turned_field(
+        s.with_changes(mag_reject_floor=0.0), turned_s=(0.0, 3.0)))

@@ -69,6 +69,13 @@ SETTINGS = {
         acc_range=12.0, mag_max_reject_s=math.inf, mag_reject_heading_std_deg=1.0,
         mag_hard_iron_tau_s=2.0, mag_hard_iron_prior=0.1, mag_relearn_min_rate=0.0,
         mag_relearn_s=1.0, mag_return_s=0.3, mag_reference_s=0.5, mag_noise_adapt=300.0),
+    # readings used past the rejection bound floored by their disturbance (the expected field
+    # confirmed after 0.5 s, so that the floor applies within the run), in the full update
+    "reject_floor_full_update": PRESETS["default"].with_changes(
+        acc_range=12.0, mag_heading_only=False, mag_reject_heading_std_deg=1.0,
+        mag_reject_floor=3.0, mag_first_relearn_s=0.5, mag_hard_iron_tau_s=2.0,
+        mag_hard_iron_prior=0.1, mag_relearn_min_rate=0.0, mag_relearn_s=1.0, mag_return_s=0.3,
+        mag_reference_s=0.5),
     # the unevenness low-pass strong, every deviation counted at most one gate off
     "uneven_field_clipped": PRESETS["default"].with_changes(
         mag_noise_adapt=3000.0, mag_noise_adapt_clip=1.0, mag_relearn_s=1.0),
