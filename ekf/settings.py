@@ -204,8 +204,9 @@ class EKFSettings:
     mag_reject_floor: float = _setting(
         0.0, unit="-",
         doc="a reading used past the rejection bound is trusted no more than its disturbance "
-            "allows: R_m (1 + this · D²/r̄), r̄ the mean of R_m's diagonal (R_m + this · D² I "
-            "for R_m = r̄ I), D [µT] the distance of the reading from the nearest field the "
+            "allows: its R (R_m after `mag_noise_adapt` and `mag_reject_noise_scale`) becomes "
+            "R (1 + this · D²/r̄), r̄ the mean of R's diagonal (R + this · D² I for R = r̄ I), "
+            "D [µT] the distance of the reading from the nearest field the "
             "filter expects (strength L_k at the reference dip, any heading), the least the "
             "disturbance can be; only while the gyroscope drives the filter (without it the "
             "field is all the heading there is) and the expected field is no longer young "
