@@ -117,7 +117,23 @@ def _in_half_a(r: Recording) -> bool:
     return any(name.startswith(n) or name.endswith("_" + n) for n in _HALF_A)
 
 
+def person_of(r: Recording) -> str:
+    """Who carried the phone of a Nexus 5 recording (its name's first word); "" for BROAD."""
+    return r.name.split("_")[0] if r.kind.startswith("tyrex") else ""
+
+
+# --folds user (the default): hold out what a user brings. A person: one person's Nexus 5
+# recordings scored with what was chosen on the other person's and BROAD; a dataset: BROAD
+# scored with what was chosen on the Nexus 5 recordings, and back.
+USER_FOLDS = {
+    "person-Guillaume": lambda r: r.kind.startswith("tyrex") and person_of(r) == "Guillaume",
+    "person-Jakob": lambda r: r.kind.startswith("tyrex") and person_of(r) == "Jakob",
+    "dataset-broad": lambda r: r.kind == "broad",
+    "dataset-tyrex": lambda r: r.kind.startswith("tyrex"),
+}
+
 FOLD_SETS = {
+    "user": USER_FOLDS,
     "groups": FOLDS,
     "halves": {"half-a": _in_half_a, "half-b": lambda r: not _in_half_a(r)},
 }
