@@ -540,14 +540,13 @@ class OrientationEKF(MagneticField, EstimatorBase):
                 self._track_new_field(y, t, norm, dip)
             flags.mag_rejected = True
             flags.used_mag = False
-            bound = s.mag_max_reject_s if flags.used_gyr else min(s.mag_max_reject_s,
-                                                                  s.mag_max_reject_no_gyro_s)
-            over = self._count_disturbance(t, bound) > bound
-            if not over and not self._heading_std_deg() > s.mag_reject_heading_std_deg:
+            # With the gyroscope the disturbance keeps the magnetometer out until readings
+            # pass again or agree as a new field; without it (nothing else holds the heading)
+            # at most mag_max_reject_no_gyro_s, then readings are used, trusted less.
+            bound = math.inf if flags.used_gyr else s.mag_max_reject_no_gyro_s
+            if not self._count_disturbance(t, bound) > bound:
                 return
-            # Out for longer than the bound (or the heading too uncertain): use the reading,
-            # trusted less, until it ends.
-            R = self._rejected_noise(R, norm, dip)
+            R = R * s.mag_reject_noise_scale
         else:
             st.mag_rejected_since = math.nan
             self._count_passing(t)
@@ -577,18 +576,6 @@ class OrientationEKF(MagneticField, EstimatorBase):
             return
         flags.used_mag = True
 
-    def _rejected_noise(self, R: np.ndarray, norm: float, dip: float) -> np.ndarray:
-        """R_m for a reading used past the rejection bound: x mag_reject_noise_scale, then,
-        while the gyroscope drives and the expected field is no longer young, no more trust
-        than its disturbance allows (mag_reject_floor: R_m + floor · D² I, written as a scale
-        so that an anisotropic R_m keeps its shape)."""
-        s, st = self.settings, self._state
-        R = R * s.mag_reject_noise_scale
-        r_mean = float(np.trace(R)) / 3.0
-        if (s.mag_reject_floor > 0.0 and r_mean > 0.0 and st.flags.used_gyr
-                and not st.mag_confirmed_time < s.mag_first_relearn_s):
-            R = R * (1.0 + s.mag_reject_floor * self._disturbance_sq(norm, dip) / r_mean)
-        return R
 
     def _count_disturbance(self, t: float, bound: float) -> float:
         """The time a disturbance has kept the magnetometer out: a rejected (or settling)
@@ -600,26 +587,13 @@ class OrientationEKF(MagneticField, EstimatorBase):
         st.mag_disturbed_t = t
         return st.mag_disturbed_time
 
-    def _heading_std_deg(self) -> float:
-        """Standard deviation of the estimate's heading [deg]: a turn dpsi about world up moves
-        q by dpsi/2 along u (the unit direction of (0,0,0,1) ⊗ q), so var(psi) = 4 u^T P_qq u."""
-        q = self._x[:4]
-        u = quat.multiply(np.array([0.0, 0.0, 0.0, 1.0]), q)
-        u /= np.linalg.norm(u)
-        return math.degrees(2.0 * math.sqrt(max(0.0, float(u @ self._P[:4, :4] @ u))))
 
     def _count_passing(self, t: float) -> None:
         """A reading that passes counts towards confirming the learned field
-        (``_count_confirmed``) and earns disturbance time back: mag_reject_recovery seconds per
-        second since the previous reading (inf: the disturbance is over, the count is 0)."""
-        st, recovery = self._state, self.settings.mag_reject_recovery
+        (``_count_confirmed``) and ends the disturbance (its count is 0)."""
+        st = self._state
         self._count_confirmed(t)
-        if math.isinf(recovery):
-            st.mag_disturbed_time = 0.0
-        else:
-            last = st.mag_passed_t if math.isnan(st.mag_disturbed_t) else st.mag_disturbed_t
-            if not math.isnan(last):
-                st.mag_disturbed_time = max(0.0, st.mag_disturbed_time - recovery * (t - last))
+        st.mag_disturbed_time = 0.0
         st.mag_disturbed_t = math.nan
         st.mag_passed_t = t
 

@@ -39,6 +39,11 @@ EARTH_FIELD_MAX = 100.0
 ACQUIRED_INFO = 0.25
 # The acquisition's prior: numerical only (an offset of hundreds of uT must not be shrunk).
 ACQUIRING_PRIOR = 1e-3
+# The offset applied is the fit's shrunk towards its prior by the positive-part James-Stein
+# factor max(0, 1 - HARD_IRON_SHRINK / chi2), chi2 = d^T (M + p I) d / sigma^2 the fit's
+# departure d from the prior in units of its own uncertainty (sigma^2 the pairs' residual
+# variance per axis): an offset the pairs' scatter could explain is not applied.
+HARD_IRON_SHRINK = 1.0
 
 
 def _elevation_deg(v: np.ndarray) -> float:
@@ -73,7 +78,7 @@ class MagneticField:
         A = quat.to_matrix(turn).T
         D = np.eye(3) - A
         e = y - A @ st.mag_pair_raw
-        residual = float(np.linalg.norm(e - D @ st.mag_offset))
+        residual = float(np.linalg.norm(e - D @ st.mag_offset_fit))
         w = min(1.0, HARD_IRON_RESIDUAL / residual) if residual > 0.0 else 1.0
         forget = (math.exp(-(t - st.mag_offset_t) / s.mag_hard_iron_tau_s)
                   if math.isfinite(st.mag_offset_t) else 0.0)
@@ -85,13 +90,38 @@ class MagneticField:
             forget, w, st.mag_offset_outliers = 0.0, 1.0, 0.0   # a new offset: start again
         st.mag_offset_info[:] = forget * st.mag_offset_info + w * (D.T @ D)
         st.mag_offset_rhs[:] = forget * st.mag_offset_rhs + w * (D.T @ e)
+        st.mag_offset_res_sq = forget * st.mag_offset_res_sq + w * residual * residual
+        st.mag_offset_weight = forget * st.mag_offset_weight + w
         st.mag_offset_t = t
         prior = ACQUIRING_PRIOR if st.mag_acquiring else s.mag_hard_iron_prior
-        st.mag_offset[:] = np.linalg.solve(st.mag_offset_info + prior * np.eye(3),
-                                           st.mag_offset_rhs + prior * st.mag_offset_prior)
+        A = st.mag_offset_info + prior * np.eye(3)
+        st.mag_offset_fit[:] = np.linalg.solve(A, st.mag_offset_rhs + prior * st.mag_offset_prior)
+        st.mag_offset[:] = self._significant_offset(A)
         self._acquisition_progress(y)
         st.diagnostics.mag_offset_norm = float(np.linalg.norm(st.mag_offset))
         self._open_pair(t, y)
+
+    def _significant_offset(self, A: np.ndarray) -> np.ndarray:
+        """The offset applied: what rotation reveals of it. A field that changes from place to
+        place (a room's, along a walk) makes pairs differ by more than their turn explains, and
+        the fit reads that as an offset; such an offset is of the size of the pairs' own
+        scatter. The fit's departure d from its prior, measured in its uncertainty
+        (chi2 = d^T A d / sigma^2, A = M + prior I its information, sigma^2 the residual
+        variance per axis), is shrunk by max(0, 1 - HARD_IRON_SHRINK / chi2): a magnet on the
+        phone (chi2 in the hundreds) is applied whole, a few uT within the scatter not at all.
+        While the offset is acquired the fit is applied as it is."""
+        st = self._state
+        fit = st.mag_offset_fit
+        if st.mag_acquiring or not st.mag_offset_weight > 0.0:
+            return fit.copy()
+        d = fit - st.mag_offset_prior
+        var = st.mag_offset_res_sq / (3.0 * st.mag_offset_weight)
+        info = float(d @ A @ d)
+        if not var > 0.0:
+            return fit.copy()
+        chi2 = info / var
+        factor = max(0.0, 1.0 - HARD_IRON_SHRINK / chi2) if chi2 > 0.0 else 0.0
+        return st.mag_offset_prior + factor * d
 
     def _turned_to_stamp(self, y: np.ndarray) -> np.ndarray:
         """mag_delay_s: the reading was taken that long before its stamp; the field (y - b, b
@@ -132,6 +162,8 @@ class MagneticField:
         if st.mag_acquiring and np.linalg.eigvalsh(info)[0] >= ACQUIRED_INFO:
             st.mag_acquiring = False
             st.mag_offset_prior[:] = st.mag_offset
+            st.mag_offset_res_sq = 0.0     # the acquisition's residuals say nothing of the rest
+            st.mag_offset_weight = 0.0
         if st.mag_waiting and np.linalg.norm(y - st.mag_offset) <= EARTH_FIELD_MAX:
             H = quat.to_matrix(self._x[:4])[:2]
             cov = H @ np.linalg.inv(info + ACQUIRING_PRIOR * np.eye(3)) @ H.T
@@ -345,17 +377,3 @@ class MagneticField:
 
     def _reference_dip_deg(self) -> float:
         return reference_dip_deg(self._state.m0) if self._state.m0_valid else math.nan
-
-    def _disturbance_sq(self, norm: float, dip: float) -> float:
-        """D² [µT²]: the squared distance of a reading (strength ‖y‖, angle `dip` from up) from
-        the nearest field the filter expects (strength L_k at the reference dip, any heading),
-        the least a disturbance that turned the expected field into the reading can be:
-        ‖y‖² + L_k² − 2 ‖y‖ L_k cos(dip − dip_0); (‖y‖ − L_k)² when either dip is unknown."""
-        L = self._state.mag_strength
-        if not math.isfinite(L):
-            return 0.0
-        dip0 = self._reference_dip_deg()
-        if not (math.isfinite(dip) and math.isfinite(dip0)):
-            return (norm - L) ** 2
-        return max(0.0, norm * norm + L * L
-                   - 2.0 * norm * L * math.cos(math.radians(dip - dip0)))

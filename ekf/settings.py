@@ -177,41 +177,16 @@ class EKFSettings:
         doc="the expected field (strength L_k and the reference m0 with its dip) is the mean of "
             "the readings over this long from the first one, used meanwhile without the gates "
             "(0: the first reading decides)")
-    mag_max_reject_s: float = _setting(
-        math.inf, unit="s",
-        doc="a disturbance (rejected or settling readings) longer than this keeps the "
-            "magnetometer out no longer: its readings are used with R_m x "
-            "`mag_reject_noise_scale` until it ends; inf: off")
     mag_max_reject_no_gyro_s: float = _setting(
         math.inf, unit="s",
-        doc="the same bound while no gyroscope drives the time update (nothing else holds the "
-            "heading then)")
-    mag_reject_recovery: float = _setting(
-        math.inf, unit="s/s",
-        doc="the disturbance time counted against `mag_max_reject_s` falls this many seconds "
-            "per second of readings that pass (VQF: 2), and stops growing past the bound: a few "
-            "passing readings in a long disturbance do not buy it a new bound; inf: a passing "
-            "reading ends the disturbance")
-    mag_reject_heading_std_deg: float = _setting(
-        math.inf, unit="deg",
-        doc="a disturbance keeps the magnetometer out only while the estimate's heading "
-            "standard deviation (from P: the gyroscope's noise and bias uncertainty since the "
-            "last heading update) stays below this; past it the readings are used as past "
-            "`mag_max_reject_s`; inf: off")
+        doc="while no gyroscope drives the time update, a disturbance (rejected or settling "
+            "readings) keeps the magnetometer out at most this long, then its readings are used "
+            "with R_m x `mag_reject_noise_scale` until it ends: without a gyroscope the field is "
+            "all the heading there is (with one, a disturbance keeps it out until readings pass "
+            "the gates again or agree as a new field); inf: off")
     mag_reject_noise_scale: float = _setting(
         10.0, unit="-",
-        doc="R_m is multiplied by this for readings used past the rejection bound")
-    mag_reject_floor: float = _setting(
-        0.0, unit="-",
-        doc="a reading used past the rejection bound is trusted no more than its disturbance "
-            "allows: its R (R_m after `mag_noise_adapt` and `mag_reject_noise_scale`) becomes "
-            "R (1 + this · D²/r̄), r̄ the mean of R's diagonal (R + this · D² I for R = r̄ I), "
-            "D [µT] the distance of the reading from the nearest field the "
-            "filter expects (strength L_k at the reference dip, any heading), the least the "
-            "disturbance can be; only while the gyroscope drives the filter (without it the "
-            "field is all the heading there is) and the expected field is no longer young "
-            "(`mag_first_relearn_s`: an expected field learned in a disturbance says nothing "
-            "of D); 0: off")
+        doc="R_m is multiplied by this for readings used past that bound")
     mag_relearn_world: bool = _setting(
         False, unit="-",
         doc="true: re-learning compares the rejected readings in the world frame (Q(q) y_m: a "
@@ -414,9 +389,6 @@ DEFAULT = EKFSettings(
     mag_dip_from_estimate=True,
     mag_settle_s=0.5,
     mag_reference_s=1.0,
-    mag_max_reject_s=math.inf,
-    mag_reject_heading_std_deg=3.0,
-    mag_reject_floor=1.0,
     mag_max_reject_no_gyro_s=0.0,
     mag_strength_update="accepted",
     mag_relearn_s=20.0,

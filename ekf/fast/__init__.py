@@ -42,11 +42,11 @@ ekf.fast                                    ekf.reference
 ``measurements._heading_gain_cap``          ``_heading_gain_cap``
 ``measurements._count_disturbance``         ``_count_disturbance``
 ``measurements._count_passing``             ``_count_passing`` (with ``_count_confirmed``)
-``measurements._heading_std_deg``           ``_heading_std_deg``
 ``measurements._learn_reference``           ``_learn_reference``
 ``measurements._finish_reference``          ``_finish_reference``
 ``measurements._fit_hard_iron``             ``_fit_hard_iron``
 ``measurements._open_pair``                 ``_open_pair``
+``measurements._significant_offset``       ``_significant_offset``
 ``measurements._turned_to_stamp``           ``_turned_to_stamp``
 ``measurements._acquisition_progress``      ``_acquisition_progress``
 ``measurements._known_everywhere``          its smallest-eigenvalue test (the principal
@@ -65,8 +65,6 @@ ekf.fast                                    ekf.reference
 ``measurements._relearn_field``             ``_relearn_field``
 ``measurements._dip_deg``                   ``_dip_deg``
 ``measurements._reference_dip_deg``         ``_reference_dip_deg``
-``measurements._disturbance_sq``            ``_disturbance_sq``
-``measurements._rejected_noise_scale``      ``_rejected_noise`` (as a scale of R_m)
 ``measurements._elevation_deg``             ``ekf.reference_field._elevation_deg``
 ``algebra._joseph_update``                  ``_update`` (B = P H^T and S given by the caller)
 ``algebra._measurement_update_q``           ``_update`` with H non-zero in the q columns only

@@ -44,6 +44,7 @@ def _cache_key() -> int:
     here = Path(__file__).resolve().parent
     for stem in KERNEL_MODULES + ("_jit",):   # _jit: the compile options
         h.update((here / f"{stem}.py").read_bytes())
+    h.update((here.parent / "reference_field.py").read_bytes())   # constants the kernels import
     return int.from_bytes(h.digest()[:7], "little")   # < 2**56: an int64 constant
 
 

@@ -14,7 +14,7 @@ from ekf.fast.algebra import _measurement_update_q, _normalise, _to_matrix
 from ekf.fast.layout import C, S
 from ekf.outputs import (ACC_NIS_GATE, ACC_NORM_GATE, MAG_DIP_GATE, MAG_NIS_GATE, MAG_SETTLING,
                          MAG_STRENGTH_GATE, NOT_REJECTED)
-from ekf.reference_field import ACQUIRED_INFO, ACQUIRING_PRIOR, EARTH_FIELD_MAX
+from ekf.reference_field import ACQUIRED_INFO, ACQUIRING_PRIOR, EARTH_FIELD_MAX, HARD_IRON_SHRINK
 
 _INF = math.inf
 _NAN = math.nan
@@ -53,7 +53,7 @@ def _fit_hard_iron(s, c, t, y0, y1, y2):
     Qt = _to_matrix(s[P] * inv, s[P + 1] * inv, s[P + 2] * inv, s[P + 3] * inv)
     # D = I - A with A = Q(turn)^T, e = y - A y_i, r = e - D b
     R = S.mag_pair_raw
-    B = S.mag_offset
+    B = S.mag_offset_fit
     D = S.work_s          # scratch 3x3
     e = S.work_pht        # scratch: e (3), then r (3)
     for r in range(3):
@@ -92,6 +92,8 @@ def _fit_hard_iron(s, c, t, y0, y1, y2):
             s[M + 3 * r + k] = forget * s[M + 3 * r + k] + w * dtd
         dte = s[D + r] * s[e] + s[D + 3 + r] * s[e + 1] + s[D + 6 + r] * s[e + 2]
         s[V + r] = forget * s[V + r] + w * dte
+    s[S.mag_offset_res_sq] = forget * s[S.mag_offset_res_sq] + w * residual * residual
+    s[S.mag_offset_weight] = forget * s[S.mag_offset_weight] + w
     s[S.mag_offset_t] = t
     # b = (M + prior I)^-1 (v + prior b_prior) (M symmetric positive semi-definite)
     prior = ACQUIRING_PRIOR if s[S.mag_acquiring] != 0.0 else c[C.mag_hard_iron_prior]
@@ -102,9 +104,37 @@ def _fit_hard_iron(s, c, t, y0, y1, y2):
     s[B] = (c00 * v0 + c01 * v1 + c02 * v2) * inv_det
     s[B + 1] = (c01 * v0 + c11 * v1 + c12 * v2) * inv_det
     s[B + 2] = (c02 * v0 + c12 * v1 + c22 * v2) * inv_det
+    _significant_offset(s, prior)
     _acquisition_progress(s, y0, y1, y2)
-    s[S.mag_offset_norm] = math.sqrt(s[B] ** 2 + s[B + 1] ** 2 + s[B + 2] ** 2)
+    U = S.mag_offset
+    s[S.mag_offset_norm] = math.sqrt(s[U] ** 2 + s[U + 1] ** 2 + s[U + 2] ** 2)
     _open_pair(s, t, y0, y1, y2)
+
+
+@jit_inline
+def _significant_offset(s, prior):
+    """reference ``_significant_offset``: b_m = b_prior + max(0, 1 - HARD_IRON_SHRINK / chi2) d,
+    d = fit - b_prior, chi2 = d^T (M + prior I) d / sigma^2, sigma^2 = Σ w r² / (3 Σ w); the
+    fit itself while acquiring, or with no residual scatter."""
+    F = S.mag_offset_fit
+    U = S.mag_offset
+    Pr = S.mag_offset_prior
+    factor = 1.0
+    if s[S.mag_acquiring] == 0.0 and s[S.mag_offset_weight] > 0.0:
+        var = s[S.mag_offset_res_sq] / (3.0 * s[S.mag_offset_weight])
+        if var > 0.0:
+            M = S.mag_offset_info
+            d0 = s[F] - s[Pr]
+            d1 = s[F + 1] - s[Pr + 1]
+            d2 = s[F + 2] - s[Pr + 2]
+            info = (d0 * (s[M] * d0 + s[M + 1] * d1 + s[M + 2] * d2)
+                    + d1 * (s[M + 3] * d0 + s[M + 4] * d1 + s[M + 5] * d2)
+                    + d2 * (s[M + 6] * d0 + s[M + 7] * d1 + s[M + 8] * d2)
+                    + prior * (d0 * d0 + d1 * d1 + d2 * d2))
+            chi2 = info / var
+            factor = max(0.0, 1.0 - HARD_IRON_SHRINK / chi2) if chi2 > 0.0 else 0.0
+    for i in range(3):
+        s[U + i] = s[Pr + i] + factor * (s[F + i] - s[Pr + i])
 
 
 @jit_inline
@@ -186,6 +216,8 @@ def _acquisition_progress(s, y0, y1, y2):
         s[S.mag_acquiring] = 0.0
         for i in range(3):
             s[S.mag_offset_prior + i] = s[B + i]
+        s[S.mag_offset_res_sq] = 0.0
+        s[S.mag_offset_weight] = 0.0
     if s[S.mag_waiting] == 0.0:
         return
     if math.sqrt((y0 - s[B]) ** 2 + (y1 - s[B + 1]) ** 2 + (y2 - s[B + 2]) ** 2) \
@@ -428,19 +460,6 @@ def _reference_dip_deg(s):
     m1 = s[S.m0 + 1]
     m2 = s[S.m0 + 2]
     return math.degrees(math.acos(m2 / (math.sqrt(m0 * m0 + m1 * m1 + m2 * m2) + 1e-300)))
-
-
-@jit
-def _disturbance_sq(s, norm, dip):
-    """reference ``_disturbance_sq``: ‖y‖² + L_k² − 2 ‖y‖ L_k cos(dip − dip_0) [µT²], the
-    squared distance of the reading from the nearest expected field; (‖y‖ − L_k)² without dips."""
-    L = s[S.mag_strength]
-    if not math.isfinite(L):
-        return 0.0
-    dip0 = _reference_dip_deg(s)
-    if not (math.isfinite(dip) and math.isfinite(dip0)):
-        return (norm - L) ** 2
-    return max(0.0, norm * norm + L * L - 2.0 * norm * L * math.cos(math.radians(dip - dip0)))
 
 
 @jit_inline
@@ -723,49 +742,12 @@ def _count_disturbance(s, c, t, bound):
 @jit_inline
 def _count_passing(s, c, t):
     """reference ``_count_passing``: a reading that passes counts towards confirming the
-    learned field (``_count_confirmed``) and takes mag_reject_recovery seconds per second since
-    the previous reading off the disturbance count (inf: all of it)."""
+    learned field (``_count_confirmed``) and ends the disturbance."""
     if s[S.mag_reference_count] == 0.0 and t - s[S.mag_passed_t] <= c[C.max_dt]:
         s[S.mag_confirmed_time] += t - s[S.mag_passed_t]   # reference ``_count_confirmed``
-    recovery = c[C.mag_reject_recovery]
-    if recovery == math.inf:
-        s[S.mag_disturbed_time] = 0.0
-    else:
-        last = s[S.mag_disturbed_t]
-        if math.isnan(last):
-            last = s[S.mag_passed_t]
-        if not math.isnan(last):
-            s[S.mag_disturbed_time] = max(0.0, s[S.mag_disturbed_time] - recovery * (t - last))
+    s[S.mag_disturbed_time] = 0.0
     s[S.mag_disturbed_t] = _NAN
     s[S.mag_passed_t] = t
-
-
-@jit
-def _heading_std_deg(s):
-    """reference ``_heading_std_deg``: 2 sqrt(u^T P_qq u), u = (-q3, -q2, q1, q0) / |q|."""
-    u0, u1, u2, u3 = -s[S.x + 3], -s[S.x + 2], s[S.x + 1], s[S.x]
-    nu2 = u0 * u0 + u1 * u1 + u2 * u2 + u3 * u3
-    P = S.P
-    v = 0.0
-    for i in range(4):
-        ui = u0 if i == 0 else (u1 if i == 1 else (u2 if i == 2 else u3))
-        v += ui * (s[P + 7 * i] * u0 + s[P + 7 * i + 1] * u1 + s[P + 7 * i + 2] * u2
-                   + s[P + 7 * i + 3] * u3)
-    return math.degrees(2.0 * math.sqrt(max(0.0, v / nu2)))
-
-
-@jit
-def _rejected_noise_scale(s, c, noise_scale, norm, dip):
-    """reference ``_rejected_noise``: R_m's scale for a reading used past the rejection bound,
-    x mag_reject_noise_scale, then while the gyroscope drives and the expected field is no
-    longer young, no more trust than its disturbance allows (mag_reject_floor)."""
-    noise_scale *= c[C.mag_reject_noise_scale]
-    R = C.mag_noise_cov
-    r_mean = noise_scale * (c[R] + c[R + 4] + c[R + 8]) / 3.0
-    if (c[C.mag_reject_floor] > 0.0 and r_mean > 0.0 and s[S.used_gyr] != 0.0
-            and not s[S.mag_confirmed_time] < c[C.mag_first_relearn_s]):
-        noise_scale *= 1.0 + c[C.mag_reject_floor] * _disturbance_sq(s, norm, dip) / r_mean
-    return noise_scale
 
 
 @jit
@@ -795,15 +777,12 @@ def _mag_update(s, c, y0, y1, y2, t):
             _track_new_field(s, c, y0, y1, y2, t, norm, dip)
         s[S.mag_rejected] = 1.0
         s[S.used_mag] = 0.0
-        bound = c[C.mag_max_reject_s]
-        if s[S.used_gyr] == 0.0:
-            bound = min(bound, c[C.mag_max_reject_no_gyro_s])
-        over = _count_disturbance(s, c, t, bound) > bound
-        if not over and not _heading_std_deg(s) > c[C.mag_reject_heading_std_deg]:
+        # with the gyroscope out until readings pass or agree as a new field; without it at
+        # most mag_max_reject_no_gyro_s, then used, trusted less
+        bound = math.inf if s[S.used_gyr] != 0.0 else c[C.mag_max_reject_no_gyro_s]
+        if not _count_disturbance(s, c, t, bound) > bound:
             return
-        # out for longer than the bound (or the heading too uncertain): use the reading,
-        # trusted less, until it ends
-        noise_scale = _rejected_noise_scale(s, c, noise_scale, norm, dip)
+        noise_scale *= c[C.mag_reject_noise_scale]
     else:
         s[S.mag_rejected_since] = _NAN
         _count_passing(s, c, t)

@@ -48,32 +48,21 @@ SETTINGS = {
         exact_discretisation=False, gyr_rate_before_sample=False, update_period_s=0.0,
         acc_nis_gate=7.8, mag_dip_from_estimate=False, mag_relearn_s=1.0, mag_settle_s=0.2),
     # the magnetometer as the previous default handled it: strength/dip re-learning, no
-    # reference window, no bound, no hard-iron fit, no heading cap, no adaptive noise
+    # reference window, no no-gyroscope bound, no hard-iron fit, no heading cap, no adaptive noise
     "previous_magnetometer": PRESETS["default"].with_changes(
-        mag_relearn_world=False, mag_reference_s=0.0, mag_max_reject_s=math.inf,
+        mag_relearn_world=False, mag_reference_s=0.0,
         mag_max_reject_no_gyro_s=math.inf, mag_hard_iron_tau_s=0.0, mag_return_s=0.0,
         mag_noise_adapt=0.0, acc_noise_adapt=0.0, acc_range=math.inf, mag_relearn_s=1.0),
     # every new branch within seconds: a fixed accelerometer range that the bursts reach, a
-    # short rejection bound, a quick hard-iron fit, re-learning without the turn-rate condition
+    # short no-gyroscope bound, a quick hard-iron fit, re-learning without the turn-rate condition
     "quick_field": PRESETS["default"].with_changes(
-        acc_range=12.0, mag_max_reject_s=0.5, mag_max_reject_no_gyro_s=0.2,
+        acc_range=12.0, mag_max_reject_no_gyro_s=0.2,
         mag_hard_iron_tau_s=2.0, mag_hard_iron_prior=0.1, mag_relearn_min_rate=0.0,
         mag_relearn_s=1.0, mag_return_s=0.3, mag_reference_s=0.5, mag_noise_adapt=300.0),
-    # the same with a leaky disturbance count (passing readings earn time back slowly)
-    "leaky_reject_budget": PRESETS["default"].with_changes(
-        acc_range=12.0, mag_max_reject_s=0.5, mag_reject_recovery=0.5,
-        mag_hard_iron_tau_s=2.0, mag_hard_iron_prior=0.1, mag_relearn_min_rate=0.0,
-        mag_relearn_s=1.0, mag_return_s=0.3, mag_reference_s=0.5, mag_noise_adapt=300.0),
-    # the rejection bound by the heading's uncertainty instead of time
-    "heading_std_reject_bound": PRESETS["default"].with_changes(
-        acc_range=12.0, mag_max_reject_s=math.inf, mag_reject_heading_std_deg=1.0,
-        mag_hard_iron_tau_s=2.0, mag_hard_iron_prior=0.1, mag_relearn_min_rate=0.0,
-        mag_relearn_s=1.0, mag_return_s=0.3, mag_reference_s=0.5, mag_noise_adapt=300.0),
-    # readings used past the rejection bound floored by their disturbance (the expected field
-    # confirmed after 0.5 s, so that the floor applies within the run), in the full update
-    "reject_floor_full_update": PRESETS["default"].with_changes(
-        acc_range=12.0, mag_heading_only=False, mag_reject_heading_std_deg=1.0,
-        mag_reject_floor=3.0, mag_first_relearn_s=0.5, mag_hard_iron_tau_s=2.0,
+    # the full magnetometer update (not heading only) with a quick hard-iron fit and the
+    # expected field confirmed after 0.5 s
+    "full_update_quick_fit": PRESETS["default"].with_changes(
+        acc_range=12.0, mag_heading_only=False, mag_first_relearn_s=0.5, mag_hard_iron_tau_s=2.0,
         mag_hard_iron_prior=0.1, mag_relearn_min_rate=0.0, mag_relearn_s=1.0, mag_return_s=0.3,
         mag_reference_s=0.5),
     # the unevenness low-pass strong, every deviation counted at most one gate off
@@ -240,7 +229,7 @@ def test_a_disturbed_start_matches_reference():
     limit, compiled and readable, row by row; and those branches really ran."""
     t, gyr, acc, mag = disturbed_start()
     s = PRESETS["default"].with_changes(mag_first_relearn_s=2.0, mag_bias_innovation_limit=0.5,
-                                        update_period_s=0.0, mag_reject_heading_std_deg=math.inf,
+                                        update_period_s=0.0,
                                         mag_hard_iron_tau_s=0.0)
     ref, fast, _ = _run_both(s, t, gyr, acc, mag)
     assert fast.diagnostics.mag_expected == pytest.approx(np.linalg.norm([0, 16, -45]), rel=0.05)

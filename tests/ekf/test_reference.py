@@ -187,9 +187,7 @@ def test_converges_from_a_wrong_start(arrays):
 
 @pytest.mark.parametrize("combo,total,inclination", [
     (("gyr", "acc", "mag"), 1.5, 1.0),
-    # without the accelerometer the tilt is unknown, so is the heading (its standard deviation
-    # from P is ~54°, past mag_reject_heading_std_deg = 3°): the simulated 6 s disturbance is
-    # used from its start, trusted less, and pulls the heading ~8° off
+    # without the accelerometer the tilt is unknown, so is the heading
     (("gyr", "mag"), 4.5, 1.5),
     (("gyr", "acc"), None, 1.0),      # heading unobservable without the magnetometer
     # no dynamics: acceleration bursts hurt, and without a gyroscope the magnetometer is never

@@ -113,5 +113,5 @@ def test_the_course_preset_is_untouched_by_the_guards():
     test_fast; here the course preset's values themselves are checked)."""
     s = PRESETS["course"]
     assert math.isinf(s.acc_range) and s.mag_reference_s == 0.0
-    assert math.isinf(s.mag_max_reject_s) and s.mag_hard_iron_tau_s == 0.0
+    assert math.isinf(s.mag_max_reject_no_gyro_s) and s.mag_hard_iron_tau_s == 0.0
     assert not s.mag_relearn_world and s.mag_return_s == 0.0
