@@ -22,6 +22,32 @@ lives on a sphere where additive corrections leave the constraint:
   (the error coordinates of each step are taken about that row's filtered nominal: the usual
   first-order approximation of the multiplicative smoother).
 
+The heading is not carried across a stretch the forward filter rejected the magnetometer in
+(``rejected_stretches``: a run of rows whose latest magnetometer reading failed a gate or was
+still settling, the ``mag_rejected`` light, from its first rejected reading to the reading that
+passes again, longer than ``REJECTED_STRETCH_S``, after a reading that passed). In such a
+stretch the heading is held by the gyroscope alone, and the RTS gain, which trusts the model,
+would carry the heading the readings give after the stretch back through it (C_k is near the
+identity on the heading there) and on into the rows before. Those readings may refer to another
+field than the one before (the phone carried where north reads differently, a field re-learned
+after the disturbance) or the heading may have drifted in a way the model does not know, and
+the whole stretch would be turned by it. At a row k of the stretch the gain is therefore
+      C_k  ->  Pi_k C_k Pi_k+1,   Pi = blockdiag(I - u u^T, I - u u^T),  u = R(q)^T e_up
+(u the world's up in the body frame of that row's nominal, q_{k|k} for Pi_k, q_{k+1|k} for
+Pi_k+1): no rotation about up, nor gyroscope bias about up (which integrates into the heading
+and is correlated with it), enters from the row after, and none goes out into row k. Within the
+stretch the smoothed heading is the forward pass's, its tilt and the rest are smoothed as
+elsewhere; at the stretch's first row the carry starts again from the forward heading, so the
+rows before it are smoothed by the readings before it only, and the rows after it by those
+after. The rows between two passing readings with no reading of their own, and a short
+rejection (one reading out and the settling after it), are smoothed as any other; a run of
+rejections from the first reading on has no heading before it to keep apart, and there the
+later heading is the only one. The price: where the field after the stretch is the one before
+and the model holds, the RTS pass would have closed the gyroscope's drift over the stretch
+from both ends, and the rule leaves that drift in (simulated, a 150 uT magnet beside a turning
+phone for 10 s: the heading within it 0.27 deg RMS against 0.02 deg without the rule, the
+forward filter 1.6 deg; with north reading 30 deg off after the magnet, 0.27 deg against 10.0).
+
 The gates and lights are the forward filter's (the smoother changes estimates, not decisions);
 its heading-only magnetometer gain is not the optimal one, so the smoother is the RTS
 smoother of the filter as it runs, not of an ideal one. Tested: never worse than the forward
@@ -57,7 +83,11 @@ from numpy.typing import ArrayLike
 from ekf.estimator import SENSORS, BatchResult, batch_rows
 from ekf.settings import EKFSettings, resolve_settings
 
-__all__ = ["smooth_batch"]
+__all__ = ["REJECTED_STRETCH_S", "rejected_stretches", "smooth_batch"]
+
+REJECTED_STRETCH_S = 1.0
+"""A stretch of rejected magnetometer readings longer than this [s] is one the backward pass
+carries no heading across (module docstring)."""
 
 
 # Small dense algebra by hand: numba's np.linalg and @ need scipy's BLAS, which ekf does not use.
@@ -174,8 +204,27 @@ def _exp(d):
 
 
 @njit(cache=True)
-def _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m, x_s):
-    """The RTS pass of the module docstring, in place into x_s (N, 7); x_s[-1] = x_f[-1]."""
+def _heading_projector(q, m):
+    """Pi = blockdiag(I - u u^T, I - u u^T) (m = 6; the first block only for m = 3), u = R(q)^T
+    e_up the world's up in the body frame: drops from an error (dtheta, db) the rotation about
+    up (the heading) and the bias about up."""
+    q0, q1, q2, q3 = q[0], q[1], q[2], q[3]
+    n2 = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
+    u = np.array([2.0 * (q1 * q3 - q0 * q2), 2.0 * (q2 * q3 + q0 * q1),
+                  q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3]) / n2
+    Pi = np.eye(m)
+    for b in range(0, m, 3):
+        for i in range(3):
+            for j in range(3):
+                Pi[b + i, b + j] -= u[i] * u[j]
+    return Pi
+
+
+@njit(cache=True)
+def _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m, rejected, x_s):
+    """The RTS pass of the module docstring, in place into x_s (N, 7); x_s[-1] = x_f[-1]. At a
+    row k of a rejected stretch (``rejected[k]``) the gain is Pi_k C_k Pi_k+1 (the heading
+    rule of the module docstring)."""
     N = x_f.shape[0]
     x_s[N - 1] = x_f[N - 1]
     Ps = _error_cov(x_f[N - 1, :4], P_f[N - 1], m)
@@ -197,6 +246,9 @@ def _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m, x_s):
                     Phi[i, 3 + i] = -T[k + 1]
         Pp = 0.5 * (Pp + Pp.T) + 1e-15 * np.eye(m)
         C = _solve_spd(Pp, _mm(Phi, Pf)).T.copy()    # P_f Phi^T Pp^-1 (Pp symmetric)
+        if rejected[k]:
+            # no heading (nor bias about up) in from row k+1, none out into row k
+            C = _mm(_mm(_heading_projector(x_f[k, :4], m), C), _heading_projector(xp[:4], m))
         # delta = x_s[k+1] ⊖ x_p[k+1]
         conj = np.array([xp[0], -xp[1], -xp[2], -xp[3]])
         e = _quat_mul(conj, x_s[k + 1, :4])
@@ -221,14 +273,41 @@ def _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m, x_s):
             Ps = Pf
 
 
+def rejected_stretches(t: np.ndarray, mag_present: np.ndarray, mag_rejected: np.ndarray,
+                       min_s: float = REJECTED_STRETCH_S) -> np.ndarray:
+    """Per row, whether it lies in a rejected stretch of the forward pass (module docstring):
+    a run of rows whose latest magnetometer reading was rejected (``mag_rejected``, the light,
+    which keeps the decision of the latest reading), from the rejected reading that starts it
+    to the row before the reading that passes again, lasting longer than `min_s` (to that
+    reading, or to the last row), after a reading (a row of `mag_present`) that passed.
+    Gyroscope-only rows between passing readings are in no stretch."""
+    n = t.shape[0]
+    out = np.zeros(n, dtype=np.bool_)
+    flag = np.asarray(mag_rejected, dtype=np.bool_)
+    if not flag.any():
+        return out
+    edges = np.diff(np.concatenate([[0], flag.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)   # [start, end)
+    passed = np.asarray(mag_present, dtype=np.bool_) & ~flag
+    passed_before = np.concatenate([[False], np.cumsum(passed)[:-1] > 0])
+    for a, b in zip(starts, ends):
+        length = t[min(b, n - 1)] - t[a]
+        if length > min_s and passed_before[a]:
+            out[a:b] = True
+    return out
+
+
 def smooth_batch(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
                  mag: ArrayLike | None, settings: EKFSettings | str | None = None,
-                 sensors: tuple[str, ...] | list[str] = SENSORS) -> BatchResult:
+                 sensors: tuple[str, ...] | list[str] = SENSORS,
+                 rejected_stretch_s: float = REJECTED_STRETCH_S) -> BatchResult:
     """The EKF (compiled, `settings` as for ``ekf.filter_batch``) forward over the rows, then
     the backward RTS pass: per row the smoothed quaternion (w-first, sensor -> ENU, w >= 0) and
     gyro bias; the flags are the forward filter's (with `settings` as given). Same arguments as
     ``ekf.filter_batch``; the forward pass runs without ``mag_bias_innovation_limit`` and, with
-    ``smooth_hard_iron`` false, without the online hard-iron fit (module docstring)."""
+    ``smooth_hard_iron`` false, without the online hard-iron fit (module docstring). Within a
+    stretch of rejected magnetometer readings longer than `rejected_stretch_s` [s] the heading
+    is the forward pass's (module docstring; inf: no such rule)."""
     from ekf.fast.filter import FastEKF
     from ekf.fast.layout import C
     from ekf.fast.steps import _run_batch_record
@@ -269,7 +348,10 @@ def smooth_batch(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
     if n:
         m_err = 6 if est.settings.estimate_gyro_bias else 3
         bias_fixed = np.asarray(est.settings.gyr_bias, float)
-        _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m_err, x_s)
+        # the forward pass's own light (a flag row without a reading keeps the latest one)
+        rejected = rejected_stretches(t, np.isfinite(m).all(axis=1), out_flags[:, 1],
+                                      rejected_stretch_s)
+        _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m_err, rejected, x_s)
     bias = x_s[:, 4:7] if est.settings.estimate_gyro_bias else np.tile(
         np.asarray(est.settings.gyr_bias, float), (n, 1))
     if flags is not None:
