@@ -331,8 +331,9 @@ def smooth_batch(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
                                                  or np.any(state["mag_offset_prior"] != 0.0)):
             # a raw magnetometer (its offset acquired, ekf.reference_field): without the fit
             # the forward pass would have no heading; the offset the filter found over the
-            # whole recording is subtracted instead, a calibration as calibrate-mag's
-            m = m - np.asarray(state["mag_offset"], float)
+            # whole recording is subtracted instead (its least-squares fit, unshrunk: offline
+            # nothing is at stake in between), a calibration as calibrate-mag's
+            m = m - np.asarray(state["mag_offset_fit"], float)
     est = FastEKF(forward, sensors)
     cfg = est._cfg.copy()
     cfg[C.record_prediction] = 1.0
