@@ -88,7 +88,6 @@ SPACE = {
     "mag_dip_gate_deg": (10.0, 40.0, True, 1.0),
     "mag_return_s": (2.0, 20.0, True, 1.0),
     "mag_noise_adapt": (100.0, 10000.0, True, 100.0),
-    "mag_reject_heading_std_deg": (1.0, 10.0, True, 0.5),
     "mag_hard_iron_tau_s": (20.0, 300.0, True, 10.0),
     "mag_hard_iron_prior": (0.3, 10.0, True, 0.1),
     # not searched: mag_bias_innovation_limit is Huber's k = 1.345 (95 % efficiency under
@@ -182,7 +181,7 @@ SMOOTHER_CHOICES = {"smooth_hard_iron=true": {"smooth_hard_iron": True},
 
 
 def choose_per_fold(errs: dict[str, np.ndarray], peer: np.ndarray, recs: list[Recording],
-                    fold_set: dict) -> tuple[np.ndarray, str]:
+                    fold_set: dict, family: str | None = None) -> tuple[np.ndarray, str]:
     """Leave one group out over a few fixed choices (label -> each recording's error): per fold
     the choice with the best objective (against `peer`) on the other folds, its errors on the
     fold. Prints each fold's pick and the pick on all; returns (held-out errors, that pick)."""
@@ -200,6 +199,8 @@ def choose_per_fold(errs: dict[str, np.ndarray], peer: np.ndarray, recs: list[Re
 
     held = np.full(len(recs), np.nan)
     for fold, inside in fold_set.items():
+        if family is not None and _family(fold) != family:
+            continue
         test = np.array([inside(r) for r in recs])
         if test.any() and not test.all():
             held[test] = errs[show(f"fold {fold}, on the others", scores(~test))][test]
@@ -211,15 +212,19 @@ def cross_validate_grid(recs: list[Recording], vqf: np.ndarray, fold_set: dict, 
     """One setting over listed values, every other at the default preset: per fold the value
     best on the other folds (the objective above), and the value best on all recordings."""
     errs = {f"{name}={v:g}": errors(settings_of({name: v}), recs) for v in values}
-    held, best = choose_per_fold(errs, vqf, recs, fold_set)
     kinds_arr = np.array([r.kind for r in recs])
-    for kind in sorted(set(kinds_arr)):
-        sel = kinds_arr == kind
-        v = vqf[sel].mean()
-        print(f"mean {kind}: held-out {held[sel].mean():.2f} ({held[sel].mean() / v:.2f}x VQF 9D "
-              f"{v:.2f}, worst {np.max(held[sel] / vqf[sel]):.2f}x); with {best} "
-              f"{errs[best][sel].mean():.2f} ({errs[best][sel].mean() / v:.2f}x, worst "
-              f"{np.max(errs[best][sel] / vqf[sel]):.2f}x)")
+    for family in dict.fromkeys(_family(f) for f in fold_set):
+        held, best = choose_per_fold(errs, vqf, recs, fold_set, family)
+        for kind in sorted(set(kinds_arr)):
+            sel = kinds_arr == kind
+            if not np.isfinite(held[sel]).all():
+                continue
+            v = vqf[sel].mean()
+            print(f"mean {kind}, {family} out: held-out {held[sel].mean():.2f} "
+                  f"({held[sel].mean() / v:.2f}x VQF 9D {v:.2f}, worst "
+                  f"{np.max(held[sel] / vqf[sel]):.2f}x); with {best} "
+                  f"{errs[best][sel].mean():.2f} ({errs[best][sel].mean() / v:.2f}x, worst "
+                  f"{np.max(errs[best][sel] / vqf[sel]):.2f}x)")
 
 
 def cross_validate_smoother(recs: list[Recording], fold_set: dict) -> None:
@@ -229,24 +234,26 @@ def cross_validate_smoother(recs: list[Recording], fold_set: dict) -> None:
     kinds = [r.kind for r in recs]
     errs = {name: smoothed_errors(ekf.PRESETS["default"].with_changes(**changes), recs)
             for name, changes in SMOOTHER_CHOICES.items()}
-    held, _ = choose_per_fold(errs, off, recs, fold_set)
-    names = list(errs)
-    print(f"\n{'recording':<44}{'held-out':>10}" + "".join(f"{n[-5:]:>10}" for n in names) +
-          f"{'offline VQF':>12}")
-    for i, r in enumerate(recs):
-        print(f"{r.name[:44]:<44}{held[i]:>10.2f}" + "".join(f"{errs[n][i]:>10.2f}" for n in names)
-              + f"{off[i]:>12.2f}")
-    kinds_arr = np.array(kinds)
-    for kind in sorted(set(kinds)):
-        sel = kinds_arr == kind
-        v = off[sel].mean()
-        print(f"{'mean ' + kind:<44}{held[sel].mean():>10.2f}" +
-              "".join(f"{errs[n][sel].mean():>10.2f}" for n in names) +
-              f"{v:>12.2f}   (held-out / offline VQF {held[sel].mean() / v:.2f}, worst "
-              f"{np.max(held[sel] / off[sel]):.2f}x)")
-    print(f"{'mean all':<44}{held.mean():>10.2f}" + "".join(f"{errs[n].mean():>10.2f}"
-                                                            for n in names) +
-          f"{off.mean():>12.2f}   (held-out / offline VQF {held.mean() / off.mean():.2f})")
+    for family in dict.fromkeys(_family(f) for f in fold_set):
+        held, _ = choose_per_fold(errs, off, recs, fold_set, family)
+        print(f"\n{family} out:")
+        names = list(errs)
+        print(f"\n{'recording':<44}{'held-out':>10}" + "".join(f"{n[-5:]:>10}" for n in names) +
+              f"{'offline VQF':>12}")
+        for i, r in enumerate(recs):
+            print(f"{r.name[:44]:<44}{held[i]:>10.2f}" + "".join(f"{errs[n][i]:>10.2f}" for n in names)
+                  + f"{off[i]:>12.2f}")
+        kinds_arr = np.array(kinds)
+        for kind in sorted(set(kinds)):
+            sel = kinds_arr == kind
+            v = off[sel].mean()
+            print(f"{'mean ' + kind:<44}{held[sel].mean():>10.2f}" +
+                  "".join(f"{errs[n][sel].mean():>10.2f}" for n in names) +
+                  f"{v:>12.2f}   (held-out / offline VQF {held[sel].mean() / v:.2f}, worst "
+                  f"{np.max(held[sel] / off[sel]):.2f}x)")
+        print(f"{'mean all':<44}{held.mean():>10.2f}" + "".join(f"{errs[n].mean():>10.2f}"
+                                                                for n in names) +
+              f"{off.mean():>12.2f}   (held-out / offline VQF {held.mean() / off.mean():.2f})")
 
 
 def objective(ours: np.ndarray, vqf: np.ndarray, kinds: list[str]) -> float:
@@ -346,6 +353,13 @@ def _fold_job(args):
 _STATE: dict = {}
 
 
+def _family(fold: str) -> str:
+    """The family of a fold: "person" for person-Guillaume, "dataset" for dataset-broad; the
+    folds of the other fold sets are one family, "held-out"."""
+    head, sep, _ = fold.partition("-")
+    return head if sep and head in ("person", "dataset") else "held-out"
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--trials", type=int, default=100, help="optuna trials per search")
@@ -355,10 +369,11 @@ def main() -> int:
                     help="first trial of each search: the centre of the ranges (default: the "
                          "held-out figures owe nothing to the held-out data) or today's default "
                          "preset (chosen on every recording: optimistic)")
-    ap.add_argument("--folds", choices=tuple(FOLD_SETS), default="groups",
-                    help="groups: leave one group out (a motion never seen in tuning; the "
-                         "default); halves: two folds with every motion on both sides (the "
-                         "same activities, other recordings)")
+    ap.add_argument("--folds", choices=tuple(FOLD_SETS), default="user",
+                    help="user (the default): leave one person out of the Nexus 5 recordings, "
+                         "and one dataset out (BROAD or the Nexus 5): what a user brings; "
+                         "groups: leave one motion group out; halves: two folds with every "
+                         "motion on both sides")
     ap.add_argument("--held-out-only", action="store_true",
                     help="only the held-out figures: no fit on all recordings, no plateau check "
                          "(to compare procedures; about half the time)")
@@ -384,7 +399,7 @@ def main() -> int:
                          "separately, for the held-out fold's copies")
     ap.add_argument("--range", action="append", default=[], metavar="NAME=LO,HI",
                     help="search NAME between LO and HI instead (repeatable), e.g. "
-                         "mag_reject_heading_std_deg=2,6")
+                         "mag_gate=4,8")
     ap.add_argument("--top", type=int, default=PICK["top"], metavar="K",
                     help="a search returns the centre of its K best trials (geometric mean per "
                          "log-scale setting; default %(default)s); 1: the single best trial")
@@ -449,7 +464,10 @@ def main() -> int:
           f"starting from the {'centre of the ranges' if args.start == 'centre' else 'default'}",
           flush=True)
 
-    held = np.full(len(recs), np.nan)
+    # folds of one family hold out disjoint recordings (person-*, dataset-*); each family is a
+    # column of held-out figures
+    families = list(dict.fromkeys(_family(f) for f in folds))
+    held_by = {fam: np.full(len(recs), np.nan) for fam in families}
     jobs = [(f, trials, args.seed, args.start, args.folds) for f in folds]
     if args.jobs > 1:
         with ProcessPoolExecutor(args.jobs) as pool:
@@ -457,7 +475,7 @@ def main() -> int:
     else:
         results = [_fold_job(j) for j in jobs]
     for fold, test, errs, params, secs in results:
-        held[test] = errs
+        held_by[_family(fold)][test] = errs
         print(f"fold {fold} ({secs:.0f} s): tuned on the others -> " +
               ", ".join(f"{k}={v:.3g}" for k, v in params.items()), flush=True)
 
@@ -472,21 +490,30 @@ def main() -> int:
         print(f"fit on all ({time.perf_counter() - t0:.0f} s), rounded: " +
               ", ".join(f"{k}={v:g}" for k, v in rounded.items()))
 
-    print(f"\n{'recording':<44}{'held-out':>10}{'fit-all':>10}{'default':>10}{'VQF 9D':>10}")
+    print(f"\n{'recording':<44}" + "".join(f"{fam[:10]:>10}" for fam in families) +
+          f"{'fit-all':>10}{'default':>10}{'VQF 9D':>10}")
     for i, r in enumerate(recs):
         if r.kind != AUGMENTED:        # the copies only in their means below
-            print(f"{r.name[:44]:<44}{_cell(held[i])}{_cell(on_all[i])}{default[i]:>10.2f}"
-                  f"{vqf_err[i]:>10.2f}")
+            print(f"{r.name[:44]:<44}" + "".join(_cell(held_by[f][i]) for f in families) +
+                  f"{_cell(on_all[i])}{default[i]:>10.2f}{vqf_err[i]:>10.2f}")
     kinds = np.array([r.kind for r in recs])
-    for kind in sorted(set(kinds)):
-        sel = kinds == kind
+    groups = [(kind, kinds == kind) for kind in sorted(set(kinds))]
+    people = sorted({person_of(r) for r in recs} - {""})
+    if len(people) > 1:
+        groups += [(p, np.array([person_of(r) == p and r.kind == "tyrex" for r in recs]))
+                   for p in people]
+    for label, sel in groups:
         v = vqf_err[sel].mean()
-        worst = (f"{np.max(held[sel] / vqf_err[sel]):.2f}x" if np.isfinite(held[sel]).all()
-                 else "-")
-        print(f"{'mean ' + kind:<44}{_cell(held[sel].mean())}{_cell(on_all[sel].mean())}"
-              f"{default[sel].mean():>10.2f}{v:>10.2f}   (held-out / VQF "
-              f"{_cell(held[sel].mean() / v).strip()}, worst {worst}; "
-              f"default / VQF {default[sel].mean() / v:.2f}, worst "
+        cells, notes = "", []
+        for fam in families:
+            h = held_by[fam][sel]
+            cells += _cell(h.mean())
+            if np.isfinite(h).all():
+                notes.append(f"{fam} {h.mean() / v:.2f}x VQF, worst "
+                             f"{np.max(h / vqf_err[sel]):.2f}x")
+        print(f"{'mean ' + label:<44}{cells}{_cell(on_all[sel].mean())}"
+              f"{default[sel].mean():>10.2f}{v:>10.2f}   (" + "; ".join(notes) +
+              ("; " if notes else "") + f"default / VQF {default[sel].mean() / v:.2f}, worst "
               f"{np.max(default[sel] / vqf_err[sel]):.2f}x)")
     if not args.quick and not args.held_out_only:
         print("\nplateau: objective of the rounded fit with one value halved / doubled")

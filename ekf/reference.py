@@ -277,6 +277,7 @@ class OrientationEKF(MagneticField, EstimatorBase):
         st = self._state
         if self.settings.mag_hard_iron_tau_s > 0.0 and st.mag_enabled and st.initialised:
             self._fit_hard_iron(t, y)
+            self._explaining_offset(y)
             y = y - st.mag_offset
             if float(np.linalg.norm(y)) < MIN_NORM:
                 return

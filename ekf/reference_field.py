@@ -39,11 +39,6 @@ EARTH_FIELD_MAX = 100.0
 ACQUIRED_INFO = 0.25
 # The acquisition's prior: numerical only (an offset of hundreds of uT must not be shrunk).
 ACQUIRING_PRIOR = 1e-3
-# The offset applied is the fit's shrunk towards its prior by the positive-part James-Stein
-# factor max(0, 1 - HARD_IRON_SHRINK / chi2), chi2 = d^T (M + p I) d / sigma^2 the fit's
-# departure d from the prior in units of its own uncertainty (sigma^2 the pairs' residual
-# variance per axis): an offset the pairs' scatter could explain is not applied.
-HARD_IRON_SHRINK = 1.0
 
 
 def _elevation_deg(v: np.ndarray) -> float:
@@ -90,38 +85,43 @@ class MagneticField:
             forget, w, st.mag_offset_outliers = 0.0, 1.0, 0.0   # a new offset: start again
         st.mag_offset_info[:] = forget * st.mag_offset_info + w * (D.T @ D)
         st.mag_offset_rhs[:] = forget * st.mag_offset_rhs + w * (D.T @ e)
-        st.mag_offset_res_sq = forget * st.mag_offset_res_sq + w * residual * residual
-        st.mag_offset_weight = forget * st.mag_offset_weight + w
         st.mag_offset_t = t
         prior = ACQUIRING_PRIOR if st.mag_acquiring else s.mag_hard_iron_prior
-        A = st.mag_offset_info + prior * np.eye(3)
-        st.mag_offset_fit[:] = np.linalg.solve(A, st.mag_offset_rhs + prior * st.mag_offset_prior)
-        st.mag_offset[:] = self._significant_offset(A)
+        st.mag_offset_fit[:] = np.linalg.solve(st.mag_offset_info + prior * np.eye(3),
+                                               st.mag_offset_rhs + prior * st.mag_offset_prior)
         self._acquisition_progress(y)
-        st.diagnostics.mag_offset_norm = float(np.linalg.norm(st.mag_offset))
         self._open_pair(t, y)
 
-    def _significant_offset(self, A: np.ndarray) -> np.ndarray:
-        """The offset applied: what rotation reveals of it. A field that changes from place to
-        place (a room's, along a walk) makes pairs differ by more than their turn explains, and
-        the fit reads that as an offset; such an offset is of the size of the pairs' own
-        scatter. The fit's departure d from its prior, measured in its uncertainty
-        (chi2 = d^T A d / sigma^2, A = M + prior I its information, sigma^2 the residual
-        variance per axis), is shrunk by max(0, 1 - HARD_IRON_SHRINK / chi2): a magnet on the
-        phone (chi2 in the hundreds) is applied whole, a few uT within the scatter not at all.
-        While the offset is acquired the fit is applied as it is."""
-        st = self._state
+    def _explaining_offset(self, y: np.ndarray) -> None:
+        """The offset applied to a reading: the fit's only where it explains what the field
+        alone does not. Pairs of readings taken at two places differ by the field's change
+        between them as well as by the turn, and the fit reads part of that as an offset; a
+        calibrated magnetometer whose readings pass the strength gate as they come needs none.
+        So the fit's offset is applied when the reading fails the gate as it is and passes it
+        corrected (a magnet on the phone), and dropped when the reading passes as it is and
+        fails corrected (the magnet gone); when both or neither pass, the choice stays. A raw
+        magnetometer (acquiring, waiting or acquired: ``_check_uncalibrated``) always has its
+        offset applied."""
+        s, st = self.settings, self._state
         fit = st.mag_offset_fit
-        if st.mag_acquiring or not st.mag_offset_weight > 0.0:
-            return fit.copy()
-        d = fit - st.mag_offset_prior
-        var = st.mag_offset_res_sq / (3.0 * st.mag_offset_weight)
-        info = float(d @ A @ d)
-        if not var > 0.0:
-            return fit.copy()
-        chi2 = info / var
-        factor = max(0.0, 1.0 - HARD_IRON_SHRINK / chi2) if chi2 > 0.0 else 0.0
-        return st.mag_offset_prior + factor * d
+        if st.mag_acquiring or st.mag_waiting or np.any(st.mag_offset_prior != 0.0):
+            st.mag_offset[:] = fit
+        elif math.isfinite(st.mag_strength):
+            self._choose_offset(y)
+        st.diagnostics.mag_offset_norm = float(np.linalg.norm(st.mag_offset))
+
+    def _choose_offset(self, y: np.ndarray) -> None:
+        """``_explaining_offset`` for a calibrated magnetometer: the fit's offset or none."""
+        s, st = self.settings, self._state
+        fit, L = st.mag_offset_fit, st.mag_strength
+        as_is = abs(float(np.linalg.norm(y)) - L) <= s.mag_gate
+        corrected = abs(float(np.linalg.norm(y - fit)) - L) <= s.mag_gate
+        applied = bool(np.any(st.mag_offset != 0.0))
+        if corrected and not as_is:
+            applied = True
+        elif as_is and not corrected:
+            applied = False
+        st.mag_offset[:] = fit if applied else 0.0
 
     def _turned_to_stamp(self, y: np.ndarray) -> np.ndarray:
         """mag_delay_s: the reading was taken that long before its stamp; the field (y - b, b
@@ -137,7 +137,7 @@ class MagneticField:
         if rate == 0.0:
             return y
         R = quat.to_matrix(quat.from_axis_angle(w / rate, -rate * s.mag_delay_s))
-        return st.mag_offset + R @ (y - st.mag_offset)
+        return st.mag_offset_fit + R @ (y - st.mag_offset_fit)
 
     def _check_uncalibrated(self) -> None:
         """The expected field, learned, is beyond any Earth field (EARTH_FIELD_MAX): the
@@ -161,10 +161,8 @@ class MagneticField:
         info = st.mag_offset_info
         if st.mag_acquiring and np.linalg.eigvalsh(info)[0] >= ACQUIRED_INFO:
             st.mag_acquiring = False
-            st.mag_offset_prior[:] = st.mag_offset
-            st.mag_offset_res_sq = 0.0     # the acquisition's residuals say nothing of the rest
-            st.mag_offset_weight = 0.0
-        if st.mag_waiting and np.linalg.norm(y - st.mag_offset) <= EARTH_FIELD_MAX:
+            st.mag_offset_prior[:] = st.mag_offset_fit
+        if st.mag_waiting and np.linalg.norm(y - st.mag_offset_fit) <= EARTH_FIELD_MAX:
             H = quat.to_matrix(self._x[:4])[:2]
             cov = H @ np.linalg.inv(info + ACQUIRING_PRIOR * np.eye(3)) @ H.T
             if np.linalg.eigvalsh(cov)[-1] * ACQUIRED_INFO <= 1.0:

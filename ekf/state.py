@@ -146,12 +146,9 @@ class EKFState:
     mag_offset: np.ndarray = state_field("the online hard-iron estimate b_m, subtracted from "
                                          "every reading (mag_hard_iron_tau_s)", _zeros3,
                                          unit="µT", shape=(3,))
-    mag_offset_fit: np.ndarray = state_field("the fit's least-squares offset; b_m is the part of it "
-                                             "that stands out of the pairs' residual scatter",
+    mag_offset_fit: np.ndarray = state_field("the fit's least-squares offset; b_m is it where it "
+                                             "explains readings the field would reject, else 0",
                                              _zeros3, unit="µT", shape=(3,))
-    mag_offset_res_sq: float = state_field("the pairs' weighted squared residuals Σ w |e − D b|² "
-                                           "(forgetting)", _value(0.0), unit="µT²")
-    mag_offset_weight: float = state_field("their weight Σ w (forgetting)", _value(0.0))
     mag_offset_info: np.ndarray = state_field("its normal matrix Σ w Dᵀ D (forgetting)",
                                               lambda settings, enabled: np.zeros((3, 3)),
                                               shape=(3, 3))
@@ -186,7 +183,8 @@ class EKFState:
                                     unit="µT²")
     mag_dev_t: float = state_field("time of the latest reading in mag_dev_sq", _NAN, unit="s")
     mag_disturbed_time: float = state_field("disturbance time counted against "
-                                            "mag_max_reject_no_gyro_s (rejected or settling readings)",
+                                            "mag_max_reject_no_gyro_s (rejected or settling "
+                                            "readings)",
                                             _value(0.0), unit="s")
     mag_disturbed_t: float = state_field("time of the latest reading when it was rejected; NaN: "
                                          "it passed", _NAN, unit="s")
@@ -293,7 +291,7 @@ def upgrade_state(cls: type, state: Any) -> Any:
     before mag_confirmed_time existed counts a field it had learned as confirmed (it filtered
     with that field before); one saved before the raw magnetometer's acquisition existed was
     not acquiring (offset drawn to 0); one saved before the fit kept its own least-squares
-    offset has that offset as its fit, with no residuals counted. Anything else is returned as it is (and checked as
+    offset has that offset as its fit. Anything else is returned as it is (and checked as
     usual)."""
     if cls is not EKFState or not isinstance(state, Mapping):
         return state
@@ -308,8 +306,6 @@ def upgrade_state(cls: type, state: Any) -> Any:
         out["mag_confirmed_time"] = math.inf if bool(out["m0_valid"]) else 0.0
     if "mag_offset" in out and "mag_offset_fit" not in out:
         out["mag_offset_fit"] = np.asarray(out["mag_offset"], float).copy()
-        out.setdefault("mag_offset_res_sq", 0.0)
-        out.setdefault("mag_offset_weight", 0.0)
     if "mag_offset" in out and "mag_waiting" not in out:
         out.setdefault("mag_offset_prior", np.zeros(3))
         out.setdefault("mag_acquiring", False)

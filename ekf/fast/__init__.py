@@ -46,7 +46,7 @@ ekf.fast                                    ekf.reference
 ``measurements._finish_reference``          ``_finish_reference``
 ``measurements._fit_hard_iron``             ``_fit_hard_iron``
 ``measurements._open_pair``                 ``_open_pair``
-``measurements._significant_offset``       ``_significant_offset``
+``measurements._explaining_offset``         ``_explaining_offset`` and ``_choose_offset``
 ``measurements._turned_to_stamp``           ``_turned_to_stamp``
 ``measurements._acquisition_progress``      ``_acquisition_progress``
 ``measurements._known_everywhere``          its smallest-eigenvalue test (the principal

@@ -14,7 +14,7 @@ from ekf.fast.algebra import _measurement_update_q, _normalise, _to_matrix
 from ekf.fast.layout import C, S
 from ekf.outputs import (ACC_NIS_GATE, ACC_NORM_GATE, MAG_DIP_GATE, MAG_NIS_GATE, MAG_SETTLING,
                          MAG_STRENGTH_GATE, NOT_REJECTED)
-from ekf.reference_field import ACQUIRED_INFO, ACQUIRING_PRIOR, EARTH_FIELD_MAX, HARD_IRON_SHRINK
+from ekf.reference_field import ACQUIRED_INFO, ACQUIRING_PRIOR, EARTH_FIELD_MAX
 
 _INF = math.inf
 _NAN = math.nan
@@ -92,8 +92,6 @@ def _fit_hard_iron(s, c, t, y0, y1, y2):
             s[M + 3 * r + k] = forget * s[M + 3 * r + k] + w * dtd
         dte = s[D + r] * s[e] + s[D + 3 + r] * s[e + 1] + s[D + 6 + r] * s[e + 2]
         s[V + r] = forget * s[V + r] + w * dte
-    s[S.mag_offset_res_sq] = forget * s[S.mag_offset_res_sq] + w * residual * residual
-    s[S.mag_offset_weight] = forget * s[S.mag_offset_weight] + w
     s[S.mag_offset_t] = t
     # b = (M + prior I)^-1 (v + prior b_prior) (M symmetric positive semi-definite)
     prior = ACQUIRING_PRIOR if s[S.mag_acquiring] != 0.0 else c[C.mag_hard_iron_prior]
@@ -104,37 +102,36 @@ def _fit_hard_iron(s, c, t, y0, y1, y2):
     s[B] = (c00 * v0 + c01 * v1 + c02 * v2) * inv_det
     s[B + 1] = (c01 * v0 + c11 * v1 + c12 * v2) * inv_det
     s[B + 2] = (c02 * v0 + c12 * v1 + c22 * v2) * inv_det
-    _significant_offset(s, prior)
     _acquisition_progress(s, y0, y1, y2)
-    U = S.mag_offset
-    s[S.mag_offset_norm] = math.sqrt(s[U] ** 2 + s[U + 1] ** 2 + s[U + 2] ** 2)
     _open_pair(s, t, y0, y1, y2)
 
 
-@jit_inline
-def _significant_offset(s, prior):
-    """reference ``_significant_offset``: b_m = b_prior + max(0, 1 - HARD_IRON_SHRINK / chi2) d,
-    d = fit - b_prior, chi2 = d^T (M + prior I) d / sigma^2, sigma^2 = Σ w r² / (3 Σ w); the
-    fit itself while acquiring, or with no residual scatter."""
+@jit
+def _explaining_offset(s, c, y0, y1, y2):
+    """reference ``_explaining_offset`` (with ``_choose_offset``): the fit's offset applied to
+    a raw magnetometer always, to a calibrated one where the reading fails the strength gate as
+    it is and passes it corrected; dropped where it passes as it is and fails corrected."""
     F = S.mag_offset_fit
     U = S.mag_offset
     Pr = S.mag_offset_prior
-    factor = 1.0
-    if s[S.mag_acquiring] == 0.0 and s[S.mag_offset_weight] > 0.0:
-        var = s[S.mag_offset_res_sq] / (3.0 * s[S.mag_offset_weight])
-        if var > 0.0:
-            M = S.mag_offset_info
-            d0 = s[F] - s[Pr]
-            d1 = s[F + 1] - s[Pr + 1]
-            d2 = s[F + 2] - s[Pr + 2]
-            info = (d0 * (s[M] * d0 + s[M + 1] * d1 + s[M + 2] * d2)
-                    + d1 * (s[M + 3] * d0 + s[M + 4] * d1 + s[M + 5] * d2)
-                    + d2 * (s[M + 6] * d0 + s[M + 7] * d1 + s[M + 8] * d2)
-                    + prior * (d0 * d0 + d1 * d1 + d2 * d2))
-            chi2 = info / var
-            factor = max(0.0, 1.0 - HARD_IRON_SHRINK / chi2) if chi2 > 0.0 else 0.0
-    for i in range(3):
-        s[U + i] = s[Pr + i] + factor * (s[F + i] - s[Pr + i])
+    if (s[S.mag_acquiring] != 0.0 or s[S.mag_waiting] != 0.0 or s[Pr] != 0.0
+            or s[Pr + 1] != 0.0 or s[Pr + 2] != 0.0):
+        for i in range(3):
+            s[U + i] = s[F + i]
+    elif math.isfinite(s[S.mag_strength]):
+        L = s[S.mag_strength]
+        gate = c[C.mag_gate]
+        as_is = abs(math.sqrt(y0 * y0 + y1 * y1 + y2 * y2) - L) <= gate
+        corrected = abs(math.sqrt((y0 - s[F]) ** 2 + (y1 - s[F + 1]) ** 2
+                                  + (y2 - s[F + 2]) ** 2) - L) <= gate
+        applied = s[U] != 0.0 or s[U + 1] != 0.0 or s[U + 2] != 0.0
+        if corrected and not as_is:
+            applied = True
+        elif as_is and not corrected:
+            applied = False
+        for i in range(3):
+            s[U + i] = s[F + i] if applied else 0.0
+    s[S.mag_offset_norm] = math.sqrt(s[U] ** 2 + s[U + 1] ** 2 + s[U + 2] ** 2)
 
 
 @jit_inline
@@ -155,9 +152,9 @@ def _turned_to_stamp(s, c, y0, y1, y2):
     angle = -rate * delay
     ca = math.cos(angle)
     sa = math.sin(angle)
-    b0 = s[S.mag_offset]
-    b1 = s[S.mag_offset + 1]
-    b2 = s[S.mag_offset + 2]
+    b0 = s[S.mag_offset_fit]
+    b1 = s[S.mag_offset_fit + 1]
+    b2 = s[S.mag_offset_fit + 2]
     x0 = y0 - b0
     x1 = y1 - b1
     x2 = y2 - b2
@@ -211,13 +208,11 @@ def _known_everywhere(s):
 @jit
 def _acquisition_progress(s, y0, y1, y2):
     """reference ``_acquisition_progress``."""
-    B = S.mag_offset
+    B = S.mag_offset_fit
     if s[S.mag_acquiring] != 0.0 and _known_everywhere(s):
         s[S.mag_acquiring] = 0.0
         for i in range(3):
             s[S.mag_offset_prior + i] = s[B + i]
-        s[S.mag_offset_res_sq] = 0.0
-        s[S.mag_offset_weight] = 0.0
     if s[S.mag_waiting] == 0.0:
         return
     if math.sqrt((y0 - s[B]) ** 2 + (y1 - s[B + 1]) ** 2 + (y2 - s[B + 2]) ** 2) \

@@ -12,8 +12,8 @@ from ekf.fast.algebra import (_acc_mag_quaternion, _add_attitude_cov, _cross, _q
                               _to_matrix, _zero_rate_update)
 from ekf.fast.layout import C, S
 from ekf.fast.measurements import (_acc_lowpass_update, _acc_update, _check_uncalibrated,
-                                   _fit_hard_iron, _heading_error, _mag_update, _set_m0_from,
-                                   _shaking)
+                                   _explaining_offset, _fit_hard_iron, _heading_error,
+                                   _mag_update, _set_m0_from, _shaking)
 from ekf.fast.time_update import _advance
 from ekf.outputs import ACC_CLIPPED, MAG_UNCALIBRATED
 
@@ -273,6 +273,7 @@ def _update_mag(s, c, t, v0, v1, v2):
     if (c[C.mag_hard_iron_tau_s] > 0.0 and s[S.mag_enabled] != 0.0
             and s[S.initialised] != 0.0):
         _fit_hard_iron(s, c, t, v0, v1, v2)
+        _explaining_offset(s, c, v0, v1, v2)
         v0 -= s[S.mag_offset]
         v1 -= s[S.mag_offset + 1]
         v2 -= s[S.mag_offset + 2]
