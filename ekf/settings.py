@@ -328,43 +328,22 @@ class EKFSettings:
 
 COURSE = EKFSettings()
 
-# Chosen by cross-validation over the shared BROAD trials and Nexus 5 recordings together
-# (benchmarks/tune_defaults.py: the search on all of them, rounded, R_a one step off the
-# search's edge where the plateau check found it better; the held-out figures of the procedure
-# are in the README):
-# - gyroscope: exact discretisation, the sample as the rate over the interval before it, bias in
-#   the state with a zero-rate update at rest, R_w growing with 2% scale uncertainty
-#   (phone-class MEMS gyroscopes: +-3% sensitivity, +-2% cross-axis in their data sheets;
-#   every fold of `--grid gyr_scale_noise` chose 0.02, BROAD's fast rotation 4.66 -> 3.63 deg);
-# - accelerometer: low-passed over 0.75 s in a frame carried by the gyroscope (no reading is
-#   dropped but a clipped one, the range detected from the data; the norm gate only lights the
-#   "disturbed" light), R_a growing with the shaking (running, swinging); once the
-#   magnetometer has been silent for 2 s, tilt only (no gain on the heading or the bias about
-#   up: `robustness.py`'s mag-off 54.4 -> 24.6 deg; the 9D figures are flat from 1 to 5 s);
+# The course filter with the mechanisms that earn their place on recordings they were not
+# chosen on (benchmarks/ablation.py; what each does and why: README, "Beyond the course"):
+# - gyroscope: exact discretisation, the sample as the rate over the interval before it, bias
+#   in the state with a zero-rate update at rest, R_w growing with a 2 % scale uncertainty;
+# - accelerometer: low-passed over 0.75 s in a frame the gyroscope carries, clipped readings
+#   left out (the range detected from the data), R_a growing with the shaking, tilt only once
+#   the magnetometer has been silent for 2 s;
 # - magnetometer: heading only, following the field with a 7 s time constant at the fastest,
-#   trusted less where the field is uneven (a reading counting at most 4 gates off there: a
-#   magnet passing by does not silence it for tens of seconds after; held out over ten seeds
-#   the worst Nexus 5 recording 1.57-2.12x VQF instead of 1.52-2.78x, R_m's growth 1000 chosen
-#   by every fold of `--grid` but one); strength and dip gates (5 uT, 20 deg, dip from the
-#   estimate) around the mean of the first second's readings that agree, 0.5 s of passing
-#   readings before use; a disturbance keeps it out only while the heading's standard deviation
-#   (from P) stays under 3 deg (chosen by `tune_defaults.py --grid`; never without a gyroscope),
-#   then a reading counts no more than its disturbance allows (R_m + D² I, D the least
-#   disturbance that makes it out of the expected field; once that field is confirmed: the
-#   disturbed phoning walk 15 deg off at most instead of 21, held out at most 1.77x VQF instead
-#   of 2.12x; held out over ten seeds the mean is the same, 0.86x, and the worst recording,
-#   now the disturbed back pocket, <= 2x in eight seeds as before; `--grid` chose 1 in four
-#   folds, 0.1 in the fifth, none 0);
-#   a changed field is re-learned from readings that agree in the world frame for 20 s while
-#   the phone turns faster than 20 deg/s (5 s, turning or not, while the learned field is young:
-#   VQF's magNewFirstTime, confirmed by `--augment 1 --grid`); the bias learns from at most
-#   1.345 sigma of a heading innovation (Huber's constant, not searched: every fold of `--grid`
-#   chose 1.345 or 1.5); the
-#   sensor-frame offset (a magnet on the phone) fitted online over 4 minutes, each reading
-#   turned on by the gyroscope to its stamp (30 ms late: every fold of `--grid` chose it);
-# - the slow updates (low-passed accelerometer, magnetometer, zero rate) at most every 50 ms;
-# - the offline smoother runs its forward pass without the online hard-iron fit (chosen by
-#   `tune_defaults.py --smoother`, leave one group out).
+#   R_m growing where the field is uneven (a reading counting at most 4 gates there);
+#   strength and dip gates around the mean of the first second's agreeing readings, 0.5 s of
+#   passing readings before use; with a gyroscope a rejected reading stays out until readings
+#   pass or agree as a new field (in the world frame while turning, 20 s; 5 s while the
+#   learned field is young); the bias learns from at most 1.345 sigma of a heading innovation;
+#   the sensor-frame offset fitted online over 4 minutes (readings 30 ms late) and applied where
+#   it explains what the field alone does not;
+# - the slow updates at most every 50 ms; the smoother's forward pass without the online fit.
 DEFAULT = EKFSettings(
     exact_discretisation=True,
     gyr_rate_before_sample=True,
