@@ -41,7 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import ekf  # noqa: E402
 from datasets import Recording, load_all, run_ours, run_vqf  # noqa: E402
-from tune_defaults import FOLD_SETS, objective, person_of  # noqa: E402
+from tune_defaults import FOLD_SETS, _family, objective, person_of  # noqa: E402
 
 COURSE = ekf.PRESETS["course"]
 
@@ -217,7 +217,7 @@ def main() -> int:
 
     print("\ndecided inside the folds (backward elimination on each fold's training side):")
     folds = FOLD_SETS["user"]
-    held = np.full(len(recs), np.nan)
+    held: dict[str, np.ndarray] = {}
     kept_by_fold: dict[str, list[str]] = {}
     for fold, inside in folds.items():
         test = np.array([inside(r) for r in recs])
@@ -228,16 +228,12 @@ def main() -> int:
         kept_by_fold[fold] = [m for m in mechanisms if m not in removed]
         print(f"    kept: {', '.join(kept_by_fold[fold]) or 'none'}")
         e = cache.get(removed)
-        if fold.startswith("person"):
-            held[test] = e[test]
-        _STATE.setdefault("dataset_held", np.full(len(recs), np.nan))
-        if fold.startswith("dataset"):
-            _STATE["dataset_held"][test] = e[test]
+        family = held.setdefault(_family(fold), np.full(len(recs), np.nan))
+        family[test] = e[test]
     print("\nheld out (each recording filtered with what its fold's training side kept):")
     base_err = cache.get(frozenset())
-    for label, h in (("person out", held), ("dataset out", _STATE.get("dataset_held"))):
-        if h is None:
-            continue
+    for family, h in held.items():
+        label = f"{family} out"
         for name, sel in held_sets(recs).items():
             sel = sel & np.isfinite(h)
             if sel.any():
