@@ -4,6 +4,9 @@ and bad input as one line with exit status 2; headless with Qt blocked (except -
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +16,8 @@ from ekf.simulate import simulate
 from app import cli
 from app.stream.demo import write_session
 from test_architecture import QT, run_blocked
+
+ROOT = Path(__file__).resolve().parents[1]
 
 OFFSET = (30.0, -25.0, 200.0)
 
@@ -59,6 +64,21 @@ def test_calibrate_plots_writes_pngs(logs, tmp_path, capsys):
     assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in plots.iterdir())
     assert cli.main(["calibrate-mag", str(logs["mag"]), "--plots", str(plots)]) == 0
     assert (plots / "mag_cloud.png").stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("command", ["calibrate", "calibrate-mag"])
+@pytest.mark.parametrize("where", ["a file", "below a file"])
+def test_plots_into_a_place_that_takes_no_files_is_one_line(logs, tmp_path, command, where):
+    a_file = tmp_path / "taken.png"
+    a_file.write_bytes(b"mine")
+    target = a_file if where == "a file" else a_file / "plots"
+    log = logs["rest"] if command == "calibrate" else logs["mag"]
+    result = subprocess.run([sys.executable, "-m", "app", command, str(log), "--plots",
+                             str(target)], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"--plots {target}" in lines[0], lines
+    assert a_file.read_bytes() == b"mine"
 
 
 def test_calibrate_mag_prints_offset_matrix_coverage_and_spread(logs, capsys, tmp_path):

@@ -189,6 +189,17 @@ def test_the_window_without_a_display_says_so_in_one_line():
     assert len(lines) == 1 and "no display" in lines[0] and "serve" in lines[0]
 
 
+def test_a_display_that_does_not_answer_is_one_line_not_a_qt_abort():
+    env = {k: v for k, v in __import__("os").environ.items()
+           if k not in ("DISPLAY", "WAYLAND_DISPLAY", "QT_QPA_PLATFORM")}
+    env["DISPLAY"] = ":97"                 # no X server listens there
+    result = subprocess.run([sys.executable, "-m", "app", "--demo"], cwd=ROOT, env=env,
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "DISPLAY=:97 does not answer" in lines[0]
+
+
 # ---- engine failures reach the user --------------------------------------------------------------
 
 class _Boom(RuntimeError):

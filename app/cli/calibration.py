@@ -35,6 +35,35 @@ def _figures():
     return figures
 
 
+def _plots_folder(path: str | None) -> None:
+    """--plots names a folder that exists or can be made, and that takes files: checked before
+    the analysis runs, so a wrong path is one line and costs no waiting."""
+    if path is None:
+        return
+    folder = Path(path)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = folder / ".orientation-lab-probe"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except FileExistsError:
+        raise config.ConfigError(f"--plots {path}: not a folder (a file of that name exists)") \
+            from None
+    except OSError as error:
+        raise config.ConfigError(f"--plots {path}: cannot write there: "
+                                 f"{error.strerror or error}") from None
+
+
+def _save_figures(save, *data: Any, folder: str) -> None:
+    try:
+        written = save(*data, folder)
+    except OSError as error:
+        raise config.ConfigError(f"--plots {folder}: cannot write the figures: "
+                                 f"{error.strerror or error}") from None
+    for path in written:
+        print(f"wrote {path}")
+
+
 def _keep_in_profile(name: str, **parts: Any) -> None:
     store = profiles.ProfileStore()
     try:
@@ -61,6 +90,7 @@ def _print_rest(rest: RestCalibration, t0: float) -> None:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
+    _plots_folder(args.plots)
     log = read_log(args.log, args.limits)
     start, end = args.range if args.range else (None, None)
     rest = rest_from_log(log, start, None if end == float("inf") else end, whole=args.whole)
@@ -76,14 +106,15 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         _keep_in_profile(args.profile, rest=result.to_dict(),
                          allan=rest.allan.to_dict() if rest.allan else None)
     if args.plots:
-        for path in _figures().save_rest_figures(rest.analysis, rest.allan, args.plots):
-            print(f"wrote {path}")
+        _save_figures(_figures().save_rest_figures, rest.analysis, rest.allan,
+                      folder=args.plots)
     return 0
 
 
 # ---- calibrate-mag --------------------------------------------------------------------------------
 
 def cmd_calibrate_mag(args: argparse.Namespace) -> int:
+    _plots_folder(args.plots)
     log = read_log(args.log, args.limits)
     start, end = args.range if args.range else (None, None)
     result, raw = mag_from_log(log, start, None if end == float("inf") else end)
@@ -97,8 +128,7 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
     if args.profile:
         _keep_in_profile(args.profile, mag=result.to_dict())
     if args.plots:
-        for path in _figures().save_mag_figures(result, raw, args.plots):
-            print(f"wrote {path}")
+        _save_figures(_figures().save_mag_figures, result, raw, folder=args.plots)
     return 0
 
 

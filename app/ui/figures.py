@@ -30,11 +30,12 @@ SENSOR_TITLES = {"acc": "Accelerometer", "gyr": "Gyroscope", "mag": "Magnetomete
 
 
 def ensure_app() -> QtWidgets.QApplication:
-    """The running QApplication, or a new one (offscreen when there is no display)."""
+    """The running QApplication, or a new offscreen one: the command line's figures are
+    files, drawn the same with or without a screen (and a DISPLAY that does not answer cannot
+    abort them)."""
     app = QtWidgets.QApplication.instance()
     if app is None:
-        if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
-            os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+        os.environ["QT_QPA_PLATFORM"] = "offscreen"
         app = QtWidgets.QApplication([])
     return app
 
@@ -144,9 +145,13 @@ def _export(widget: pg.GraphicsLayoutWidget, path: Path) -> Path:
     QtWidgets.QApplication.processEvents()
     exporter = ImageExporter(widget.scene())
     exporter.parameters()["width"] = widget.width()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    exporter.export(str(path))
-    widget.close()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        exporter.export(str(path))
+    finally:
+        widget.close()
+    if not path.is_file():
+        raise OSError(f"{path} was not written")
     return path
 
 

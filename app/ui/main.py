@@ -71,13 +71,46 @@ def replay_engine_factory(options: WindowOptions):
 
 
 def check_display() -> None:
-    """ConfigError (one line, exit 2) instead of Qt aborting when there is no screen."""
-    if sys.platform.startswith("linux") and not (
-            os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
-            or os.environ.get("QT_QPA_PLATFORM")):
+    """ConfigError (one line, exit 2) instead of Qt aborting when there is no screen: DISPLAY
+    unset, or set to an X server that does not answer (a stale DISPLAY over ssh, a closed
+    server)."""
+    if not sys.platform.startswith("linux"):
+        return
+    env = os.environ
+    platform = env.get("QT_QPA_PLATFORM", "")
+    if not (env.get("DISPLAY") or env.get("WAYLAND_DISPLAY") or platform):
         raise ConfigError("no display to open the window on (DISPLAY is not set); without a "
                           f"screen use the headless commands: {HEADLESS_COMMANDS} "
                           "(orientation-lab COMMAND --help)")
+    uses_x = platform.startswith("xcb") or (not platform and not env.get("WAYLAND_DISPLAY"))
+    if uses_x and env.get("DISPLAY") and not x_server_answers():
+        raise ConfigError(f"no display to open the window on (the X server DISPLAY="
+                          f"{env['DISPLAY']} does not answer); without a screen use the "
+                          f"headless commands: {HEADLESS_COMMANDS} (orientation-lab COMMAND "
+                          "--help)")
+
+
+def x_server_answers() -> bool:
+    """Whether the X server named by DISPLAY accepts a connection, asked through libxcb (the
+    library Qt's xcb platform connects with, so the answer is the one Qt would get). True when
+    libxcb cannot be loaded: then Qt's own message is the best there is."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        xcb = ctypes.CDLL(ctypes.util.find_library("xcb") or "libxcb.so.1")
+    except OSError:
+        return True
+    xcb.xcb_connect.restype = ctypes.c_void_p
+    xcb.xcb_connect.argtypes = (ctypes.c_char_p, ctypes.c_void_p)
+    xcb.xcb_connection_has_error.argtypes = (ctypes.c_void_p,)
+    xcb.xcb_disconnect.argtypes = (ctypes.c_void_p,)
+    connection = xcb.xcb_connect(None, None)
+    try:
+        return bool(connection) and xcb.xcb_connection_has_error(connection) == 0
+    finally:
+        if connection:
+            xcb.xcb_disconnect(connection)
 
 
 def log_to_file() -> Path | None:
