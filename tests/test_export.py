@@ -168,3 +168,36 @@ class _nothing:
 
     def __exit__(self, *exc):
         return False
+
+
+@pytest.mark.parametrize("command", ["export", "filter"])
+def test_no_command_writes_over_its_input_or_into_a_session(session_folder, tmp_path, capsys,
+                                                            command):
+    before = {p.name: p.read_bytes() for p in session_folder.iterdir() if p.is_file()}
+    raw = session_folder / "raw.txt"
+    extra = ["--format", "csv"] if command == "export" else []
+    source = session_folder if command == "export" else raw
+    for out in (session_folder / "session.json", raw, session_folder / "new.csv"):
+        assert main([command, str(source), *extra, "-o", str(out)]) == 2
+        error = capsys.readouterr().err
+        assert len(error.strip().splitlines()) == 1 and "never written over" in error, error
+    assert {p.name: p.read_bytes() for p in session_folder.iterdir() if p.is_file()} == before
+
+
+def test_a_failed_export_leaves_the_old_file_whole(session_folder, tmp_path, monkeypatch):
+    out = tmp_path / "keep.csv"
+    out.write_text("my own file\n")
+    import app.engine.export as export
+
+    def fail(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(export, "csv_header", fail)
+    with pytest.raises(export.ConfigError) as error:
+        export_session(session_folder, "csv", out)
+    assert "No space left" in str(error.value)
+    assert out.read_text() == "my own file\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["keep.csv"]      # no partial file beside
+    monkeypatch.undo()
+    export_session(session_folder, "csv", out)
+    assert out.read_text().startswith(csv_header())

@@ -15,12 +15,15 @@ from app.cli import options
 from app.cli.offline import intervals_of, read_log
 from app.engine import config, profiles, tuning
 from app.engine.calibration import RestCalibration, mag_from_log, rest_from_log
+from app.engine.outputs import atomic_output, check_output
 from app.engine.refilter import PreparedLog
 
 
-def _write_json(path: str, payload: dict[str, Any]) -> None:
+def _write_json(path: str, payload: dict[str, Any], *inputs: str | None) -> None:
+    check_output(path, *inputs)
     try:
-        Path(path).write_text(json.dumps(profiles._jsonable(payload), indent=2) + "\n")
+        with atomic_output(path, "w", encoding="utf-8") as stream:
+            stream.write(json.dumps(profiles._jsonable(payload), indent=2) + "\n")
     except OSError as error:
         raise config.ConfigError(f"cannot write {path}: {error.strerror or error}") from None
     print(f"settings written to {path}")
@@ -91,6 +94,8 @@ def _print_rest(rest: RestCalibration, t0: float) -> None:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     _plots_folder(args.plots)
+    if args.output:
+        check_output(args.output, args.log)
     log = read_log(args.log, args.limits)
     start, end = args.range if args.range else (None, None)
     rest = rest_from_log(log, start, None if end == float("inf") else end, whole=args.whole)
@@ -101,7 +106,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.output:
         base = config.load_settings(args.settings) or ekf.PRESETS["default"]
         _write_json(args.output, {"settings": result.to_settings(base).to_dict(),
-                                  "calibration": calibration, "source": str(args.log)})
+                                  "calibration": calibration, "source": str(args.log)},
+                    args.log)
     if args.profile:
         _keep_in_profile(args.profile, rest=result.to_dict(),
                          allan=rest.allan.to_dict() if rest.allan else None)
@@ -115,6 +121,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 def cmd_calibrate_mag(args: argparse.Namespace) -> int:
     _plots_folder(args.plots)
+    if args.output:
+        check_output(args.output, args.log)
     log = read_log(args.log, args.limits)
     start, end = args.range if args.range else (None, None)
     result, raw = mag_from_log(log, start, None if end == float("inf") else end)
@@ -124,7 +132,7 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
         settings = base.with_changes(**result.settings_changes())
         _write_json(args.output, {"settings": settings.to_dict(),
                                   "calibration": {"mag": result.to_dict()},
-                                  "source": str(args.log)})
+                                  "source": str(args.log)}, args.log)
     if args.profile:
         _keep_in_profile(args.profile, mag=result.to_dict())
     if args.plots:
@@ -191,7 +199,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     payload = {"settings": result.best.to_dict(), "tuning": result.to_dict(),
                "source": str(args.log)}
     if args.output:
-        _write_json(args.output, payload)
+        _write_json(args.output, payload, args.log, getattr(args, "check_log", None))
     if args.profile:
         _keep_in_profile(args.profile, settings=result.best.to_dict(), tuning=result.to_dict())
     return 0

@@ -20,6 +20,7 @@ from ekf.simulate import simulate
 from app.cli import options
 from app.engine import config, estimates
 from app.engine.offline import evaluate_log, evaluate_phone, filter_log, sibling_truth
+from app.engine.outputs import atomic_output, check_output
 from app.engine.user_filter import UserFilterEstimator
 from app.engine.user_template import write_template
 from app.stream.demo import write_session
@@ -92,6 +93,9 @@ def cmd_filter(args: argparse.Namespace) -> int:
     settings = config.load_settings(args.settings)
     _check_smooth(args, names)
     estimator = config.make_estimator(names[0], settings, sensors)   # before a long read
+    if args.output:
+        check_output(args.output, args.log, args.settings if args.settings
+                     and args.settings.endswith(".json") else None)
     log = read_log(args.log, args.limits)
     try:
         with contextlib.redirect_stdout(sys.stderr):   # what the user's code prints: not the CSV
@@ -104,7 +108,7 @@ def cmd_filter(args: argparse.Namespace) -> int:
         return 1
     try:
         if args.output:
-            with open(args.output, "w", encoding="ascii", newline="\n") as stream:
+            with atomic_output(args.output, "w", encoding="ascii", newline="\n") as stream:
                 estimates.write_csv(rows, stream)
         else:
             estimates.write_csv(rows, sys.stdout)

@@ -31,6 +31,7 @@ import numpy as np
 
 import ekf
 from app.engine.config import ConfigError, open_replay
+from app.engine.outputs import atomic_output, check_output
 from app.engine.pipeline import Pipeline, Setup
 from app.engine.runner import SENSORS, EstimatorRunner
 from app.engine.session import Marker, SessionInfo, read_session, session_json_for
@@ -217,7 +218,7 @@ def write_csv(data: SessionData, out: Path, start: float, end: float, separator:
     text = text.replace("nan", "")
     if decimal_comma:
         text = text.replace(".", ",")
-    with open(out, "w", encoding="ascii", newline="\n") as stream:
+    with atomic_output(out, "w", encoding="ascii", newline="\n") as stream:
         stream.write(csv_header(separator) + "\n")
         if lines:
             stream.write(text + "\n")
@@ -231,7 +232,7 @@ def write_log(data: SessionData, out: Path, start: float, end: float) -> int:
     offset = float(data.t_s[0]) if len(data) else 0.0
     first = int(np.searchsorted(pace, start - offset - 1e-9, side="left"))
     last = int(np.searchsorted(pace, end - offset + 1e-9, side="right"))
-    with open(out, "wb") as stream:
+    with atomic_output(out, "wb") as stream:
         stream.write(source.lines_between(first, last))
     return max(0, last - first)
 
@@ -249,7 +250,8 @@ def write_mat(data: SessionData, out: Path, start: float, end: float) -> int:
     meas = {"t": t, "acc": data.acc[chosen].T, "gyr": data.gyr[chosen].T,
             "mag": data.mag[chosen].T, "orient": data.ori[chosen].T}
     xhat = {"t": t, "x": data.quat[chosen].T, "P": np.transpose(cov, (1, 2, 0))}
-    savemat(str(out), {"meas": meas, "xhat": xhat}, oned_as="row", do_compression=True)
+    with atomic_output(out, "wb") as stream:
+        savemat(stream, {"meas": meas, "xhat": xhat}, oned_as="row", do_compression=True)
     return int(chosen.sum())
 
 
@@ -270,7 +272,7 @@ def export_session(path: str | Path, fmt: str, out: str | Path,
     sep = SEPARATORS.get(separator)
     if sep is None:
         raise ConfigError(f"--separator: expected comma, semicolon or tab, got {separator!r}")
-    out = Path(out)
+    out = check_output(out, path)
     if out.is_dir():
         raise ConfigError(f"{out}: is a folder; give a file name to write")
     data = data if data is not None and (fmt != "mat" or data.cov is not None) \
