@@ -1,4 +1,4 @@
-"""Chaos (issue 10): every fault a client or a disk can bring, against `orientation-lab serve`.
+"""Chaos: every fault a client or a disk can bring, against `orientation-lab serve`.
 
     .venv/bin/python benchmarks/chaos.py              # every scenario (about 3 minutes)
     .venv/bin/python benchmarks/chaos.py --quick      # five short scenarios (a smoke run)

@@ -1,6 +1,6 @@
 """Frame rate and CPU of the main window while it replays a 500 Hz session.
 
-Figures (issue 4): at 1x the window keeps >= 30 frames per second and the whole process
+Targets: at 1x the window keeps >= 30 frames per second and the whole process
 (engine thread + GUI) stays under one core; at 10x the frame rate changes by < 20 %, because
 the GUI thread never does filter work.
 

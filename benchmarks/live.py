@@ -1,4 +1,4 @@
-"""Live-link figures (issue 3): no loss, throughput, latency, memory. Prints figures; not a test.
+"""Live-link figures: no loss, throughput, latency, memory. Prints figures; not a test.
 
     .venv/bin/python benchmarks/live.py                 # everything, 20-minute sessions
     .venv/bin/python benchmarks/live.py --minutes 2     # shorter simulated/paced sessions

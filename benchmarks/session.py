@@ -1,4 +1,4 @@
-"""Sessions (issue 12): open a one-hour 100 Hz recorded session, seek in it, the window's memory
+"""Sessions: open a one-hour 100 Hz recorded session, seek in it, the window's memory
 with it loaded. Prints figures; not a test.
 
     .venv/bin/python benchmarks/session.py            # a one-hour session (~2 minutes in all)

@@ -1,14 +1,15 @@
 """Choose the default preset by cross-validation: tune on some recordings, report the others.
 
 Over BROAD (``../shared/data/broad``) and the Nexus 5 recordings (``../shared/data/tyrex``)
-together. The recordings are split into folds by what happens in them (leave one group out:
-BROAD undisturbed, BROAD disturbed, Nexus 5 held in the hand (AR, texting, phoning), in a pocket,
-swinging and running); for each fold the settings are tuned (optuna's TPE sampler) on the other
-folds and the fold's recordings are filtered with them: those are the **held-out** figures
-(``--folds halves``: two folds instead, each holding every kind of motion, as recordings of the
-same activities by other people would; a milder test than leaving a whole motion out). Then
-the same search on every recording gives the fit on all, rounded to round values, and a
-plateau check (each value halved and doubled).
+together. The recordings are split into folds by what a user brings (``--folds user``, the
+default: leave one person's Nexus 5 recordings out, leave one dataset out); for each fold the
+settings are tuned (optuna's TPE sampler) on the other folds and the fold's recordings are
+filtered with them: those are the **held-out** figures. ``--folds groups`` leaves one motion
+group out instead (BROAD undisturbed, BROAD disturbed, Nexus 5 held in the hand (AR, texting,
+phoning), in a pocket, swinging and running); ``--folds halves`` makes two folds, each holding
+every kind of motion, as recordings of the same activities by other people would (a milder
+test than leaving a whole motion out). Then the same search on every recording gives the fit
+on all, rounded to round values, and a plateau check (each value halved and doubled).
 
 The objective is VQF-relative, so that the Nexus 5's larger errors do not drown BROAD: per
 dataset the mean over its recordings of total RMSE / VQF 9D's (VQF's causal filter
@@ -16,7 +17,7 @@ dataset the mean over its recordings of total RMSE / VQF 9D's (VQF's causal filt
 for any recording beyond 1.5x (BROAD) or 2x (Nexus 5) its VQF figure.
 
     .venv/bin/python benchmarks/tune_defaults.py [--trials 100] [--jobs 2] [--start centre|default]
-                                                 [--folds groups|halves] [--quick] [--smoother]
+                                                 [--folds user|groups|halves] [--quick] [--smoother]
                                                  [--grid NAME=V1,V2,...] [--held-out-only]
                                                  [--objective ratios|means] [--augment K]
                                                  [--top K]
@@ -24,9 +25,7 @@ for any recording beyond 1.5x (BROAD) or 2x (Nexus 5) its VQF figure.
 Each search (optuna's TPE, 100 trials) returns the centre of its ``--top`` 10 best trials (per
 setting the geometric mean on a log-scale range), not its single best: the best trial of a noisy
 objective is an extreme that fits the recordings tuned on, the centre is what the good region
-agrees on (held out, seeds 0-2, before ``mag_delay_s``: Nexus 5 0.92x, 0.91x, 0.91x VQF 9D
-against 0.95x, 0.92x, 0.92x with ``--top 1``; BROAD 0.81x, 0.77x, 0.80x against 0.78x, 0.81x,
-0.82x).
+agrees on (measured: docs/decisions/tuning-procedure.md).
 
 ``--objective means`` scores each dataset by the ratio of its mean error to VQF's mean (the
 form of the targets) instead of the mean of the recordings' ratios.
@@ -81,7 +80,7 @@ SPACE = {
     # 30 at least: the low-pass (~0.75 s) of step-correlated accelerations (~0.1-0.2 s) keeps
     # ~τ_c/2τ of their variance, 0.2·k/g² ≈ 0.07-0.13 gives k ≈ 30-65 (twice that counting the
     # two axes the norm does not see); below it a fold tuned without running lets running tilt
-    # the estimate (held out 9-13 deg, 2026-12-02)
+    # the estimate (held out 9-13 deg)
     "acc_noise_adapt": (30.0, 300.0, True, 1.0),
     "mag_noise_cov": (0.1, 10.0, True, 0.1),
     "mag_gate": (4.0, 16.0, True, 1.0),
@@ -93,7 +92,7 @@ SPACE = {
     # not searched: mag_bias_innovation_limit is Huber's k = 1.345 (95 % efficiency under
     # Gaussian innovations, a clip beyond); every fold of `--grid` chose 1.345 or 1.5, and
     # searched over 0.5-10 a fold tuned without pockets chose 7.7 (the disturbed back pocket
-    # 6 deg held out, 2026-12-02)
+    # 6 deg held out)
 }
 FOLDS = {
     "broad-undisturbed": lambda r: r.kind == "broad" and not r.disturbed,
@@ -260,7 +259,7 @@ def objective(ours: np.ndarray, vqf: np.ndarray, kinds: list[str]) -> float:
     """Per dataset the mean of the recordings' ratios to VQF (a bad recording weighs as much as
     its ratio, whatever its size in degrees), averaged over the datasets, plus the ratios
     beyond the per-recording limit; with ``--objective means`` per dataset the ratio of the mean
-    errors instead (held out no better, 2026-12-02). (Adding the worst ratio itself made the
+    errors instead (held out no better). (Adding the worst ratio itself made the
     held-out figures worse: one recording then steers the search.)"""
     kinds_arr = np.array(kinds)
     parts, penalty = [], 0.0

@@ -1,4 +1,4 @@
-"""Re-filter and auto-tune figures (issue 14).
+"""Re-filter and auto-tune figures.
 
 * Instant re-filter: a whole simulated 10-minute session at 100 Hz (GYR/ACC/ORI 100 Hz, MAG
   50 Hz) run again with new settings through app.engine.refilter (the compiled batch path),

@@ -6,7 +6,8 @@
 
 Every estimator exposes ``.flags`` and ``.diagnostics`` as plain copies of these (safe to keep).
 Each field's unit and one-line explanation are in its metadata; :func:`output_rows` lists them
-(README tables). The EKF packs both into its state (``ekf.state``), so snapshots carry them.
+(the tables in docs/filter.md). The EKF packs both into its state (``ekf.state``), so
+snapshots carry them.
 
 A flag keeps the decision of the latest sample of its sensor.
 """

@@ -2,13 +2,13 @@
 
 Every number a user may want to tune lives here, so a settings file (JSON) describes a run
 completely. ``PRESETS["course"]`` is the plain course filter (model 4a, tasks 1-11);
-``PRESETS["default"]`` adds the extensions that pay on real data (see README, "Settings").
+``PRESETS["default"]`` adds the extensions that pay on real data (docs/filter.md).
 
 Each field's unit and one-line explanation are in its ``dataclasses.field`` metadata ("unit",
 "doc"; "shape" for vectors and matrices, "choices" for a word), readable at run time:
 :func:`settings_rows` lists every setting with its default, course value, unit and explanation
-(the README table and a settings panel are made from it), and the compiled filter's packed
-settings layout is generated from the same fields (``ekf.fast.layout``).
+(the table in docs/filter.md and a settings panel are made from it), and the compiled
+filter's packed settings layout is generated from the same fields (``ekf.fast.layout``).
 """
 
 from __future__ import annotations
@@ -329,7 +329,7 @@ class EKFSettings:
 COURSE = EKFSettings()
 
 # The course filter with the mechanisms that earn their place on recordings they were not
-# chosen on (benchmarks/ablation.py; what each does and why: README, "Beyond the course"):
+# chosen on (benchmarks/ablation.py; what each does and why: docs/filter.md, "The default preset"):
 # - gyroscope: exact discretisation, the sample as the rate over the interval before it, bias
 #   in the state with a zero-rate update at rest, R_w growing with a 2 % scale uncertainty;
 # - accelerometer: low-passed over 0.75 s in a frame the gyroscope carries, clipped readings
@@ -396,7 +396,7 @@ def resolve_settings(settings: EKFSettings | str | None) -> EKFSettings:
     return settings
 
 
-# ---- the settings as rows (README table, settings panel) ------------------------------------
+# ---- the settings as rows (docs/filter.md table, settings panel) ----------------------------
 class SettingRow(NamedTuple):
     """One setting: its name, the default and course presets' values, unit and explanation."""
 

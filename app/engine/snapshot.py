@@ -22,9 +22,9 @@ from app.stream.forwarder import ForwardStatus
 @dataclass
 class FilterStatus:
     """The main estimator's lights and their reasons: its flags and diagnostics as the estimator
-    declares them (ekf.Flags, ekf.Diagnostics; units in their README tables), which sensors are
-    switched in, the estimator's name and whether it has started (from its first readings);
-    settings: the ekf.EKFSettings the filter runs with now (None from a test double)."""
+    declares them (ekf.Flags, ekf.Diagnostics; units in their tables in docs/filter.md), which
+    sensors are switched in, the estimator's name and whether it has started (from its first
+    readings); settings: the ekf.EKFSettings the filter runs with now (None from a test double)."""
 
     sensors_enabled: dict[str, bool] = field(
         default_factory=lambda: {"gyr": True, "acc": True, "mag": True})

@@ -57,7 +57,7 @@ def filter_settings(settings: EKFSettings) -> dict[str, Any]:
     """The ``settings`` a Filter's constructor gets (numpy arrays, the course's names): g,
     g0 = (0, 0, g), m0 (ENU, or None: take it from a reading), Rw, Ra, Rm (3x3), gyr_bias (3,),
     the gates acc_gate, mag_gate, mag_alpha (tasks 8 and 11), and "ekf": every setting as a
-    dict (README, "Settings")."""
+    dict (docs/filter.md, "Settings")."""
     s = settings
     return {
         "g": float(s.g), "g0": np.array([0.0, 0.0, float(s.g)]),

@@ -1,9 +1,10 @@
 """The calibration workspace: at rest (task 2), gyroscope noise (Allan), magnetometer hard and
 soft iron; Apply, Save profile, Load profile. A self-contained widget for a workspace tab.
 
-Mounting (see the README): ``CalibrationWorkspace(send=engine.send, settings=lambda:
-current_settings)``, then call :meth:`feed` with every snapshot the window polls (it reads only
-``snapshot.plot``: t_acc/acc, t_gyr/gyr, t_mag/mag). Apply sends ``SetSettings(settings,
+Mounting (docs/user-guide.md, "Calibration and tuning"):
+``CalibrationWorkspace(send=engine.send, settings=lambda: current_settings)``, then call
+:meth:`feed` with every snapshot the window polls (it reads only ``snapshot.plot``:
+t_acc/acc, t_gyr/gyr, t_mag/mag). Apply sends ``SetSettings(settings,
 calibration=profile_dict, source="calibration")``; the engine records the profile in the
 session. A stretch of a loaded log is analysed with :meth:`analyse_log` (or "From log…").
 

@@ -1,5 +1,5 @@
-"""Settings, state and outputs are declared once; the compiled layouts and the README tables are
-made from those declarations, never by hand."""
+"""Settings, state and outputs are declared once; the compiled layouts and the tables of
+docs/filter.md are made from those declarations, never by hand."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from ekf.outputs import Diagnostics, Flags, output_rows
 from ekf.settings import PRESETS, EKFSettings, format_value, settings_rows
 from ekf.state import EKFState, check_state, state_dict
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+FILTER_DOC = Path(__file__).resolve().parents[2] / "docs" / "filter.md"
 
 
 def _size(shape: tuple[int, ...]) -> int:
@@ -152,7 +152,7 @@ def test_pack_unpack_round_trip(data):
             assert type(back[name]) is type(value) and repr(back[name]) == repr(value)
 
 
-# ---- README tables --------------------------------------------------------------------------------
+# ---- the tables of docs/filter.md ------------------------------------------------------------------
 def _cell(text: str) -> str:
     return str(text).replace("|", "\\|")
 
@@ -175,17 +175,17 @@ def outputs_table(cls: type) -> str:
     return "\n".join(lines)
 
 
-def _readme_table(first_header_cell: str) -> str:
-    text = README.read_text()
+def _doc_table(first_header_cell: str) -> str:
+    text = FILTER_DOC.read_text(encoding="utf-8")
     match = re.search(rf"^\| {first_header_cell} \|.*?(?=\n(?!\|))", text, re.M | re.S)
-    assert match, f"README has no table starting with '| {first_header_cell} |'"
+    assert match, f"docs/filter.md has no table starting with '| {first_header_cell} |'"
     return match.group(0)
 
 
 @pytest.mark.parametrize("name,make", [("setting", settings_table),
                                        ("flag", lambda: outputs_table(Flags)),
                                        ("diagnostic", lambda: outputs_table(Diagnostics))])
-def test_readme_tables_are_the_declarations(name, make):
+def test_filter_doc_tables_are_the_declarations(name, make):
     expected = make()
-    assert _readme_table(name) == expected, (
-        f"README's {name} table differs from the declarations; it should read:\n{expected}")
+    assert _doc_table(name) == expected, (
+        f"docs/filter.md's {name} table differs from the declarations; it should read:\n{expected}")
