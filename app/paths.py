@@ -16,8 +16,13 @@ from pathlib import Path
 APP_NAME = "OrientationLab"
 
 
+class DataDirError(OSError):
+    """The data folder is a file, or cannot be made; the message says which, on one line."""
+
+
 def data_dir(create: bool = True) -> Path:
-    """The user's data folder for Orientation Lab (created unless create=False)."""
+    """The user's data folder for Orientation Lab (created unless create=False);
+    :class:`DataDirError` when it is a file or cannot be made."""
     override = os.environ.get("ORIENTATION_LAB_DATA")
     if override:
         folder = Path(override)
@@ -28,8 +33,15 @@ def data_dir(create: bool = True) -> Path:
     else:
         base = os.environ.get("XDG_DATA_HOME") or Path.home() / ".local" / "share"
         folder = Path(base) / APP_NAME
+    where = f"{folder} (ORIENTATION_LAB_DATA)" if override else str(folder)
+    if folder.exists() and not folder.is_dir():
+        raise DataDirError(f"the data folder {where} is a file, not a folder")
     if create:
-        folder.mkdir(parents=True, exist_ok=True)
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise DataDirError(f"cannot make the data folder {where}: "
+                               f"{error.strerror or error}") from None
     return folder
 
 

@@ -14,7 +14,7 @@ from ekf.estimators import (ESTIMATORS, AccMagEstimator, ComplementaryFilter, Gy
 from ekf.metrics import error_angles_deg, summarize
 from ekf.outputs import Diagnostics, Flags, output_rows
 from ekf.reference import OrientationEKF
-from ekf.settings import PRESETS, EKFSettings, settings_rows
+from ekf.settings import PRESETS, EKFSettings, SettingsError, settings_rows
 from ekf.smoother import smooth_batch
 from ekf.state import EKFState
 
@@ -22,5 +22,5 @@ __all__ = [
     "quaternion", "BatchResult", "filter_batch", "SENSORS", "Estimator", "EstimatorBase",
     "ESTIMATORS", "AccMagEstimator", "ComplementaryFilter", "GyroIntegrator", "make_estimator",
     "error_angles_deg", "summarize", "Flags", "Diagnostics", "output_rows", "OrientationEKF",
-    "PRESETS", "EKFSettings", "settings_rows", "EKFState", "smooth_batch",
+    "PRESETS", "EKFSettings", "SettingsError", "settings_rows", "EKFState", "smooth_batch",
 ]

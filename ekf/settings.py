@@ -26,12 +26,142 @@ def _diag(value: float) -> list[list[float]]:
 
 def _setting(default: Any = MISSING, *, unit: str, doc: str, shape: tuple[int, ...] = (),
              choices: tuple[str, ...] | None = None,
-             factory: Callable[[], Any] | None = None) -> Any:
-    """A settings field with its unit ("-" when it has none) and one-line explanation."""
-    metadata = {"unit": unit, "doc": doc, "shape": shape, "choices": choices}
+             factory: Callable[[], Any] | None = None, low: float = 0.0, above: bool = False,
+             high: float | None = None, inf: bool = False, matrix: str | None = None,
+             optional: bool = False) -> Any:
+    """A settings field with its unit ("-" when it has none), one-line explanation and what it
+    allows: a number from ``low`` (excluded when ``above``) up to ``high``, infinity only with
+    ``inf``; a vector of ``shape`` (``optional``: or none); a matrix that is ``"covariance"``
+    (symmetric positive definite) or ``"invertible"``; a word from ``choices``."""
+    metadata = {"unit": unit, "doc": doc, "shape": shape, "choices": choices, "low": low,
+                "above": above, "high": high, "inf": inf, "matrix": matrix,
+                "optional": optional}
     if factory is not None:
         return field(default_factory=factory, metadata=metadata)
     return field(default=default, metadata=metadata)
+
+
+class SettingsError(ValueError):
+    """A setting's value is not one it allows; the message names the key, the value and what
+    is allowed, on one line."""
+
+
+def _kind(f: Any) -> str:
+    if f.metadata["choices"]:
+        return "word"
+    if f.metadata["shape"] == (3, 3):
+        return "matrix"
+    if f.metadata["shape"] == (3,):
+        return "vector"
+    return "flag" if isinstance(f.default, bool) else "number"
+
+
+def allowed_text(f: Any) -> str:
+    """What a settings field allows, in words (error messages, docs/filter.md, the panel)."""
+    meta, kind = f.metadata, _kind(f)
+    if kind == "word":
+        return " or ".join(repr(c) for c in meta["choices"])
+    if kind == "flag":
+        return "true or false"
+    if kind == "matrix":
+        return ("a symmetric positive-definite 3x3 matrix" if meta["matrix"] == "covariance"
+                else "an invertible 3x3 matrix")
+    if kind == "vector":
+        text = "3 finite numbers"
+        if f.name == "m0":
+            text += " with a horizontal part ≥ 0.001"
+        return ("none or " + text) if meta["optional"] else text
+    bound = (f"> {meta['low']:g}" if meta["above"] else f"≥ {meta['low']:g}")
+    if meta["high"] is not None:
+        bound = (f"{meta['low']:g}..{meta['high']:g}" if not meta["above"]
+                 else f"in ({meta['low']:g}, {meta['high']:g}]")
+    return f'a number {bound} or "inf"' if meta["inf"] else f"a finite number {bound}"
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) or (
+        type(value).__module__ == "numpy" and hasattr(value, "dtype")
+        and value.dtype.kind in "iuf" and getattr(value, "ndim", 0) == 0)
+
+
+def _shown(value: Any) -> str:
+    try:
+        text = json.dumps(value, allow_nan=True, default=repr)
+    except (TypeError, ValueError):
+        text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _finite_floats(value: Any, count: int) -> list[float] | None:
+    if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__len__"):
+        return None
+    try:
+        items = list(value)
+    except TypeError:
+        return None
+    if len(items) != count or not all(_is_number(x) for x in items):
+        return None
+    floats = [float(x) for x in items]
+    return floats if all(math.isfinite(x) for x in floats) else None
+
+
+def check_value(f: Any, value: Any) -> Any:
+    """The value of settings field ``f`` in its stored form (floats, tuples, nested lists), or
+    :class:`SettingsError` when the field does not allow it."""
+    meta, kind = f.metadata, _kind(f)
+
+    def bad() -> SettingsError:
+        return SettingsError(f"setting {f.name} = {_shown(value)}: must be {allowed_text(f)}")
+
+    if kind == "word":
+        if not isinstance(value, str) or value not in meta["choices"]:
+            raise bad()
+        return value
+    if kind == "flag":
+        if not isinstance(value, bool) and not (type(value).__module__ == "numpy"
+                                                and type(value).__name__ == "bool_"):
+            raise bad()
+        return bool(value)
+    if kind == "number":
+        if isinstance(value, str) and value == "inf" and meta["inf"]:
+            return math.inf
+        if not _is_number(value):
+            raise bad()
+        number = float(value)
+        if math.isnan(number) or (math.isinf(number) and not (meta["inf"] and number > 0)):
+            raise bad()
+        if number < meta["low"] or (meta["above"] and number == meta["low"]):
+            raise bad()
+        if meta["high"] is not None and number > meta["high"]:
+            raise bad()
+        return number
+    if kind == "vector":
+        if value is None and meta["optional"]:
+            return None
+        floats = _finite_floats(value, 3)
+        if floats is None or (f.name == "m0" and math.hypot(floats[0], floats[1]) < 1e-3):
+            raise bad()
+        return tuple(floats)
+    if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__len__") or len(value) != 3:
+        raise bad()
+    rows = [_finite_floats(row, 3) for row in value]
+    if any(row is None for row in rows):
+        raise bad()
+    m = rows
+    det = (m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+           - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+           + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]))
+    scale = max(abs(x) for row in m for x in row)
+    if meta["matrix"] == "covariance":
+        symmetric = all(abs(m[i][j] - m[j][i]) <= 1e-9 * scale for i in range(3)
+                        for j in range(3))
+        minor2 = m[0][0] * m[1][1] - m[0][1] * m[1][0]
+        # Sylvester: every leading principal minor positive
+        if not symmetric or not (m[0][0] > 0 and minor2 > 0 and det > 0):
+            raise bad()
+    elif scale == 0.0 or abs(det) <= 1e-12 * scale ** 3:
+        raise bad()
+    return [list(row) for row in m]
 
 
 @dataclass(frozen=True)
@@ -44,11 +174,13 @@ class EKFSettings:
     """
 
     # --- sensor models --------------------------------------------------------------------
-    g: float = _setting(9.81, unit="m/s²", doc="expected ‖a‖ at rest; g⁰ = (0, 0, g)")
+    g: float = _setting(9.81, unit="m/s²", doc="expected ‖a‖ at rest; g⁰ = (0, 0, g)",
+                        above=True)
     m0: tuple[float, float, float] | None = _setting(
         None, unit="µT (ENU)", shape=(3,),
         doc="Earth field (0, horizontal, vertical); none: from the first magnetometer reading, "
-            "tilt-compensated with the first accelerometer reading (the course's flat reading)")
+            "tilt-compensated with the first accelerometer reading (the course's flat reading)",
+            optional=True)
     gyr_bias: tuple[float, float, float] = _setting(
         (0.0, 0.0, 0.0), unit="rad/s", shape=(3,),
         doc="subtracted from every gyroscope sample (from `calibrate`); with "
@@ -59,23 +191,24 @@ class EKFSettings:
             "estimator sees it (from `calibrate-mag`; applied by the app's runner)")
     mag_soft_iron: list[list[float]] = _setting(
         unit="-", shape=(3, 3), factory=lambda: _diag(1.0),
-        doc="soft-iron matrix S of that correction (identity: none)")
+        doc="soft-iron matrix S of that correction (identity: none)", matrix="invertible")
 
     # --- noise ----------------------------------------------------------------------------
     gyr_noise_cov: list[list[float]] = _setting(
         unit="(rad/s)²", shape=(3, 3), factory=lambda: _diag(1e-4),
-        doc="R_w: covariance of the angular-rate noise v_k (eq. 5)")
+        doc="R_w: covariance of the angular-rate noise v_k (eq. 5)", matrix="covariance")
     acc_noise_cov: list[list[float]] = _setting(
         unit="(m/s²)²", shape=(3, 3), factory=lambda: _diag(0.1),
         doc="R_a: accelerometer noise, larger than the sensor's own to absorb small specific "
-            "forces")
+            "forces", matrix="covariance")
     mag_noise_cov: list[list[float]] = _setting(
         unit="µT²", shape=(3, 3), factory=lambda: _diag(2.0),
-        doc="R_m: magnetometer noise (heading-only: σ_ψ² = tr(R_m)/3 / ‖m_horizontal‖²)")
+        doc="R_m: magnetometer noise (heading-only: σ_ψ² = tr(R_m)/3 / ‖m_horizontal‖²)",
+        matrix="covariance")
     gyr_scale_noise: float = _setting(
         0.0, unit="-",
         doc="relative uncertainty k of the gyroscope's scale: R_w grows by (k‖ω‖)² I, so fast "
-            "turns are trusted less (0: the course's constant R_w)")
+            "turns are trusted less (0: the course's constant R_w)", high=1.0)
     gyr_rate_before_sample: bool = _setting(
         False, unit="-",
         doc="true: a gyroscope sample is the rate over the interval that ends at its time stamp "
@@ -86,19 +219,22 @@ class EKFSettings:
         doc="orientation random walk when no gyroscope sample drives the time update: q stays, "
             "P grows (task 12, acc+mag only)")
     initial_attitude_std: float = _setting(
-        0.05, unit="rad", doc="standard deviation of the initial attitude from acc+mag")
+        0.05, unit="rad", doc="standard deviation of the initial attitude from acc+mag",
+        above=True)
 
     # --- outlier gates (tasks 8 and 11) -----------------------------------------------------
     acc_gate: float = _setting(
         1.0, unit="m/s²",
         doc="reject an accelerometer reading when |‖y_a‖ − g| > gate (task 8); with the low-pass "
-            "the reading is only flagged; inf: off")
+            "the reading is only flagged; 0: every reading out; inf: off", inf=True)
     mag_gate: float = _setting(
         5.0, unit="µT",
-        doc="reject a magnetometer reading when |‖y_m‖ − L_k| > gate (task 11); inf: off")
+        doc="reject a magnetometer reading when |‖y_m‖ − L_k| > gate (task 11); 0: every "
+            "reading out; inf: off", inf=True)
     mag_alpha: float = _setting(
         0.01, unit="-",
-        doc="AR(1) coefficient of the field strength L_k = (1 − α) L_{k−1} + α ‖y_m‖")
+        doc="AR(1) coefficient of the field strength L_k = (1 − α) L_{k−1} + α ‖y_m‖",
+        high=1.0)
     mag_strength_update: str = _setting(
         "always", unit="-", choices=("always", "accepted"),
         doc="'always': every reading moves L_k (the course); 'accepted': only readings that pass "
@@ -108,16 +244,17 @@ class EKFSettings:
         doc="with 'accepted': rejected (or still settling) readings that agree with each other "
             "this long (strength and dip within the gates of their running mean) are the new "
             "normal: L_k and m0 are re-learned from the current reading; a magnet that moves "
-            "with the phone never agrees for long")
+            "with the phone never agrees for long", inf=True)
     mag_dip_gate_deg: float = _setting(
         math.inf, unit="deg",
         doc="also reject a magnetometer reading whose angle to up differs from the reference "
-            "dip by more than this; inf: off")
+            "dip by more than this; inf: off", above=True, inf=True)
     acc_range: float = _setting(
         math.inf, unit="m/s²",
         doc="an accelerometer reading with an axis at the sensor's range is clipped and never "
             "enters an update: |axis| >= this; 0: detect the range from the data (an axis "
-            "within 1 % of the largest |axis| seen so far, once that exceeds 1.5 g); inf: off")
+            "within 1 % of the largest |axis| seen so far, once that exceeds 1.5 g); inf: off",
+            inf=True)
     acc_lowpass_s: float = _setting(
         0.0, unit="s",
         doc="time constant of a low-pass of the accelerometer that the gyroscope carries along "
@@ -134,7 +271,7 @@ class EKFSettings:
             "a disturbance), the accelerometer update corrects only what gravity observes: its "
             "gain on the heading and on the bias about up is projected out (Joseph form keeps P "
             "consistent). Through correlations in P, accelerations would otherwise turn the "
-            "heading and teach the bias about up a rate it cannot see (inf: off)")
+            "heading and teach the bias about up a rate it cannot see (inf: off)", inf=True)
     mag_dip_from_estimate: bool = _setting(
         False, unit="-",
         doc="true: the dip gate measures the field's angle to the estimated up (good while "
@@ -142,7 +279,7 @@ class EKFSettings:
     mag_settle_s: float = _setting(
         0.0, unit="s",
         doc="after a rejection, readings must pass the gates this long before the magnetometer "
-            "is used again (a magnet on the phone stays out)")
+            "is used again (a magnet on the phone stays out)", inf=True)
     mag_hard_iron_tau_s: float = _setting(
         0.0, unit="s",
         doc="estimate the magnetometer's offset in the sensor frame (hard iron: a magnet on the "
@@ -153,7 +290,7 @@ class EKFSettings:
         1.0, unit="-",
         doc="weight of the prior b_m = 0 in that fit, in pairs of a full turn's worth: small "
             "offsets (a field that is not quite uniform) stay near zero, a magnet's hundreds of "
-            "µT do not")
+            "µT do not", above=True)
     mag_delay_s: float = _setting(
         0.0, unit="s",
         doc="the magnetometer's readings are this much older than their time stamps (its own "
@@ -171,7 +308,7 @@ class EKFSettings:
         doc="in that low-pass a reading counts as at most this many `mag_gate`s off: a reading "
             "far beyond the gate is a magnet passing, rejected anyway, and its size says nothing "
             "about how the passing readings bend (a 100 µT spike would keep R_m large for tens "
-            "of seconds after it); inf: off")
+            "of seconds after it); inf: off", above=True, inf=True)
     mag_reference_s: float = _setting(
         0.0, unit="s",
         doc="the expected field (strength L_k and the reference m0 with its dip) is the mean of "
@@ -183,10 +320,10 @@ class EKFSettings:
             "readings) keeps the magnetometer out at most this long, then its readings are used "
             "with R_m x `mag_reject_noise_scale` until it ends: without a gyroscope the field is "
             "all the heading there is (with one, a disturbance keeps it out until readings pass "
-            "the gates again or agree as a new field); inf: off")
+            "the gates again or agree as a new field); inf: off", inf=True)
     mag_reject_noise_scale: float = _setting(
         10.0, unit="-",
-        doc="R_m is multiplied by this for readings used past that bound")
+        doc="R_m is multiplied by this for readings used past that bound", above=True)
     mag_relearn_world: bool = _setting(
         False, unit="-",
         doc="true: re-learning compares the rejected readings in the world frame (Q(q) y_m: a "
@@ -216,7 +353,7 @@ class EKFSettings:
         doc="a heading update teaches the gyroscope bias from at most this many standard "
             "deviations of its innovation (its bias gain is scaled by limit·√S/|ψ| beyond): a "
             "heading far off says the field or the heading is wrong (a disturbance that passed "
-            "the gates, a start beside a magnet), not the bias; inf: off")
+            "the gates, a start beside a magnet), not the bias; inf: off", inf=True)
     update_period_s: float = _setting(
         0.0, unit="s",
         doc="run the low-passed accelerometer, magnetometer and zero-rate updates at most this "
@@ -224,11 +361,11 @@ class EKFSettings:
     mag_nis_gate: float = _setting(
         math.inf, unit="-",
         doc="also reject a magnetometer reading whose normalised innovation squared exceeds "
-            "this (χ², 1 dof heading-only, 3 dof full); inf: off")
+            "this (χ², 1 dof heading-only, 3 dof full); inf: off", above=True, inf=True)
     acc_nis_gate: float = _setting(
         math.inf, unit="-",
         doc="also reject an accelerometer reading whose normalised innovation squared exceeds "
-            "this (χ², 3 dof); inf: off")
+            "this (χ², 3 dof); inf: off", above=True, inf=True)
 
     # --- model extensions -----------------------------------------------------------------
     exact_discretisation: bool = _setting(
@@ -248,13 +385,16 @@ class EKFSettings:
         0.01, unit="rad/s", doc="initial bias standard deviation (model 4c)")
     rest_rate_noise_std: float = _setting(
         0.01, unit="rad/s",
-        doc="standard deviation of the zero-rate pseudo-measurement at rest (model 4c)")
+        doc="standard deviation of the zero-rate pseudo-measurement at rest (model 4c)",
+        above=True)
 
     # --- timing -----------------------------------------------------------------------------
     max_dt: float = _setting(
-        0.5, unit="s", doc="a longer time step is a pause or a reconnect: it is not integrated")
+        0.5, unit="s", doc="a longer time step is a pause or a reconnect: it is not integrated",
+        above=True, inf=True)
     gyr_hold_s: float = _setting(
-        0.1, unit="s", doc="a gyroscope sample keeps driving the time update at most this long")
+        0.1, unit="s", doc="a gyroscope sample keeps driving the time update at most this long",
+        inf=True)
 
     # --- rest detection -------------------------------------------------------------------
     rest_gyr_threshold: float = _setting(
@@ -262,7 +402,7 @@ class EKFSettings:
     rest_acc_threshold: float = _setting(
         0.3, unit="m/s²", doc="‖a − lowpass(a)‖ below this counts as still")
     rest_min_duration: float = _setting(
-        0.5, unit="s", doc="still this long: at rest (standstill)")
+        0.5, unit="s", doc="still this long: at rest (standstill)", inf=True)
 
     # --- the offline smoother ------------------------------------------------------------
     smooth_hard_iron: bool = _setting(
@@ -272,6 +412,10 @@ class EKFSettings:
             "q and b only, so the fit's changes would be spread over the whole recording)")
 
     # ---------------------------------------------------------------------------------------
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            object.__setattr__(self, f.name, check_value(f, getattr(self, f.name)))
+
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         for k, v in d.items():
@@ -281,32 +425,20 @@ class EKFSettings:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "EKFSettings":
-        """Build settings from a dict (e.g. JSON). Unknown keys raise ValueError naming them;
-        vectors, matrices and words are checked against their field's metadata."""
-        by_name = {f.name: f for f in fields(cls)}
-        unknown = sorted(set(d) - set(by_name))
+        """Settings from a dict (e.g. JSON): the preset named by its key "preset" (the default
+        preset when it names none) with the dict's values. Unknown keys and values a setting
+        does not allow raise :class:`SettingsError` naming them."""
+        if not isinstance(d, dict):
+            raise SettingsError("settings must be a JSON object of setting: value")
+        values = dict(d)
+        preset = values.pop("preset", "default")
+        if not isinstance(preset, str) or preset not in PRESETS:
+            raise SettingsError(f"setting preset = {_shown(preset)}: must be "
+                                + " or ".join(repr(p) for p in PRESETS))
+        unknown = sorted(set(values) - {f.name for f in fields(cls)}, key=str)
         if unknown:
-            raise ValueError(f"unknown setting(s): {', '.join(unknown)}")
-        clean: dict[str, Any] = {}
-        for k, v in d.items():
-            shape = by_name[k].metadata["shape"]
-            if v == "inf":
-                v = math.inf
-            if shape == (3,) and v is not None:
-                v = tuple(float(x) for x in v)
-                if len(v) != 3:
-                    raise ValueError(f"setting {k} needs 3 values")
-            elif shape == (3, 3):
-                v = [[float(x) for x in row] for row in v]
-                if len(v) != 3 or any(len(row) != 3 for row in v):
-                    raise ValueError(f"setting {k} must be a 3x3 matrix")
-            clean[k] = v
-        s = cls(**clean)
-        for f in fields(cls):
-            choices = f.metadata["choices"]
-            if choices and getattr(s, f.name) not in choices:
-                raise ValueError(f"{f.name} must be " + " or ".join(repr(c) for c in choices))
-        return s
+            raise SettingsError(f"unknown setting(s): {', '.join(map(str, unknown))}")
+        return replace(PRESETS[preset], **values)
 
     def with_changes(self, **changes: Any) -> "EKFSettings":
         return replace(self, **changes)
@@ -317,13 +449,30 @@ class EKFSettings:
     @classmethod
     def load(cls, path: str | Path) -> "EKFSettings":
         """Read a settings JSON file (a plain settings dict, or a `calibrate` output holding one
-        under the key "settings")."""
-        data = json.loads(Path(path).read_text())
+        under the key "settings"); a file larger than :data:`MAX_FILE_BYTES` is refused."""
+        data = read_json(path)
         if isinstance(data, dict) and "settings" in data and isinstance(data["settings"], dict):
             data = data["settings"]
         if not isinstance(data, dict):
-            raise ValueError("settings file must hold a JSON object")
+            raise SettingsError("settings file must hold a JSON object")
         return cls.from_dict(data)
+
+
+MAX_FILE_BYTES = 4 * 1024 * 1024
+
+
+def read_json(path: str | Path, limit: int = MAX_FILE_BYTES) -> Any:
+    """The JSON value in a file of at most ``limit`` bytes (settings, profiles, session.json:
+    a larger one, or a device that never ends, is refused without reading it all)."""
+    with open(path, "rb") as file:
+        raw = file.read(limit + 1)
+    if len(raw) > limit:
+        raise ValueError(f"larger than {limit // (1024 * 1024)} MB; not a settings file")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise ValueError(f"not UTF-8 text (byte {error.start})") from None
+    return json.loads(text)
 
 
 COURSE = EKFSettings()
@@ -398,19 +547,22 @@ def resolve_settings(settings: EKFSettings | str | None) -> EKFSettings:
 
 # ---- the settings as rows (docs/filter.md table, settings panel) ----------------------------
 class SettingRow(NamedTuple):
-    """One setting: its name, the default and course presets' values, unit and explanation."""
+    """One setting: its name, the default and course presets' values, unit, explanation and
+    what it allows."""
 
     name: str
     default: Any
     course: Any
     unit: str
     doc: str
+    allowed: str
 
 
 def settings_rows() -> list[SettingRow]:
     """Every field of :class:`EKFSettings` in declaration order (values as stored)."""
     return [SettingRow(f.name, getattr(PRESETS["default"], f.name),
-                       getattr(PRESETS["course"], f.name), f.metadata["unit"], f.metadata["doc"])
+                       getattr(PRESETS["course"], f.name), f.metadata["unit"], f.metadata["doc"],
+                       allowed_text(f))
             for f in fields(EKFSettings)]
 
 

@@ -92,7 +92,7 @@ def test_profiles_load_through_the_one_settings_loader(tmp_path, monkeypatch):
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"kind": "orientation-lab profile", "name": "x",
                                "settings": {"acc_gat": 1}}))
-    with pytest.raises(config.ConfigError, match="bad settings"):
+    with pytest.raises(config.ConfigError, match="profile 'x': unknown setting"):
         load_profile(bad)
 
 

@@ -12,7 +12,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from app import __version__
+from app import __version__, paths
 from app.cli import calibration, live, offline
 from app.cli.options import EXIT_USAGE, Parser, add_window, source_options
 from app.engine.config import ConfigError
@@ -46,9 +46,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        paths.data_dir(create=False)
         command = getattr(args, "func", None) or open_window
         return int(command(args) or 0)
-    except ConfigError as error:
+    except (ConfigError, paths.DataDirError) as error:
         print(f"orientation-lab: error: {error}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:

@@ -12,15 +12,23 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
+import math
 import os
 import sys
+import traceback
+from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
+import ekf
 from ekf.simulate import simulate
 from app.cli import options
 from app.engine import config, estimates
 from app.engine.offline import evaluate_log, evaluate_phone, filter_log, sibling_truth
 from app.engine.outputs import atomic_output, check_output
+from app.engine.session import read_session, session_json_for
 from app.engine.user_filter import UserFilterEstimator
 from app.engine.user_template import write_template
 from app.stream.demo import write_session
@@ -35,6 +43,56 @@ def read_log(path: str, limits=None) -> LogData:
         print(summary if summary.startswith(Path(path).name) else f"{path}: {summary}",
               file=sys.stderr)
     return log
+
+
+def check_estimable(log: LogData, sensors: tuple[str, ...]) -> None:
+    """ConfigError (one line) when no estimate can be made from the log with these sensors:
+    none of them in it, or no accelerometer (nothing gives down; the estimate would be the
+    identity, or a turn from it)."""
+    arrays = log.to_arrays()
+    present = [name for name in ("gyr", "acc", "mag")
+               if bool(np.isfinite(getattr(arrays, name)[:, 0]).any())]
+    used = [name for name in present if name in sensors]
+    tags = ", ".join(name.upper() for name in present) or "no GYR, ACC or MAG"
+    if not used:
+        raise config.ConfigError(f"{log.path}: no estimate can be made: the log holds {tags} "
+                                 f"samples, none of --sensors {','.join(sensors)}")
+    if "acc" not in present:
+        raise config.ConfigError(f"{log.path}: no estimate can be made without accelerometer "
+                                 f"samples (nothing gives down); the log holds {tags} only")
+
+
+def check_finite(name: str, quat: np.ndarray, t_ms: np.ndarray, settings: object) -> None:
+    """ConfigError (one line) when a built-in estimator's estimate stops being finite: its
+    settings are within their declared ranges but beyond what the filter can compute."""
+    bad = ~np.isfinite(quat).all(axis=1)
+    if not bad.any():
+        return
+    base = ekf.PRESETS["default"]
+    changed = [f.name for f in dataclasses.fields(base) if settings is not None
+               and getattr(settings, f.name) != getattr(base, f.name)]
+    which = (f"; changed from the default preset: {', '.join(changed[:4])}"
+             f"{' ...' if len(changed) > 4 else ''}" if changed else "")
+    first = (int(t_ms[np.argmax(bad)]) - int(t_ms[0])) / 1000.0
+    raise config.ConfigError(f"the {name} estimate is not finite from {first:.2f} s on: the "
+                             f"settings are beyond what the filter can compute{which}")
+
+
+def settings_of(args: argparse.Namespace, names: list[str]) -> tuple[object, str]:
+    """The settings `filter` and `evaluate` run with, and where they come from in words:
+    --settings when given, else a recorded session's own, else the default preset. The course
+    estimator is the course preset as it is (a note says so when --settings is given)."""
+    if args.settings is not None:
+        settings, which = config.load_settings(args.settings), f"--settings {args.settings}"
+    else:
+        found = session_json_for(config.resolve_log_path(args.log))
+        recorded = read_session(found).settings if found is not None else None
+        settings, which = recorded, (f"the session's recorded settings ({found})" if recorded
+                                     else "the default preset")
+    if "course" in names and args.settings is not None:
+        print("orientation-lab: note: --estimator course is the course preset as it is; "
+              "--settings applies to ekf", file=sys.stderr)
+    return settings, which
 
 
 # ---- your own filter ------------------------------------------------------------------------
@@ -85,18 +143,75 @@ def _check_smooth(args: argparse.Namespace, names: list[str]) -> None:
 
 # ---- filter -------------------------------------------------------------------------------------
 
+def _real_streams() -> bool:
+    try:
+        return sys.stdout.fileno() == 1 and sys.stderr.fileno() == 2
+    except (AttributeError, ValueError, OSError):
+        return False
+
+
+def guarded(args: argparse.Namespace, work: Callable[[argparse.Namespace], int]) -> int:
+    """Run a command; with a user's filter among its estimators, in a child process (POSIX,
+    output to real files): os._exit() or a crash in the user's code ends the child, and the
+    command says so with status 1 instead of ending with status 0 and nothing written."""
+    names = config.estimator_names(args.estimator)
+    if not any(config.is_filter_file(n) for n in names) or not hasattr(os, "fork") \
+            or not _real_streams():
+        return work(args)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    read, write = os.pipe()
+    pid = os.fork()
+    if pid == 0:                                    # the child: the command itself
+        os.close(read)
+        code = 1
+        try:
+            code = int(work(args) or 0)
+        except config.ConfigError as error:
+            print(f"orientation-lab: error: {error}", file=sys.stderr)
+            code = options.EXIT_USAGE
+        except BrokenPipeError:
+            code = 0
+        except BaseException:                       # noqa: BLE001 (ours: shown as Python would)
+            traceback.print_exc()
+        finally:
+            with contextlib.suppress(Exception):
+                sys.stdout.flush()
+                sys.stderr.flush()
+            os.write(write, b"done")
+            os._exit(code)
+    os.close(write)
+    _, status = os.waitpid(pid, 0)
+    with os.fdopen(read, "rb") as pipe:
+        finished = pipe.read() == b"done"
+    code = os.waitstatus_to_exitcode(status)
+    if finished:
+        return code
+    how = f"signal {-code}" if code < 0 else f"exit status {code}"
+    print(f"orientation-lab: error: your filter ended the process ({how}: os._exit() or a "
+          "crash in its code) before the command finished",
+          file=sys.stderr)
+    return 1
+
+
 def cmd_filter(args: argparse.Namespace) -> int:
+    return guarded(args, _filter)
+
+
+def _filter(args: argparse.Namespace) -> int:
     sensors = config.sensor_list(args.sensors)
     names = config.estimator_names(args.estimator)
     if len(names) != 1:
         raise config.ConfigError("filter: give exactly one --estimator")
-    settings = config.load_settings(args.settings)
+    settings, which = settings_of(args, names)
     _check_smooth(args, names)
     estimator = config.make_estimator(names[0], settings, sensors)   # before a long read
     if args.output:
         check_output(args.output, args.log, args.settings if args.settings
                      and args.settings.endswith(".json") else None)
     log = read_log(args.log, args.limits)
+    check_estimable(log, sensors)
+    print(f"{args.log}: settings: {which}", file=sys.stderr)
     try:
         with contextlib.redirect_stdout(sys.stderr):   # what the user's code prints: not the CSV
             rows = filter_log(log, names[0] if args.smooth else estimator, settings, sensors,
@@ -106,6 +221,8 @@ def cmd_filter(args: argparse.Namespace) -> int:
     if not report_user_filter(estimator, args.traceback):
         print("orientation-lab: no estimates written", file=sys.stderr)
         return 1
+    if not isinstance(estimator, UserFilterEstimator) and len(rows.t_ms):
+        check_finite(names[0], rows.quat, rows.t_ms, settings or ekf.PRESETS["default"])
     try:
         if args.output:
             with atomic_output(args.output, "w", encoding="ascii", newline="\n") as stream:
@@ -149,17 +266,23 @@ def _row(name: str, s, width: int = 16) -> str:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
+    return guarded(args, _evaluate)
+
+
+def _evaluate(args: argparse.Namespace) -> int:
     sensors = config.sensor_list(args.sensors)
     names = config.estimator_names(args.estimator)
-    settings = config.load_settings(args.settings)
+    settings, which = settings_of(args, names)
     _check_smooth(args, names)
     intervals, where = intervals_of(args)
     estimators = [config.make_estimator(name, settings, sensors) for name in names]
     log = read_log(args.log, args.limits)
+    check_estimable(log, sensors)
     truth, against = _truth(args)
     skip = f", after the first {args.skip:g} s" if args.skip else ""
     smooth = ", smoothed (forward EKF + backward RTS pass)" if args.smooth else ""
-    print(f"{args.log}: error against {against} at its time stamps, {where}{skip}{smooth}")
+    print(f"{args.log}: error against {against} at its time stamps, {where}{skip}{smooth}; "
+          f"settings: {which}")
     labels = [Path(name).name + (" smoothed" if args.smooth else "") for name in names]
     width = max([16] + [len(label) + 2 for label in labels])
     print(f"{'estimator':<{width}}{'samples':>9}{'total °':>10}{'heading °':>11}"
@@ -174,6 +297,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                 print(f"{label:<{width}}{'stopped: see above':>20}", flush=True)
                 status = 1
                 continue
+            if not isinstance(estimator, UserFilterEstimator) and s.samples and not (
+                    math.isfinite(s.total_rmse_deg)):
+                raise config.ConfigError(f"the {label} estimate is not finite: the settings "
+                                         "are beyond what the filter can compute")
             print(_row(label, s, width), flush=True)
         if truth is not None:
             print(_row("phone (ORI)", evaluate_phone(log, truth, intervals, args.skip), width))

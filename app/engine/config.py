@@ -17,8 +17,11 @@ from pathlib import Path
 
 import ekf
 from ekf import SENSORS
+from ekf.settings import read_json
 from app.engine import profiles
 from app.engine.errors import ConfigError   # defined apart (profiles raise it too)
+from app.engine.pipeline import check_start_state
+from app.engine.session import read_session, session_json_for
 from app.engine.user_code import UserFilterError, is_filter_file
 from app.engine.user_filter import make_estimator as _make_estimator
 from app.stream.fastparse import FastLineParser
@@ -59,12 +62,17 @@ def load_settings(spec: str | Path | None) -> ekf.EKFSettings | None:
         presets = ", ".join(ekf.PRESETS)
         raise ConfigError(f"settings file not found: {text} (or give a preset: {presets})")
     try:
-        data = json.loads(path.read_text())
+        data = read_json(path)
         if isinstance(data, dict) and data.get("kind") == profiles.KIND:
             return profiles.Profile.from_dict(data).to_settings()
-        return ekf.EKFSettings.load(path)
+        if isinstance(data, dict) and isinstance(data.get("settings"), dict):
+            data = data["settings"]
+        if not isinstance(data, dict):
+            raise ValueError("settings file must hold a JSON object")
+        return ekf.EKFSettings.from_dict(data)
     except (OSError, ValueError, TypeError) as error:
-        raise ConfigError(f"bad settings file {text}: {error}") from None
+        raise ConfigError(f"bad settings file {text}: "
+                          f"{getattr(error, 'strerror', None) or error}") from None
 
 
 def estimator_names(text: str) -> list[str]:
@@ -215,8 +223,20 @@ def recording_folder(directory: str | Path) -> tuple[Path, str | None]:
 
 def resolve_log_path(path: str | Path) -> Path:
     """The log file behind a path: a log file itself, a recorded session folder (its raw.txt)
-    or a session's session.json (the raw file it names)."""
-    path = Path(path)
+    or a session's session.json (the raw file it names). A session.json that is not one this
+    program can replay is a ConfigError (one line naming it and the entry)."""
+    raw = _log_path(Path(path))
+    found = session_json_for(raw)
+    if found is not None:
+        try:
+            check_start_state(read_session(found).start_state)
+        except ValueError as error:
+            raise ConfigError(f"{found}: {error}" if str(found) not in str(error)
+                              else str(error)) from None
+    return raw
+
+
+def _log_path(path: Path) -> Path:
     if path.is_dir():
         raw = path / "raw.txt"
         if raw.is_file():
@@ -225,9 +245,9 @@ def resolve_log_path(path: str | Path) -> Path:
                           "folder or a log file)")
     if path.name == "session.json" and path.is_file():
         try:
-            raw_name = json.loads(path.read_text()).get("raw_file", "raw.txt")
-        except (OSError, ValueError, AttributeError) as error:
-            raise ConfigError(f"{path}: not a readable session file ({error})") from None
+            raw_name = read_session(path).data.get("raw_file", "raw.txt")
+        except ValueError as error:
+            raise ConfigError(str(error)) from None
         return path.with_name(str(raw_name))
     if not path.exists():
         raise ConfigError(f"{path}: no such file or folder")

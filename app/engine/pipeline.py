@@ -271,3 +271,15 @@ class Pipeline:
         """What session.json's start_state keeps of a recording that starts now."""
         return {"runner": self.runner.snapshot(), "orderer": self.orderer.snapshot(),
                 "ori4_seen": self.parser.line_state()[2]}
+
+
+def check_start_state(start: Any) -> None:
+    """ValueError (one line) when a session's start_state is not an engine state a pipeline can
+    continue from (it is restored once into a scratch pipeline)."""
+    if start is None:
+        return
+    pipeline = Pipeline(EstimatorRunner(collect_plot=False))
+    try:
+        pipeline.restore(pipeline.initial_checkpoint(Setup(start_state=start)))
+    except Exception:   # noqa: BLE001 (any failure means the same: not a state we wrote)
+        raise ValueError("start_state is not an engine state this program recorded") from None

@@ -24,6 +24,7 @@ import numpy as np
 
 import ekf
 from ekf.calibration import _level_rotation
+from ekf.settings import read_json
 from app import __version__, paths
 from app.engine.errors import ConfigError
 
@@ -95,12 +96,23 @@ class Profile:
         values = {k: v for k, v in data.items() if k in known}
         if not str(values.get("name", "")).strip():
             raise ConfigError("profile without a name")
+        name = values["name"] = str(values["name"]).strip()
+        for key in ("rest", "allan", "mag", "settings", "tuning"):
+            if values.get(key) is not None and not isinstance(values[key], dict):
+                raise ConfigError(f"profile {name!r}: {key} must be an object, not "
+                                  f"{type(values[key]).__name__}")
         profile = cls(**values)
-        if profile.settings:
-            try:
-                ekf.EKFSettings.from_dict(profile.settings)
-            except (TypeError, ValueError) as error:
-                raise ConfigError(f"profile {profile.name!r}: bad settings: {error}") from None
+        try:
+            profile.to_settings()
+        except ValueError as error:
+            if isinstance(error, ekf.SettingsError):
+                raise ConfigError(f"profile {name!r}: {error}") from None
+            raise ConfigError(f"profile {name!r}: its calibration is not one this program "
+                              f"writes ({error})") from None
+        except (TypeError, KeyError, IndexError, AttributeError) as error:
+            what = f"missing {error}" if isinstance(error, KeyError) else str(error)
+            raise ConfigError(f"profile {name!r}: its calibration is not one this program "
+                              f"writes ({what})") from None
         return profile
 
 
@@ -179,7 +191,7 @@ class ProfileStore:
         out = []
         for path in sorted(self.folder.glob("*.json")):
             try:
-                out.append(Profile.from_dict(json.loads(path.read_text())).name)
+                out.append(Profile.from_dict(read_json(path)).name)
             except (OSError, ValueError, ConfigError):
                 continue
         return sorted(out, key=str.lower)
@@ -219,9 +231,10 @@ def load_profile(path: str | Path) -> Profile:
     """A profile from its JSON file; ConfigError when missing or not a profile."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text())
+        data = read_json(path)
     except FileNotFoundError:
         raise ConfigError(f"no profile file {path}") from None
     except (OSError, ValueError) as error:
-        raise ConfigError(f"cannot read profile {path}: {error}") from None
+        raise ConfigError(f"cannot read profile {path}: "
+                          f"{getattr(error, 'strerror', None) or error}") from None
     return Profile.from_dict(data)

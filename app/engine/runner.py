@@ -30,6 +30,7 @@ from app.engine.user_filter import make_estimator
 from app.engine.user_lane import UserLane
 from app.stream.fastparse import samples_to_arrays
 from app.stream.protocol import Sample
+from app.stream.repeats import Last, repeats
 
 #: The 7 non-empty sensor combinations of the EKF, "gyr+acc+mag" first.
 COMBINATIONS: tuple[tuple[str, ...], ...] = tuple(
@@ -283,6 +284,8 @@ class EstimatorRunner:
         self.innovations = InnovationBuffer()
         self.probe: InnovationProbe | None = None
         self.samples_fed = 0                      # filter-tag samples fed so far
+        self.repeated = 0                         # of them, exact repeats used once
+        self._last_sample: Last = None
         self.collect_plot = collect_plot
         self.collect_cov = collect_cov
         self.comparison_estimator = comparison_estimator
@@ -339,6 +342,7 @@ class EstimatorRunner:
         self.finish()
         self.reset()
         self.phone_quat = None
+        self._last_sample = None
 
     def reset(self) -> None:
         """Forget the orientation of every estimator; they re-initialise from the next samples."""
@@ -415,6 +419,7 @@ class EstimatorRunner:
             "comparisons_same_instant": self._comparisons_same_instant.snapshot(),
             "phone_quat": self.phone_quat, "latest_t_ms": self.latest_t_ms,
             "row_t": self._row_t, "row_has_sample": self._row_has_sample,
+            "last_sample": self._last_sample,
         }
 
     def restore(self, snapshot: dict) -> None:
@@ -442,6 +447,7 @@ class EstimatorRunner:
         self.latest_t_ms = snapshot["latest_t_ms"]
         self._row_t = snapshot["row_t"]
         self._row_has_sample = snapshot["row_has_sample"]
+        self._last_sample = snapshot.get("last_sample")
         self.take_rows()
         self._errors = []
         self._phone_samples = []
@@ -461,6 +467,14 @@ class EstimatorRunner:
             return
         t_ms = np.ascontiguousarray(t_ms, dtype=np.int64)
         tag = np.ascontiguousarray(tag, dtype=np.int64)
+        repeated, self._last_sample = repeats(t_ms, tag, values, self._last_sample)
+        if repeated.any():
+            self.repeated += int(repeated.sum())
+            self.samples_fed += int(repeated.sum())
+            keep = ~repeated
+            t_ms, tag, values = t_ms[keep], tag[keep], np.asarray(values)[keep]
+            if len(t_ms) == 0:
+                return
         continuing = self._row_t is not None and int(t_ms[0]) == self._row_t
         if self._row_t is not None and not continuing:
             self._commit_row()

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -36,6 +37,7 @@ import numpy as np
 
 import ekf
 from app import paths
+from ekf.settings import read_json
 from app.stream.recorder import new_session_folder, write_json_atomic
 
 SESSION_FORMAT = 2
@@ -136,23 +138,118 @@ def session_json_for(log_path: str | Path) -> Path | None:
 
 
 def read_session(path: str | Path) -> SessionInfo:
-    """A session.json; ValueError (one line) when it is not one."""
+    """A session.json, checked against the format this program writes (:func:`check_session`);
+    ValueError (one line naming the file and the entry) when it is not one."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = read_json(path)
     except (OSError, ValueError) as error:
-        raise ValueError(f"{path}: not a readable session file ({error})") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: not a session file (expected a JSON object)")
+        raise ValueError(f"{path}: not a readable session file "
+                         f"({getattr(error, 'strerror', None) or error})") from None
     try:
-        settings = settings_from_dict(data.get("settings"))
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"{path}: bad settings ({error})") from None
-    timeline = [e for e in data.get("timeline") or [] if isinstance(e, dict)]
-    start = data.get("start_state")
+        settings = check_session(data)
+        start = data.get("start_state")
+        start = decode_state(start) if isinstance(start, dict) else None
+    except (TypeError, ValueError, KeyError, AttributeError) as error:
+        raise ValueError(f"{path}: {error}") from None
     return SessionInfo(path, data, settings, data.get("estimator"), data.get("sensors"),
-                       data.get("comparisons"), timeline,
-                       decode_state(start) if isinstance(start, dict) else None)
+                       data.get("comparisons"), list(data.get("timeline") or []), start)
+
+
+def _whole(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _expect(ok: bool, where: str, value: Any, allowed: str) -> None:
+    if not ok:
+        shown = json.dumps(value, default=repr)
+        shown = shown if len(shown) <= 40 else shown[:37] + "..."
+        raise ValueError(f"{where} = {shown}: must be {allowed}")
+
+
+def check_session(data: Any) -> ekf.EKFSettings | None:
+    """Check a session.json's value against format :data:`SESSION_FORMAT` (a newer format, an
+    entry of the wrong type or a value a setting does not allow raise ValueError naming it);
+    the recorded settings."""
+    if not isinstance(data, dict):
+        raise ValueError("not a session file (expected a JSON object)")
+    version = data.get("format", 1)
+    _expect(_whole(version) and version >= 1, "format", version, "a whole number")
+    if version > SESSION_FORMAT:
+        raise ValueError(f"session format {version} is newer than this program reads "
+                         f"({SESSION_FORMAT}); update Orientation Lab")
+    raw = data.get("raw_file", "raw.txt")
+    _expect(isinstance(raw, str) and raw not in ("", ".", "..") and "/" not in raw
+            and "\\" not in raw, "raw_file", raw, "the name of a file beside session.json")
+    settings = data.get("settings")
+    _expect(settings is None or isinstance(settings, dict), "settings", settings,
+            "an object of setting: value")
+    recorded = settings_from_dict(settings)
+    names = " or ".join(ekf.ESTIMATORS)
+    estimator = data.get("estimator")
+    _expect(estimator is None or estimator in ekf.ESTIMATORS, "estimator", estimator, names)
+    sensors = data.get("sensors")
+    _expect(sensors is None or (isinstance(sensors, dict) and all(
+        k in ekf.SENSORS and isinstance(v, bool) for k, v in sensors.items())), "sensors",
+        sensors, "an object of " + "/".join(ekf.SENSORS) + ": true or false")
+    _check_comparisons(data.get("comparisons"), "comparisons")
+    timeline = data.get("timeline")
+    _expect(timeline is None or isinstance(timeline, list), "timeline", timeline,
+            "a list of events")
+    for number, event in enumerate(timeline or []):
+        _check_event(event, f"timeline[{number}]")
+    start = data.get("start_state")
+    _expect(start is None or (isinstance(start, dict) and isinstance(start.get("runner"), dict)
+                              and isinstance(start.get("orderer"), dict)),
+            "start_state", start, "null or the engine state this program recorded")
+    return recorded
+
+
+def _check_comparisons(value: Any, where: str) -> None:
+    _expect(value is None or isinstance(value, dict), where, value,
+            'an object {"enabled", "estimator"}')
+    if isinstance(value, dict):
+        _expect(isinstance(value.get("enabled", False), bool), where + ".enabled",
+                value.get("enabled"), "true or false")
+        name = value.get("estimator")
+        _expect(name is None or name in ekf.ESTIMATORS, where + ".estimator", name,
+                " or ".join(ekf.ESTIMATORS))
+
+
+def _check_event(event: Any, where: str) -> None:
+    _expect(isinstance(event, dict) and isinstance(event.get("kind"), str), where, event,
+            'an object with a "kind"')
+    for key in ("t_ms", "sample"):
+        value = event.get(key)
+        _expect(value is None or (_whole(value) and (key == "t_ms" or value >= 0)),
+                f"{where}.{key}", value, "null or a whole number")
+    kind = event["kind"]
+    if kind == "sensor":
+        _expect(event.get("sensor") in ekf.SENSORS, where + ".sensor", event.get("sensor"),
+                " or ".join(ekf.SENSORS))
+        _expect(isinstance(event.get("enabled"), bool), where + ".enabled",
+                event.get("enabled"), "true or false")
+    elif kind == "estimator":
+        _expect(event.get("name") in ekf.ESTIMATORS, where + ".name", event.get("name"),
+                " or ".join(ekf.ESTIMATORS))
+    elif kind == "settings":
+        _expect(isinstance(event.get("settings"), dict), where + ".settings",
+                event.get("settings"), "an object of setting: value")
+        try:
+            settings_from_dict(event["settings"])
+        except ValueError as error:
+            raise ValueError(f"{where}: {error}") from None
+    elif kind == "comparisons":
+        _check_comparisons({k: event.get(k) for k in ("enabled", "estimator")}, where)
+    elif kind == "marker":
+        _expect(_whole(event.get("id")) and event["id"] >= 1, where + ".id", event.get("id"),
+                "a whole number ≥ 1")
+        _expect(isinstance(event.get("label", ""), str), where + ".label", event.get("label"),
+                "text")
+        t_s = event.get("t_s")
+        _expect(t_s is None or (isinstance(t_s, (int, float)) and not isinstance(t_s, bool)
+                                and math.isfinite(t_s)), where + ".t_s", t_s,
+                "null or a finite number")
 
 
 def write_markers(session_json: str | Path, markers: list[Marker]) -> None:

@@ -68,6 +68,11 @@ def _one_line(text: str) -> str:
 
 # ---- where in the user's code ------------------------------------------------------------------
 
+# What a user's code may raise that stops their filter and nothing else: sys.exit() and Ctrl-C
+# inside it included (our own timeout is handled apart, where it is raised).
+USER_ERRORS = (Exception, SystemExit, KeyboardInterrupt)
+
+
 def problem_from_exception(error: BaseException, path: Path, t_s: float | None = None,
                            kind: str = "exception", during: str = "") -> UserProblem:
     """The problem an exception raised in the user's file is: its deepest frame in that file
@@ -81,7 +86,12 @@ def problem_from_exception(error: BaseException, path: Path, t_s: float | None =
         return UserProblem(kind, _one_line(message), details, str(path), line, None, t_s)
     frames = traceback.extract_tb(error.__traceback__)
     mine = [index for index, frame in enumerate(frames) if _same_file(frame.filename, path)]
-    text = _one_line(f"{type(error).__name__}: {error}" if str(error) else type(error).__name__)
+    if isinstance(error, SystemExit):
+        text = _one_line(f"SystemExit({error.code!r}): sys.exit() in a filter stops the filter, "
+                         "not the program")
+    else:
+        text = _one_line(f"{type(error).__name__}: {error}" if str(error)
+                         else type(error).__name__)
     if mine:
         frame = frames[mine[-1]]
         where = f"{name}:{frame.lineno} in {frame.name}"
@@ -183,7 +193,7 @@ def load_code(path: str | Path) -> FilterCode:
     try:
         with watch:
             exec(compile(source, str(path), "exec"), module.__dict__)
-    except (Exception, UserCodeTimeout) as error:   # noqa: BLE001 (anything it does on import)
+    except (*USER_ERRORS, UserCodeTimeout) as error:   # noqa: BLE001 (anything on import)
         watch.disarm()
         sys.modules.pop(name, None)
         raise UserFilterError(problem_from_exception(error, path, kind="load")) from None
@@ -218,7 +228,7 @@ def instantiate(code: FilterCode, settings: dict[str, Any]) -> Any:
     except NotImplementedError as error:
         raise UserFilterError(problem_from_exception(
             error, code.path, kind="exception", during="Filter() is not written yet")) from None
-    except (Exception, UserCodeTimeout) as error:      # noqa: BLE001
+    except (*USER_ERRORS, UserCodeTimeout) as error:      # noqa: BLE001
         watch.disarm()
         raise UserFilterError(problem_from_exception(error, code.path)) from None
 

@@ -41,9 +41,9 @@ from ekf import SENSORS
 from ekf.estimator import batch_rows
 from ekf.settings import EKFSettings, resolve_settings
 from app.engine.snapshot import UserProblem
-from app.engine.user_code import (BadOutput, FilterCode, Output, UserFilterError, instantiate,
-                                  is_filter_file, load_code, output_problem, parse_output,
-                                  problem_from_exception)
+from app.engine.user_code import (USER_ERRORS, BadOutput, FilterCode, Output, UserFilterError,
+                                  instantiate, is_filter_file, load_code, output_problem,
+                                  parse_output, problem_from_exception)
 from app.engine.user_watchdog import DEFAULT_LIMIT_S, UserCodeTimeout, guard
 
 __all__ = ["UserFilterEstimator", "UserFilterError", "filter_settings", "is_filter_file",
@@ -249,7 +249,7 @@ class UserFilterEstimator:
             where = problem_from_exception(error, self.code.path, t)
             self.code.note_missing(where.function or "Filter.step", error)
             return
-        except (Exception, SystemExit) as error:   # noqa: BLE001 (the user's code: anything)
+        except USER_ERRORS as error:   # noqa: BLE001 (the user's code: anything)
             self._timed(start)
             self.problem = problem_from_exception(error, self.code.path, t)
             return
@@ -259,7 +259,7 @@ class UserFilterEstimator:
         except BadOutput as error:
             self.problem = output_problem(error, self.code, t)
             return
-        except Exception as error:   # noqa: BLE001 (an object of the user's that misbehaves)
+        except USER_ERRORS as error:   # noqa: BLE001 (an object of the user's that misbehaves)
             self.problem = problem_from_exception(error, self.code.path, t, kind="output")
             return
         self._accept(out, t, args)
@@ -311,7 +311,7 @@ class UserFilterEstimator:
             state = copy.deepcopy({"filter": self.filter, "output": self._out, "t": self._t,
                                    "heading": self._heading, "enabled": self._enabled,
                                    "used": self._used, "problem": self.problem})
-        except Exception as error:   # noqa: BLE001 (whatever the user's object holds)
+        except USER_ERRORS as error:   # noqa: BLE001 (whatever the user's object holds)
             raise ValueError(f"{self.name}: its Filter object cannot be copied ({error})") \
                 from None
         return {"estimator": self.name, "settings": self.settings, "state": state}

@@ -7,6 +7,7 @@ with its original timing.
 from __future__ import annotations
 
 import gzip
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -61,6 +62,13 @@ def open_log_bytes(path: str | Path):
         raise LogError(f"{path}: cannot read ({error.strerror or error})") from None
 
 
+def why_unreadable(error: BaseException) -> str:
+    """What went wrong reading a log, in words (a damaged gzip stream among them)."""
+    if isinstance(error, (zlib.error, EOFError, gzip.BadGzipFile)):
+        return f"a damaged or incomplete gzip file: {error}"
+    return str(getattr(error, "strerror", None) or error)
+
+
 def split_lines(data: bytes) -> list[bytes]:
     """Bytes -> lines with their LF (added to a last line that has none)."""
     lines = data.split(b"\n")
@@ -78,8 +86,8 @@ def read_log_bytes(path: str | Path, add_newline: bool = True) -> bytes:
     with open_log_bytes(path) as stream:
         try:
             data = stream.read()
-        except (OSError, EOFError, gzip.BadGzipFile) as error:
-            raise LogError(f"{path}: cannot read ({error})") from None
+        except (OSError, EOFError, zlib.error) as error:
+            raise LogError(f"{path}: cannot read ({why_unreadable(error)})") from None
     if not data:
         raise LogError(f"{path}: empty file")
     check_text(path, data)

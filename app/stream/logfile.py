@@ -10,16 +10,18 @@ those lines counted as damaged; only a file that is mostly binary is refused.
 from __future__ import annotations
 
 import gzip
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from app.stream.fastparse import TAG_WIDTHS, FastLineParser, ParsedArrays
-from app.stream.lines import LogError, check_text, open_log_bytes
+from app.stream.lines import LogError, check_text, open_log_bytes, why_unreadable
 from app.stream.ordering import OrderedArrays, OrderStats, TimeOrderer
 from app.stream.protocol import (DEFAULT_LIMITS, FILTER_TAGS, Limits, ParseStats, Sample,
                                  reasons_text)
+from app.stream.repeats import Last, repeats
 
 _CHUNK_BYTES = 1 << 22
 
@@ -31,6 +33,7 @@ class LogStats:
     path: str
     parse: ParseStats
     order: OrderStats
+    repeated: int = 0       # samples repeated exactly (the estimators use each once)
 
     @property
     def damaged(self) -> int:
@@ -73,6 +76,8 @@ class LogStats:
             parts.append(f"first bad line {parse.first_bad_line_number}: {parse.first_bad_message}")
         if order.out_of_order:
             parts.append(f"{order.out_of_order} out of order (dropped)")
+        if self.repeated:
+            parts.append(f"{self.repeated} samples repeated exactly (each used once)")
         if order.restarts:
             parts.append(f"{order.restarts} time-base restarts")
         if order.sessions:
@@ -163,6 +168,8 @@ class _Collector:
         self.other: list[Sample] = []
         self.session_starts: list[int] = []
         self.count = 0
+        self.repeated = 0
+        self._last: Last = None
 
     def parsed(self, parsed: ParsedArrays) -> None:
         self.other.extend(sample for _, sample in parsed.other)
@@ -170,6 +177,10 @@ class _Collector:
             self.ordered(self.orderer.push_arrays(parsed.t_ms, parsed.tag, parsed.values))
 
     def ordered(self, ordered: OrderedArrays) -> None:
+        if len(ordered.session_starts):
+            self._last = None
+        mask, self._last = repeats(ordered.t_ms, ordered.tag, ordered.values, self._last)
+        self.repeated += int(mask.sum())
         self.session_starts.extend(self.count + int(k) for k in ordered.session_starts)
         self.pieces.append(ordered)
         self.count += len(ordered)
@@ -207,11 +218,11 @@ def read_log(path: str | Path, orderer: TimeOrderer | None = None,
                     check_text(path, chunk)
                 total += len(chunk)
                 collector.parsed(parser.feed_arrays(chunk))
-    except (OSError, EOFError, gzip.BadGzipFile) as error:
-        raise LogError(f"{path}: cannot read ({error})") from None
+    except (OSError, EOFError, zlib.error) as error:
+        raise LogError(f"{path}: cannot read ({why_unreadable(error)})") from None
     collector.parsed(parser.finish_arrays())
     collector.ordered(collector.orderer.flush_arrays())
-    stats = LogStats(str(path), parser.stats, collector.orderer.stats)
+    stats = LogStats(str(path), parser.stats, collector.orderer.stats, collector.repeated)
     if total == 0:
         raise LogError(f"{path}: empty file")
     if parser.stats.good == 0:

@@ -35,7 +35,8 @@ def ensure_app() -> QtWidgets.QApplication:
     abort them)."""
     app = QtWidgets.QApplication.instance()
     if app is None:
-        os.environ["QT_QPA_PLATFORM"] = "offscreen"
+        if not os.environ.get("QT_QPA_PLATFORM", "").startswith("offscreen"):
+            os.environ["QT_QPA_PLATFORM"] = "offscreen"     # (keeps offscreen's own options)
         app = QtWidgets.QApplication([])
     return app
 

@@ -151,7 +151,7 @@ class SettingsPanel(QtWidgets.QWidget):
                     if new:
                         item = QtWidgets.QTableWidgetItem()
                     item.setText(text)
-                    item.setToolTip(f"{row.name} [{row.unit}]: {row.doc}")
+                    item.setToolTip(f"{row.name} [{row.unit}]: {row.doc} (allowed: {row.allowed})")
                     flags = QtCore.Qt.ItemFlag.ItemIsEnabled | QtCore.Qt.ItemFlag.ItemIsSelectable
                     if c == VALUE:
                         flags |= QtCore.Qt.ItemFlag.ItemIsEditable
@@ -186,7 +186,8 @@ class SettingsPanel(QtWidgets.QWidget):
             data[name] = value
             new = ekf.EKFSettings.from_dict(data)
         except (ValueError, TypeError) as error:
-            self.message.setText(f"{name}: {error}")
+            self.message.setText(str(error) if isinstance(error, ekf.SettingsError)
+                                 else f"{name}: {error}")
             self._fill()
             return
         self.message.setText(f"{name} = {format_value(getattr(new, name))} (applied from the "

@@ -52,7 +52,7 @@ def test_relearn_docs_say_that_the_rejected_readings_must_agree():
 def test_settings_json_round_trip_and_choices_are_checked():
     for preset in PRESETS.values():
         assert EKFSettings.from_dict(preset.to_dict()) == preset
-    with pytest.raises(ValueError, match="mag_strength_update must be 'always' or 'accepted'"):
+    with pytest.raises(ValueError, match="setting mag_strength_update = \"sometimes\": must be 'always' or 'accepted'"):
         EKFSettings.from_dict({"mag_strength_update": "sometimes"})
     with pytest.raises(ValueError, match="3x3"):
         EKFSettings.from_dict({"acc_noise_cov": [[1.0, 0.0], [0.0, 1.0]]})
@@ -158,10 +158,12 @@ def _cell(text: str) -> str:
 
 
 def settings_table() -> str:
-    lines = ["| setting | default | course | unit | meaning |", "|---|---|---|---|---|"]
+    lines = ["| setting | default | course | unit | allowed | meaning |",
+             "|---|---|---|---|---|---|"]
     for r in settings_rows():
         lines.append(f"| `{r.name}` | {_cell(format_value(r.default))} | "
-                     f"{_cell(format_value(r.course))} | {_cell(r.unit)} | {_cell(r.doc)} |")
+                     f"{_cell(format_value(r.course))} | {_cell(r.unit)} | {_cell(r.allowed)} | "
+                     f"{_cell(r.doc)} |")
     return "\n".join(lines)
 
 

@@ -55,6 +55,19 @@ def test_a_bad_value_is_refused_and_the_cell_goes_back(panel):
     assert panel.sent == []
 
 
+@pytest.mark.parametrize("name,text,allowed", [
+    ("acc_gate", "-1", 'a number ≥ 0 or "inf"'), ("g", "0", "a finite number > 0"),
+    ("acc_noise_cov", "[1 2 0; 2 1 0; 0 0 1]", "positive-definite"),
+    ("acc_lowpass_s", "inf", "a finite number ≥ 0")])
+def test_a_value_outside_its_declaration_is_refused_with_what_is_allowed(panel, name, text,
+                                                                        allowed):
+    before = panel.settings
+    assert not panel.edit(name, text)
+    assert panel.message.text().startswith(f"setting {name} = ")
+    assert allowed in panel.message.text()
+    assert panel.settings is before and panel.sent == []
+
+
 def test_reset_to_course_and_default(panel):
     panel.edit("acc_gate", "4")
     panel.reset_course.click()
