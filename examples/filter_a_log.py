@@ -3,7 +3,10 @@
     python examples/filter_a_log.py [LOG]      # without LOG: a simulated 60 s session
 
 The log is read with the same parser and time ordering as the live stream, and the estimators run
-through the same runner as the window, so these are the numbers `orientation-lab evaluate` prints.
+through the same runner as the window, so these are the numbers
+`orientation-lab evaluate LOG --estimator ekf,course,complementary,gyro,accmag` prints (the
+whole log scored; `evaluate --skip S` and ``evaluate_log(..., skip_s=S)`` leave out the first S
+seconds).
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ def main(argv: list[str]) -> int:
               f"q = {rows.quat[-1].round(4).tolist()} (w x y z, sensor -> ENU)")
         print(f"{'estimator':<15}{'total °':>9}{'heading °':>11}{'inclination °':>15}")
         for name in ekf.ESTIMATORS:
-            error = evaluate_log(log, name, skip_s=3.0)
+            error = evaluate_log(log, name)
             print(f"{name:<15}{error.total_rmse_deg:>9.2f}{error.heading_rmse_deg:>11.2f}"
                   f"{error.inclination_rmse_deg:>15.2f}")
     return 0

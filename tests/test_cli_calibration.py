@@ -125,6 +125,16 @@ def test_tune_on_intervals_checked_on_another_log(logs, capsys, tmp_path):
     assert "check turning.txt" in capsys.readouterr().out
 
 
+def test_tune_names_a_long_check_log_whole_and_warns_of_a_bound(logs, capsys, tmp_path):
+    long_name = tmp_path / "a_check_log_with_a_rather_long_name.txt"
+    long_name.write_bytes(logs["mag"].read_bytes())
+    assert cli.main(["tune", str(logs["motion"]), "--check-log", str(long_name),
+                     "--params", "acc_lowpass_s=0.001:0.002", "--max-evals", "4"]) == 0
+    text = capsys.readouterr().out
+    assert f"check {long_name.name} before" in text and f"check {long_name.name} after" in text
+    assert "acc_lowpass_s ended at its search bound" in text
+
+
 @pytest.mark.parametrize("argv,needle", [
     (["calibrate-mag", "{rest}", "--range", "5:1"], "time range"),
     (["calibrate", "{rest}", "--range", "100:200"], "nothing in the range"),

@@ -65,3 +65,18 @@ def test_gui_benchmark_quick_mode_runs():
     result = _run(REPO / "benchmarks" / "gui_fps.py", ["--quick"])
     assert result.returncode == 0, result.stdout + result.stderr
     assert "fps" in result.stdout
+
+
+def test_filter_a_log_prints_the_figures_evaluate_prints(tmp_path):
+    log = tmp_path / "sim.txt"
+    assert _run(REPO / "app" / "__main__.py", ["simulate", "-o", str(log), "--duration",
+                                                "20"]).returncode == 0
+    example = _run(REPO / "examples" / "filter_a_log.py", [str(log)]).stdout
+    command = _run(REPO / "app" / "__main__.py", ["evaluate", str(log), "--estimator",
+                                                   "ekf,course"]).stdout
+
+    def totals(text: str, column: int) -> list[str]:
+        return [line.split()[column] for line in text.splitlines()
+                if line.split()[:1] in (["ekf"], ["course"])]
+
+    assert totals(example, 1) == totals(command, 2)

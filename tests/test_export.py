@@ -141,6 +141,7 @@ def _export(folder: Path, tmp_path: Path, fmt: str) -> Path:
     (["--format", "csv", "--from-marker", "nope"], "no marker 'nope'"),
     (["--format", "csv", "--decimal-comma", "--separator", "comma"], "decimal comma needs"),
     (["--format", "csv", "--from", "9", "--to", "3"], "ends (3.000 s) before it starts"),
+    (["--format", "csv", "--from", "100", "--to", "200"], "no samples from 100.000 s to 200.000"),
     (["--format", "xls"], "invalid choice"),
 ])
 def test_bad_export_arguments_are_one_line_and_exit_2(session_folder, tmp_path, capsys,

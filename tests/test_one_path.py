@@ -347,3 +347,20 @@ def test_serve_records_beside_a_session_never_over_it(tmp_path):
         in result.stderr
     assert (folder / "raw.txt").read_text() == "1\tACC\t0\t0\t9.8\n"
     assert (tmp_path / "rec-2" / "session.json").exists()
+
+
+def test_the_window_on_a_port_in_use_names_the_port_in_one_line():
+    taken = socket.socket()
+    taken.bind(("0.0.0.0", 0))
+    taken.listen(1)
+    port = taken.getsockname()[1]
+    try:
+        env = dict(__import__("os").environ, QT_QPA_PLATFORM="offscreen")
+        result = subprocess.run([sys.executable, "-m", "app", "--port", str(port),
+                                 "--exit-after", "2"], cwd=ROOT, env=env, capture_output=True,
+                                text=True, timeout=60)
+    finally:
+        taken.close()
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"0.0.0.0:{port}" in lines[0] and "--port" in lines[0]

@@ -12,8 +12,9 @@ import pytest
 from waiting import wait_until
 
 from ekf.simulate import simulate
-from app.engine.commands import (AddMarker, SetEstimator, SetMarkerLabel, SetSensorEnabled,
-                                 StartRecording, StopRecording)
+from app.cli import main
+from app.engine.commands import (AddMarker, ReplayControl, SetEstimator, SetMarkerLabel,
+                                 SetSensorEnabled, StartRecording, StopRecording)
 from app.engine.estimates import csv_lines
 from app.engine.runner import Rows
 from app.engine.session import read_session, write_markers
@@ -179,3 +180,46 @@ def test_the_window_records_from_the_start_with_record_dir(lines, tmp_path):
     session = read_session(folder / "session.json")
     assert session.data["stopped_utc"] and session.start_state is None
     assert len(recorded_rows(folder)) > 400
+
+
+def test_a_marker_added_in_a_recording_started_mid_stream_is_at_its_replayed_time(lines,
+                                                                                  tmp_path):
+    folder = tmp_path / "mid"
+    engine = Engine(TcpSource("127.0.0.1", 0), comparisons=True)
+    first, marked = 3000, 4200                                   # of 8400 lines
+    with engine:
+        with PhoneEmulator("127.0.0.1", engine.source.port) as phone:
+            send_in_pieces(phone, lines[:first])
+            wait_for(lambda: engine.snapshot_now().health.lines_total >= first, what="lines")
+            engine.send(StartRecording(str(folder)))
+            send_in_pieces(phone, lines[first:marked])
+            wait_for(lambda: engine.snapshot_now().health.lines_total >= marked, what="lines")
+            engine.send(AddMarker("here"))
+            assert engine.wait_idle()
+            live = engine.snapshot_now().markers[0]
+            send_in_pieces(phone, lines[marked:6000])
+            wait_for(lambda: engine.snapshot_now().health.lines_total >= 6000, what="lines")
+            engine.send(StopRecording())
+            assert engine.wait_idle()
+    saved = read_session(folder / "session.json").markers[0]
+    assert saved.t_ms == live.t_ms and saved.sample is not None
+    # the live plots count from the stream's start, the session from the recording's
+    stream_s = live.t_s
+    assert 4200 / 350 - 1.5 < stream_s < 4200 / 350 + 1.5          # ~12 s into the stream
+    replay = Engine(LogFileSource(folder / "raw.txt", speed=0, paused=True), index=False)
+    with replay:
+        replay.send(ReplayControl(paused=False))
+        wait_for(lambda: replay.snapshot_now().health.connection_state == "finished",
+                 what="the replay's end")
+        t0_ms = replay.snapshot_now().t0_ms
+        assert saved.t_s == pytest.approx((saved.t_ms - t0_ms) / 1000.0, abs=1e-9)
+        assert 0.0 < saved.t_s < stream_s - 5.0                      # ~3.4 s into the session
+        replay.send(AddMarker("in the replay"))
+        assert replay.wait_idle()
+    markers = read_session(folder / "session.json").markers
+    assert [m.label for m in markers] == ["here", "in the replay"]
+    assert markers[0].sample == saved.sample                         # kept on the rewrite
+    exported = tmp_path / "from_marker.csv"
+    assert main(["export", str(folder), "--format", "csv", "--from-marker", "1",
+                 "-o", str(exported)]) == 0
+    assert len(exported.read_text().splitlines()) > 100

@@ -241,8 +241,9 @@ def test_a_gzip_header_followed_by_garbage_is_one_line(tmp_path, log, capsys):
 def test_a_log_no_estimate_can_be_made_from_is_one_line(tmp_path, capsys, tags, needle):
     path = _write_log(tmp_path / "part.txt", tags=tags)
     for argv in (["filter", path, "-o", tmp_path / "o.csv"], ["evaluate", path]):
-        code, _, err = _run(capsys, argv)
+        code, out, err = _run(capsys, argv)
         _one_line_error(code, err, "no estimate can be made", needle)
+        assert out == ""                    # no table header before the error
     assert not (tmp_path / "o.csv").exists()
 
 

@@ -312,6 +312,10 @@ def _evaluate(args: argparse.Namespace) -> int:
 # ---- simulate -----------------------------------------------------------------------------------
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    if Path(args.output).exists() and not args.force:
+        raise config.ConfigError(f"{args.output} exists already; not overwritten (--force "
+                                 "replaces it)")
+    check_output(args.output)
     rates = {"gyr": args.rate, "acc": args.rate, "mag": args.mag_rate or args.rate / 2,
              "ori": args.rate}
     session = simulate(duration_s=args.duration, rates_hz=rates, seed=args.seed,
@@ -403,4 +407,5 @@ def add_commands(sub) -> None:
                    help="MAG rate (default rate/2)")
     s.add_argument("--gyro-bias", type=float, nargs=3, default=(0.0, 0.0, 0.0),
                    metavar=("BX", "BY", "BZ"), help="gyroscope bias, rad/s")
+    s.add_argument("--force", action="store_true", help="replace LOG when it exists")
     s.set_defaults(func=cmd_simulate)

@@ -181,6 +181,9 @@ def time_range(data: SessionData, from_marker: str | None = None, to_marker: str
         end = float(to_s)
     if end < start:
         raise ConfigError(f"the range ends ({end:.3f} s) before it starts ({start:.3f} s)")
+    if len(data) and not ((data.t_s >= start - 1e-9) & (data.t_s <= end + 1e-9)).any():
+        raise ConfigError(f"no samples from {start:.3f} s to {end:.3f} s: the session runs "
+                          f"from {float(data.t_s[0]):.3f} s to {float(data.t_s[-1]):.3f} s")
     return start, end
 
 

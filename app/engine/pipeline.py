@@ -67,6 +67,7 @@ class Pipeline:
         # every ordered sample fed to the estimators, (t_ms, tag, values) (exports)
         self.on_ordered: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None
         self.t0_ms: int | None = None        # the session's start: plots count time from it
+        self.piece_first_ms: int | None = None   # the earliest time in the latest output piece
         self.fed = 0                         # samples fed to the estimators in this pass
         self.fed_total = 0                   # ... ever (never restored)
         self.timeline: tuple = ()            # filter events to apply (a replayed recording)
@@ -190,10 +191,11 @@ class Pipeline:
         ori_t, ori_q = runner.take_phone_samples()
         errors = runner.take_errors()
         rows = rows.select(rows.has_sample)         # OWN at our own estimate times
+        firsts = [int(t[0]) for t in (rows.t_ms, plot["t_acc"], plot["t_gyr"],
+                                      plot["t_mag"], ori_t) if len(t)]
+        self.piece_first_ms = min(firsts) if firsts else None
         if self.t0_ms is None:
-            firsts = [int(t[0]) for t in (rows.t_ms, plot["t_acc"], plot["t_gyr"],
-                                          plot["t_mag"], ori_t) if len(t)]
-            self.t0_ms = min(firsts) if firsts else None
+            self.t0_ms = self.piece_first_ms
         t0 = self.t0_ms or 0
         count = len(rows)
         if count or len(ori_q):

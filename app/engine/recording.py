@@ -14,6 +14,7 @@ reason (:attr:`error`).
 
 from __future__ import annotations
 
+import dataclasses
 import platform
 import socket
 from pathlib import Path
@@ -82,6 +83,9 @@ class SessionRecording:
                                   f"{error.strerror or error}") from None
         self.estimates: EstimatesWriter | None = estimates
         self.fed_at_start = int(fed_at_start)
+        # the earliest time of the first output after the start (set by the engine): the
+        # origin a replay of the session counts its time from
+        self.t0_ms: int | None = None
 
     # -- state ---------------------------------------------------------------------------------
 
@@ -121,6 +125,11 @@ class SessionRecording:
             self.recorder._dirty = True
 
     def add_marker(self, marker: Marker, fed: int) -> None:
+        """A marker into the timeline, its t_s counted from the recording's own start (the
+        time a replay of it shows; the live plots count from the stream's)."""
+        if marker.t_ms is not None:
+            start = self.t0_ms if self.t0_ms is not None else marker.t_ms
+            marker = dataclasses.replace(marker, t_s=(marker.t_ms - start) / 1000.0)
         event = marker.to_event(max(0, fed - self.fed_at_start))
         self.recorder.add_event("marker", marker.t_ms, **{k: v for k, v in event.items()
                                                          if k not in ("kind", "t_ms", "utc")})

@@ -56,19 +56,24 @@ class Marker:
     t_s: float | None
     label: str = ""
     utc: str = ""
+    sample: int | None = None      # its position in a recording's timeline (kept on rewrites)
 
     @property
     def title(self) -> str:
         return f"{self.id}: {self.label}" if self.label else str(self.id)
 
     def to_event(self, sample: int | None = None) -> dict[str, Any]:
-        return {"kind": "marker", "t_ms": self.t_ms, "utc": self.utc, "sample": sample,
+        return {"kind": "marker", "t_ms": self.t_ms, "utc": self.utc,
+                "sample": self.sample if sample is None else sample,
                 "id": self.id, "label": self.label, "t_s": self.t_s}
 
     @staticmethod
     def from_event(event: dict[str, Any]) -> Marker:
+        sample = event.get("sample")
         return Marker(int(event.get("id") or 0), event.get("t_ms"), event.get("t_s"),
-                      str(event.get("label") or ""), str(event.get("utc") or ""))
+                      str(event.get("label") or ""), str(event.get("utc") or ""),
+                      sample if isinstance(sample, int) and not isinstance(sample, bool)
+                      else None)
 
 
 def utc_now() -> str:

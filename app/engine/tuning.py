@@ -192,15 +192,36 @@ class TuneResult:
             lines.append(f"{name:<24}{f'{low:.3g} .. {high:.3g}':>22}{before:>12.4g}"
                          f"{after:>12.4g}")
         lines.append("")
-        lines.append(f"{'RMSE vs ORI (deg)':<30}{'total':>9}{'heading':>9}{'inclin.':>9}")
-        for label, s in _figure_rows(self):
-            lines.append(f"{label:<30}{s.total_rmse_deg:>9.3f}{s.heading_rmse_deg:>9.3f}"
+        rows = _figure_rows(self)
+        width = max([30] + [len(label) + 2 for label, _ in rows])
+        lines.append(f"{'RMSE vs ORI (deg)':<{width}}{'total':>9}{'heading':>9}{'inclin.':>9}")
+        for label, s in rows:
+            lines.append(f"{label:<{width}}{s.total_rmse_deg:>9.3f}{s.heading_rmse_deg:>9.3f}"
                          f"{s.inclination_rmse_deg:>9.3f}")
         state = " (cancelled: best so far)" if self.cancelled else ""
         lines.append(f"{self.evaluations} evaluations in {self.elapsed_s:.1f} s{state}")
         if self.overfit_warning:
             lines.append(f"warning: {self.overfit_warning}")
+        lines += [f"warning: {text}" for text in self.bound_warnings()]
         return "\n".join(lines)
+
+    def bound_warnings(self) -> list[str]:
+        """A parameter whose best value lies on its search range's edge (within 1 % of the
+        range, on a log scale where the range spans more than a decade): the best may be
+        beyond it."""
+        out = []
+        for name, low, high, _, after in self.parameter_rows():
+            if not (math.isfinite(after) and high > low):
+                continue
+            if low > 0 and high / low > 10:
+                where = (math.log(after / low) / math.log(high / low)) if after > 0 else 0.0
+            else:
+                where = (after - low) / (high - low)
+            if where <= 0.01 or where >= 0.99:
+                edge = low if where <= 0.01 else high
+                out.append(f"{name} ended at its search bound {edge:.3g}: the best may lie "
+                           f"beyond it (widen it with --params {name}=LO:HI)")
+        return out
 
     def to_dict(self) -> dict[str, Any]:
         def summary(s: ErrorSummary | None) -> dict[str, float] | None:
@@ -224,7 +245,7 @@ def _figure_rows(result: TuneResult) -> list[tuple[str, ErrorSummary]]:
     if result.check_before is not None:
         rows += [(f"check {result.check_label} before", result.check_before),
                  (f"check {result.check_label} after", result.check_after)]
-    return [(label[:30], s) for label, s in rows]
+    return rows
 
 
 def _objective_value(summary: ErrorSummary, objective: str) -> float:

@@ -808,6 +808,9 @@ class Engine:
         """The rows since the last call to their consumers (rows_log, estimates.csv); the plot
         samples as a PlotChunk in the current session's time."""
         rows, piece = self.pipeline.take_output()
+        recording = self.recording
+        if recording is not None and recording.active and recording.t0_ms is None:
+            recording.t0_ms = self.pipeline.piece_first_ms   # as a replay of it will count
         self._distribute(rows)
         return piece
 

@@ -7,6 +7,7 @@ functions, so importing this module costs nothing for the headless commands.
 
 from __future__ import annotations
 
+import errno
 import logging
 import logging.handlers
 import os
@@ -177,7 +178,12 @@ def run_gui(options: WindowOptions) -> int:
         engine.start()
     except OSError as error:            # e.g. the port is taken
         engine.stop()
-        raise ConfigError(f"cannot start the source: {error.strerror or error}") from None
+        given = options.source
+        where = "" if given.replay else f" (listening on {given.host}:{given.port})"
+        raise ConfigError(f"cannot start the source{where}: {error.strerror or error}"
+                          + ("; another program (or Orientation Lab) uses that port: choose "
+                             "another with --port" if error.errno == errno.EADDRINUSE else "")) \
+            from None
     if options.record:
         from app.engine.commands import StartRecording
         engine.send(StartRecording(options.record, options.record_max_mb,
