@@ -223,3 +223,29 @@ def test_a_marker_added_in_a_recording_started_mid_stream_is_at_its_replayed_tim
     assert main(["export", str(folder), "--format", "csv", "--from-marker", "1",
                  "-o", str(exported)]) == 0
     assert len(exported.read_text().splitlines()) > 100
+
+
+def test_recording_a_replay_mid_way_with_a_switch_replays_exactly(lines, tmp_path):
+    """A replay (the demo, a log) recorded mid-way: a sensor switched off and on applies from
+    then on, as on a live stream (not to the whole replay), so the recording replays to the
+    rows that were shown."""
+    log = tmp_path / "log.txt"
+    log.write_bytes(b"".join(lines))
+    folder = tmp_path / "rec"
+    engine = Engine(LogFileSource(log, speed=6.0), comparisons=True)
+    with engine:
+        wait_for(lambda: engine.snapshot_now().health.lines_total >= 2000, what="lines")
+        engine.send(StartRecording(str(folder)))
+        wait_for(lambda: engine.snapshot_now().health.lines_total >= 3500, what="lines")
+        engine.send(SetSensorEnabled("gyr", False))
+        wait_for(lambda: engine.snapshot_now().health.lines_total >= 4500, what="lines")
+        engine.send(SetSensorEnabled("gyr", True))
+        wait_for(lambda: engine.snapshot_now().health.lines_total >= 6500, what="lines")
+        engine.send(StopRecording())
+        assert engine.wait_idle()
+    session = read_session(folder / "session.json")
+    assert [e["kind"] for e in session.filter_events] == ["sensor", "sensor"]
+    recorded = recorded_rows(folder)
+    replayed = replayed_rows(folder)
+    assert len(recorded) > 1500
+    assert replayed[:len(recorded)] == recorded and len(replayed) - len(recorded) < 100

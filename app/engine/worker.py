@@ -639,9 +639,14 @@ class Engine:
         return True
 
     def _setup_changed(self) -> bool:
-        """Replaying: the user chose another set-up (index again, re-sync once indexed)."""
+        """Replaying: the user chose another set-up (index again, re-sync once indexed). While
+        a recording runs it applies from now on, as on a live stream, so the recording replays
+        exactly what was shown; the whole replay follows once the recording stops."""
         manager = self._replay
         if manager is None or self._replay_source() is None:
+            return False
+        if self.recording is not None and self.recording.active:
+            self._setup_deferred = True
             return False
         if manager.changed(self.pipeline):
             self._health.warn("timeline", "recorded timeline off: your choices apply to the "
@@ -724,6 +729,9 @@ class Engine:
         self._flush_output()         # the rows up to now go into estimates.csv
         self._close_recording()
         self._health.warn("recording", f"recording saved in {folder}", force=True)
+        if self._setup_deferred:
+            self._setup_deferred = False
+            self._setup_changed()
 
     def _close_recording(self) -> None:
         recording, self.recording = self.recording, None
@@ -733,6 +741,7 @@ class Engine:
             recording.close(stats_dict(self._latest.health))
 
     _last_recording_status: dict[str, Any] | None = None
+    _setup_deferred = False      # a set-up change during a recording of a replay
 
     def _set_forward(self, target: str | None) -> None:
         """SetForward: stop the running forward (if any), start one to target (if given)."""
