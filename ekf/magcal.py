@@ -35,6 +35,10 @@ MIN_SAMPLES = 20
 OUTLIER_PASSES = 8
 """At most this many refits leaving out readings far off the sphere (see _inliers)."""
 EARTH_FIELD_RANGE_UT = (25.0, 65.0)
+MIN_SPREAD_UT = 5.0
+"""The readings must spread at least this far (standard deviation along their widest axis):
+a phone turned in even one plane spreads them by about the field's strength, one lying still
+only by its noise, around which a sphere of any size fits."""
 
 
 def fibonacci_directions(n: int = COVERAGE_BINS) -> np.ndarray:
@@ -241,6 +245,12 @@ def calibrate_magnetometer(mag: ArrayLike,
         raise ValueError(f"the magnetometer fit needs at least {MIN_SAMPLES} readings, "
                          f"got {len(m)}")
     used = _inliers(m)
+    spread = float(np.sqrt(max(np.linalg.eigvalsh(np.cov(m[used].T))[-1], 0.0)))
+    if spread < MIN_SPREAD_UT:
+        raise ValueError(f"the phone hardly turned: the readings spread by {spread:.1f} uT "
+                         f"(at least {MIN_SPREAD_UT:g} uT needed; turned in every direction "
+                         f"they spread by about the field's {EARTH_FIELD_RANGE_UT[0]:g}-"
+                         f"{EARTH_FIELD_RANGE_UT[1]:g} uT)")
     offset, soft_iron, strength, model = _fit(m[used], min_coverage)
     outliers = int(len(m) - used.sum())
     inliers = m[used]           # the figures are those of the readings fitted

@@ -76,6 +76,8 @@ def _keep_in_profile(name: str, **parts: Any) -> None:
     for key, value in parts.items():
         setattr(profile, key, value)
     print(f"profile {profile.name!r} saved to {store.save(profile)}")
+    for text in profile.warnings(profile.to_settings()):
+        print(f"warning: {text}")
 
 
 # ---- calibrate ------------------------------------------------------------------------------------

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 import ekf
+from ekf import magcal
 from ekf.calibration import _level_rotation
 from ekf.settings import read_json
 from app import __version__, paths
@@ -80,6 +81,20 @@ class Profile:
         if self.rest:
             changes.update(_rest_changes(self.rest, correction, replace_noise))
         return settings.with_changes(**changes)
+
+    def warnings(self, settings: ekf.EKFSettings) -> list[str]:
+        """What is implausible in the settings this profile gives (one line each): an Earth
+        field outside 25-65 uT (a rest taken beside iron, or a magnetometer fit of readings
+        that did not turn)."""
+        low, high = magcal.EARTH_FIELD_RANGE_UT
+        out = []
+        if settings.m0 is not None:
+            strength = float(np.linalg.norm(settings.m0))
+            if not low <= strength <= high:
+                out.append(f"m0 is {strength:.1f} uT, not the Earth's {low:g}-{high:g} uT: "
+                           "calibrate at rest away from iron, and fit the magnetometer on "
+                           "readings taken while turning the phone")
+        return out
 
     # -- JSON ---------------------------------------------------------------------------------
 

@@ -226,11 +226,14 @@ class MagTab(QtWidgets.QWidget):
         self.start_button.clicked.connect(self.toggle)
         self.clear_button = QtWidgets.QPushButton("Clear")
         self.clear_button.clicked.connect(self.clear)
+        self.from_log_button = QtWidgets.QPushButton("From log…")
+        self.from_log_button.setToolTip("fit the magnetometer readings of a log in which the "
+                                        "phone was turned in every direction")
         self.coverage_bar = QtWidgets.QProgressBar()
         self.coverage_bar.setFormat("coverage %p %")
         self.summary = _label("Press Start and turn the phone slowly in every direction.")
         controls = QtWidgets.QHBoxLayout()
-        for w in (self.start_button, self.clear_button, self.coverage_bar):
+        for w in (self.start_button, self.clear_button, self.from_log_button, self.coverage_bar):
             controls.addWidget(w)
         self.cloud = pg.GraphicsLayoutWidget()
         self.cloud.setBackground("w")
@@ -331,6 +334,7 @@ class CalibrationWorkspace(QtWidgets.QWidget):
         self.mag = MagTab(use_gl)
         self.rest.analysed.connect(lambda result: self.allan.show_result(result.allan))
         self.rest.from_log_button.clicked.connect(self._from_log_dialog)
+        self.mag.from_log_button.clicked.connect(self._mag_from_log_dialog)
         self.tabs = QtWidgets.QTabWidget()
         self.tabs.addTab(self.rest, "At rest")
         self.tabs.addTab(self.allan, "Gyro noise")
@@ -380,9 +384,29 @@ class CalibrationWorkspace(QtWidgets.QWidget):
             self.mag.count = len(raw)
             self.mag.show_result(mag, raw)
         except config.ConfigError:
-            pass                   # a rest stretch rarely has enough turning for a mag fit
+            pass    # a still stretch is no magnetometer fit (the tab keeps what it had)
         self.message.setText(f"{Path(path).name}: {rest.how}")
         return True
+
+    def analyse_mag_log(self, path: str | Path, start_s: float | None = None,
+                        end_s: float | None = None) -> bool:
+        """The magnetometer readings of a log (or a stretch of it) fitted in the Magnetometer
+        tab; a log in which the phone hardly turned says so there."""
+        try:
+            mag, raw = mag_from_log(config.open_log(path), start_s, end_s)
+        except config.ConfigError as error:
+            self.mag.summary.setText(str(error))
+            return False
+        self.mag.count = len(raw)
+        self.mag.show_result(mag, raw)
+        self.message.setText(f"{Path(path).name}: magnetometer fitted on {len(raw)} readings")
+        return True
+
+    def _mag_from_log_dialog(self) -> None:
+        path, _ = QtWidgets.QFileDialog.getOpenFileName(self, "Magnetometer fit from a log", "",
+                                                        "Logs (*.txt *.txt.gz *.json)")
+        if path:
+            self.analyse_mag_log(path)
 
     def _from_log_dialog(self) -> None:
         path, _ = QtWidgets.QFileDialog.getOpenFileName(self, "Calibrate from a log", "",
@@ -412,8 +436,10 @@ class CalibrationWorkspace(QtWidgets.QWidget):
             return None
         settings = profile.to_settings(self._settings())
         self._send(SetSettings(settings, calibration=profile.to_dict(), source="calibration"))
+        warnings = profile.warnings(settings)
         self.message.setText(f"applied {profile.name!r}: g, m0, gyro bias"
-                             + (", magnetometer correction" if profile.mag else ""))
+                             + (", magnetometer correction" if profile.mag else "")
+                             + "".join(f"; warning: {text}" for text in warnings))
         self.applied.emit(settings)
         return settings
 

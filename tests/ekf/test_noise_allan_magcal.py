@@ -196,3 +196,14 @@ def test_a_magnet_passing_by_is_left_out_of_the_fit():
     np.testing.assert_allclose(cal.offset, OFFSET, atol=0.3)
     assert cal.outliers >= 0.5 * disturbed.sum() and "left out" in cal.message
     assert cal.fit_error_pct < 3.0
+
+
+def test_readings_of_a_phone_lying_still_are_no_fit():
+    from ekf import magcal
+    rng = np.random.default_rng(4)
+    still = np.array([5.0, 20.0, -40.0]) + 0.8 * rng.standard_normal((500, 3))
+    with pytest.raises(ValueError, match="the phone hardly turned"):
+        magcal.calibrate_magnetometer(still)
+    circle = np.column_stack([45 * np.cos(np.linspace(0, 6, 500)),
+                              45 * np.sin(np.linspace(0, 6, 500)), np.full(500, -20.0)])
+    assert magcal.calibrate_magnetometer(circle).samples == 500   # one plane is enough to fit

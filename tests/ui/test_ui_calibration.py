@@ -154,3 +154,34 @@ def test_the_3d_cloud_with_opengl(qtbot, tmp_path):
                                         mag=_turning_readings(500))))
     assert widget.mag.view3d is not None
     assert widget.mag.scatter3d.pos.shape == (500, 3)
+
+
+def test_a_still_log_is_no_magnetometer_fit_and_the_tab_has_its_own_log(workspace, tmp_path,
+                                                                        realphone_dir):
+    assert workspace.analyse_log(realphone_dir / "tsrt14_lab2_calibration.txt")
+    assert workspace.mag.result is None and workspace.mag.coverage_bar.value() <= 0
+    assert not workspace.analyse_mag_log(realphone_dir / "tsrt14_lab2_calibration.txt")
+    assert "hardly turned" in workspace.mag.summary.text()
+    turning = tmp_path / "turning.txt"
+    readings = _turning_readings(800)
+    turning.write_text("".join(f"{1000 + 20 * k}\tMAG\t{x}\t{y}\t{z}\n"
+                               f"{1000 + 20 * k}\tACC\t0\t0\t9.81\n"
+                               for k, (x, y, z) in enumerate(readings)))
+    assert workspace.analyse_mag_log(turning)
+    np.testing.assert_allclose(workspace.mag.result.offset, [20, -30, 150], atol=0.5)
+    assert workspace.mag.from_log_button.text() == "From log…"
+
+
+def test_apply_warns_of_an_earth_field_outside_25_to_65_ut(workspace):
+    rest = simulate(duration_s=12.0, script="rest", seed=11, gyro_bias=BIAS)
+    workspace.rest.start()
+    for snapshot in snapshots(rest):
+        workspace.feed(snapshot)
+    workspace.loaded = None
+    profile = workspace.profile()
+    profile.rest["mag"]["mean"] = [0.0, 70.0, -450.0]        # a rest beside iron
+    workspace.loaded = profile
+    workspace.rest.result = None
+    workspace.apply()
+    assert "warning: m0 is" in workspace.message.text()
+    assert "not the Earth's 25-65 uT" in workspace.message.text()
