@@ -150,3 +150,23 @@ def test_simulated_session_through_tcp_equals_run_offline_and_is_recorded(tmp_pa
     assert np.array_equal(t_ms, offline.t_ms) and np.array_equal(quat, offline.quat)
     assert (tmp_path / "rec" / "raw.txt").read_bytes() == path.read_bytes()
     assert len(engine.latencies_s) > 0
+
+
+def test_a_paced_replay_starts_at_its_beginning_once_the_kernels_are_ready(tmp_path,
+                                                                           monkeypatch):
+    """The first start compiles the kernels in the engine's thread; meanwhile the snapshots say
+    so, and the replay's clock starts only when they are ready (it jumped ahead by the compile
+    time before)."""
+    import app.engine.worker as worker
+
+    released = []
+    monkeypatch.setattr(worker, "warm_up", lambda: (time.sleep(1.5), released.append(1)))
+    path = tmp_path / "log.txt"
+    path.write_bytes(b"".join(_log_lines(20.0)))
+    engine = Engine(LogFileSource(path, speed=1.0), comparisons=False)
+    with engine:
+        first = wait_for_snapshot(engine, lambda s: s.preparing, 10.0, "the preparing state")
+        assert first.t_ms is None
+        moving = wait_for_snapshot(engine, lambda s: s.t_ms is not None, 20.0, "samples")
+        assert released and not moving.preparing
+        assert moving.replay["position_s"] < 0.6        # not 1.5 s in: the clock waited

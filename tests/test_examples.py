@@ -28,7 +28,7 @@ BENCHMARKS = [("speed.py", []),
               ("tune_defaults.py", ["--held-out-only", "--objective", "means"]),
               ("tune_defaults.py", ["--held-out-only", "--augment", "1"]), ("robustness.py", []),
               ("live.py", ["--skip-no-loss"]), ("chaos.py", []), ("tuning.py", []),
-              ("plugin.py", []), ("session.py", [])]
+              ("plugin.py", []), ("session.py", []), ("startup.py", [])]
 
 
 def _run(script: Path, args: list[str], env: dict[str, str] | None = None,

@@ -234,6 +234,7 @@ class Snapshot:
     user: UserFilterStatus | None = None      # your filter (YOURS), when one is loaded
     # the markers of the session shown (app.engine.session.Marker), oldest first
     markers: tuple = ()
+    preparing: bool = False                   # the engine compiles/loads its kernels (start)
     # a recording in progress (or the last one): folder, elapsed_s, bytes, lines, error, active
     recording: dict[str, Any] | None = None
     # a replay's whole session for the plots, once indexed (app.engine.session_index.SessionPlot;

@@ -13,11 +13,17 @@ from app.stream.demo import write_session
 from app.stream.logfile import read_log
 
 
+_done = False
+
+
 def warm_up() -> None:
     """The EKF, the parser, the time orderer and the runner's own kernels, by running two seconds
-    of a simulated phone through them (the first time about half a minute). `make run` and
-    `make test` call it once after installing, so the first window does not wait for the
-    compiler."""
+    of a simulated phone through them (the first time about a minute on two cores; from numba's
+    cache about a second; once per process). `make run` and `make test` call it once after
+    installing; the engine calls it before its first sample."""
+    global _done
+    if _done:
+        return
     fast.warm_up()
     fastparse.warm_up()
     ordering.warm_up()
@@ -27,6 +33,7 @@ def warm_up() -> None:
     runner.feed_many(log.samples)
     runner.finish()
     runner.take_rows()
+    _done = True
 
 
 if __name__ == "__main__":   # python -m app.engine.warmup (the Makefile's set-up step)

@@ -49,11 +49,12 @@ import numpy as np
 
 import ekf
 from app.engine.commands import (AddMarker, AlignHeading, LoadUserFilter, ReplayControl,
-                                 ResetFilter, SetComparisonsEnabled, SetConsistencyEnabled,
-                                 SetEstimator, SetFollowTimeline, SetMarkerLabel,
-                                 SetSensorEnabled, SetSettings, StartRecording, StopRecording,
-                                 SetForward, UnloadUserFilter)
-from app.engine.config import ConfigError, forward_target, megabytes
+                                 ResetFilter, SetConsistencyEnabled, SetFollowTimeline,
+                                 SetForward, SetMarkerLabel, StartRecording, StopRecording,
+                                 UnloadUserFilter)
+from app.engine.config import ConfigError, megabytes
+from app.engine.filter_commands import SETUP_COMMANDS, apply_setup
+from app.engine.forwarding import switch_forward
 from app.engine.estimates import EstimatesWriter
 from app.engine.health import HealthTracker, stats_dict
 from app.engine.markers import Markers
@@ -62,11 +63,12 @@ from app.engine.recording import SessionRecording
 from app.engine.replay import ReplayManager, session_for_source
 from app.engine.runner import SENSORS, EstimatorRunner, Rows
 from app.engine.session import SessionInfo, default_session_folder
+from app.engine.warmup import warm_up
 from app.engine.snapshot import (Comparison, EngineFailure, FilterStatus, PlotBuffer, PlotChunk,
                                  Snapshot, StreamHealth)
 from app.engine.user_code import is_filter_file
 from app.engine.user_host import UserFilterHost
-from app.stream import fastparse, ordering
+from app.stream import fastparse
 from app.stream.events import CONNECTION_COMMANDS, Chunk, SourceEvent
 from app.stream.fastparse import ParsedArrays
 from app.stream.forwarder import LineForwarder
@@ -82,7 +84,6 @@ PUBLISH_IDLE_S = 0.25          # publish health at least this often without data
 MAX_FAILURES = 5               # this many failures within FAILURE_WINDOW_S stop the engine
 FAILURE_WINDOW_S = 10.0
 # commands that change a replay's set-up (the index is built again for it)
-SETUP_COMMANDS = (SetSensorEnabled, SetEstimator, SetSettings, SetComparisonsEnabled)
 
 
 class Engine:
@@ -128,6 +129,7 @@ class Engine:
         self.last_recording: Path | None = None
         self._initial_recording = (recorder, estimates)
         self._markers = Markers()
+        self.preparing = False           # compiling or loading the kernels (start)
         self._replay: ReplayManager | None = None
         self._session = session if session is not None else session_for_source(source)
         self._index = bool(index)
@@ -200,9 +202,7 @@ class Engine:
         """Start the source (may raise OSError/LogError, e.g. port taken) and the thread."""
         if self._thread is not None:
             return
-        # Load the compiled kernels now (numba's on-disk cache), not at the first chunk.
-        fastparse.warm_up()
-        ordering.warm_up()
+        self.preparing = True       # the thread compiles (or loads) the kernels first
         self.source.start()
         if self.forwarder is not None:
             self.forwarder.start()
@@ -284,7 +284,24 @@ class Engine:
 
     # -- engine thread ----------------------------------------------------------------------------
 
+    def _prepare(self) -> None:
+        """Before the first sample: compile the kernels (the first start) or load them from
+        numba's cache, saying so in the snapshots, then start a paced replay's clock, so the
+        demo or a log begins at its start instead of where its clock ran to meanwhile."""
+        self._publish(time.perf_counter())
+        try:
+            warm_up()
+        finally:
+            self.preparing = False
+        ready = getattr(self.source, "ready", None)     # (a source of a test may lack it)
+        if ready is not None:
+            ready()
+
     def _run(self) -> None:
+        try:
+            self._prepare()
+        except Exception as error:
+            self._on_failure(error)
         while not self._stop.is_set():
             try:
                 self._pass()
@@ -608,35 +625,9 @@ class Engine:
 
     def _apply_setup(self, command: Any) -> bool:
         """A sensor switch, estimator, settings or comparisons command; False when refused."""
-        runner = self._runner
-        if isinstance(command, SetSensorEnabled):
-            runner.set_sensor_enabled(command.sensor, command.enabled)
-            self._record_event("sensor", sensor=command.sensor, enabled=command.enabled)
-        elif isinstance(command, SetEstimator):
-            if command.name not in ekf.ESTIMATORS:
-                self._health.warn("command", f"unknown estimator {command.name!r}", force=True)
-                return False
-            runner.set_estimator(command.name)
-            self._record_event("estimator", name=command.name)
-        elif isinstance(command, SetSettings):
-            runner.set_settings(command.settings)
-            details = {"source": command.source} if command.source else {}
-            if command.calibration is not None:
-                details["profile"] = command.calibration.get("name")
-            if self.recording is not None and self.recording.active:
-                self.recording.set_settings(command.settings, command.calibration,
-                                            self.pipeline.fed_total)
-            self._record_event("settings", settings=command.settings.to_dict()
-                               if hasattr(command.settings, "to_dict") else None, **details)
-        elif isinstance(command, SetComparisonsEnabled):
-            if command.estimator is not None and command.estimator not in ekf.ESTIMATORS:
-                self._health.warn("command", f"unknown estimator {command.estimator!r}",
-                                  force=True)
-                return False
-            runner.set_comparisons_enabled(command.enabled, command.estimator)
-            self._record_event("comparisons", enabled=command.enabled,
-                               estimator=runner.comparison_estimator)
-        return True
+        return apply_setup(self._runner, command, self._record_event,
+                           lambda text: self._health.warn("command", text, force=True),
+                           self.recording, self.pipeline.fed_total)
 
     def _setup_changed(self) -> bool:
         """Replaying: the user chose another set-up (index again, re-sync once indexed). While
@@ -745,29 +736,12 @@ class Engine:
 
     def _set_forward(self, target: str | None) -> None:
         """SetForward: stop the running forward (if any), start one to target (if given)."""
-        try:
-            address = forward_target(target) if target else None
-        except ConfigError as error:
-            self._health.warn("forward", f"forward to {target!r}: "
-                              f"{str(error).replace('--forward: ', '')}", force=True)
-            return
-        if self.forwarder is not None:
-            # its thread may be inside a send (up to 5 s): never wait for it here
-            threading.Thread(target=self.forwarder.stop, name="forward-stop",
-                             daemon=True).start()
-            self.forwarder = None
-        if address is None:
-            self._health.warn("forward", "forwarding stopped", force=True)
-            self._record_event("forward", target=None)
-            return
-        self.forwarder = LineForwarder(*address)
-        self.forwarder.start()
-        where = f"{address[0]}:{address[1]}"
-        note = "" if self.source.kind == "tcp" else " (the phone's lines only: nothing to " \
-                                                    "forward while not streaming live)"
-        self._health.warn("forward", f"forwarding the phone's lines to {where}{note}",
-                          force=True)
-        self._record_event("forward", target=where)
+        self.forwarder, line, changed = switch_forward(self.forwarder, target,
+                                                       self.source.kind == "tcp")
+        self._health.warn("forward", line, force=True)
+        if changed:
+            self._record_event("forward", target=None if self.forwarder is None else
+                               f"{self.forwarder.host}:{self.forwarder.port}")
 
     def _record_event(self, kind: str, **data: Any) -> None:
         if self.recording is not None and self.recording.active:
@@ -850,6 +824,7 @@ class Engine:
             comparison_estimator=runner.comparison_estimator, t0_ms=self.pipeline.t0_ms,
             health=self._stream_health(now, info), replay=replay,
             failures=list(self.failures), markers=tuple(self._markers.items),
+            preparing=self.preparing,
             user=self._user.status(),
             recording=self.recording.status() if self.recording is not None
             else self._last_recording_status,

@@ -43,6 +43,10 @@ class Source:
     def stop(self) -> None:
         """Release everything. Idempotent."""
 
+    def ready(self) -> None:
+        """The consumer is ready for samples now (its kernels are loaded): a paced replay
+        starts its clock here. Nothing for a live source."""
+
     def read(self, timeout: float = 0.05) -> list[Chunk | SourceEvent]:
         """What arrived since the previous call; waits at most `timeout` s when nothing has."""
         raise NotImplementedError
@@ -176,6 +180,9 @@ class LineReplaySource(Source):
         self._anchor()
         self._events.append(SourceEvent("connected", self._connection, self.name,
                                         "replay", time.perf_counter()))
+
+    def ready(self) -> None:
+        self._anchor()
 
     def _anchor(self) -> None:
         self._anchor_wall = time.perf_counter()
@@ -347,6 +354,9 @@ class DemoOrPhoneSource(Source):
     def start(self) -> None:
         self.phone.start()
         self.demo.start()
+
+    def ready(self) -> None:
+        self.demo.ready()
 
     def stop(self) -> None:
         self.demo.stop()

@@ -84,10 +84,15 @@ def _to_bool(value: Any, default: bool) -> bool:
     return bool(value)
 
 
+PREPARING_TEXT = "preparing the filter\n(the first start compiles it: about a minute)"
+
+
 def phone_no_data_text(snapshot: Snapshot) -> str:
     """Why PHONE has nothing to show: "" when it has an orientation."""
     if snapshot.phone_quat is not None:
         return ""
+    if snapshot.preparing:
+        return PREPARING_TEXT
     if (snapshot.t_ms is not None and snapshot.t0_ms is not None
             and snapshot.t_ms - snapshot.t0_ms >= NO_ORI_AFTER_MS):
         return "no ORI in this stream\n(the phone sends no orientation of its own)"
@@ -410,7 +415,8 @@ class MainWindow(QtWidgets.QMainWindow):
         if has_data:
             self.own_view.set_orientation(snapshot.own_quat, snapshot.own_cov)
         else:
-            self.own_view.set_no_data("waiting for data")
+            self.own_view.set_no_data(PREPARING_TEXT if snapshot.preparing
+                                      else "waiting for data")
             self.own_view.set_orientation(None)
         phone_text = phone_no_data_text(snapshot)
         if phone_text:

@@ -296,3 +296,15 @@ def test_the_timer_polls_the_engine(make_window, fake_engine, qtbot):
     fake_engine.snapshots.extend(make_snapshot(seq, 0.5 * seq) for seq in range(1, 4))
     qtbot.waitUntil(lambda: window.snapshots_received == 3, timeout=2000)
     assert not fake_engine.snapshots
+
+
+def test_while_the_engine_prepares_its_kernels_the_views_say_so(make_window, fake_engine):
+    from app.engine.snapshot import Snapshot
+    window = make_window(fake_engine)
+    fake_engine.snapshots.append(Snapshot(seq=1, preparing=True))
+    window.tick()
+    assert window.own_view.no_data_text.startswith("preparing the filter")
+    assert window.phone_view.no_data_text.startswith("preparing the filter")
+    fake_engine.snapshots.append(Snapshot(seq=2))
+    window.tick()
+    assert window.own_view.no_data_text == "waiting for data"
