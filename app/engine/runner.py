@@ -29,8 +29,11 @@ from app.engine.innovations import YOURS, InnovationBuffer, InnovationProbe
 from app.engine.user_filter import make_estimator
 from app.engine.user_lane import UserLane
 from app.stream.fastparse import samples_to_arrays
-from app.stream.protocol import Sample
+from app.stream.protocol import FILTER_TAGS, Sample
 from app.stream.repeats import Last, repeats
+
+#: The tag codes' names (GYR 0, ACC 1, MAG 2, ORI 3), as the sensors are named elsewhere.
+TAG_NAMES: tuple[str, ...] = tuple(tag.lower() for tag in FILTER_TAGS)
 
 #: The 7 non-empty sensor combinations of the EKF, "gyr+acc+mag" first.
 COMBINATIONS: tuple[tuple[str, ...], ...] = tuple(
@@ -286,6 +289,9 @@ class EstimatorRunner:
         self.samples_fed = 0                      # filter-tag samples fed so far
         self.repeated = 0                         # of them, exact repeats used once
         self._last_sample: Last = None
+        # samples of each tag (GYR, ACC, MAG, ORI) in this session: which sensors the stream
+        # delivers (see :attr:`session_samples`)
+        self._tag_counts = np.zeros(len(TAG_NAMES), np.int64)
         self.collect_plot = collect_plot
         self.collect_cov = collect_cov
         self.comparison_estimator = comparison_estimator
@@ -305,6 +311,12 @@ class EstimatorRunner:
         self._reset_plot()
 
     # -- commands -----------------------------------------------------------------------------
+
+    @property
+    def session_samples(self) -> dict[str, int]:
+        """Samples of each tag fed in this session (since the last new_session), by name:
+        {"gyr": 0, "acc": 1200, "mag": 600, "ori": 1200} for a stream without a gyroscope."""
+        return dict(zip(TAG_NAMES, (int(n) for n in self._tag_counts)))
 
     @property
     def sensors_enabled(self) -> dict[str, bool]:
@@ -343,6 +355,7 @@ class EstimatorRunner:
         self.reset()
         self.phone_quat = None
         self._last_sample = None
+        self._tag_counts = np.zeros(len(TAG_NAMES), np.int64)
 
     def reset(self) -> None:
         """Forget the orientation of every estimator; they re-initialise from the next samples."""
@@ -420,6 +433,7 @@ class EstimatorRunner:
             "phone_quat": self.phone_quat, "latest_t_ms": self.latest_t_ms,
             "row_t": self._row_t, "row_has_sample": self._row_has_sample,
             "last_sample": self._last_sample,
+            "tag_counts": tuple(int(n) for n in self._tag_counts),
         }
 
     def restore(self, snapshot: dict) -> None:
@@ -448,6 +462,9 @@ class EstimatorRunner:
         self._row_t = snapshot["row_t"]
         self._row_has_sample = snapshot["row_has_sample"]
         self._last_sample = snapshot.get("last_sample")
+        # (a recording's start_state written before the counts were kept: none seen)
+        counts = snapshot.get("tag_counts") or (0,) * len(TAG_NAMES)
+        self._tag_counts = np.array([int(n) for n in counts], np.int64)
         self.take_rows()
         self._errors = []
         self._phone_samples = []
@@ -509,6 +526,7 @@ class EstimatorRunner:
         if self.collect_plot:
             self._collect_plot(layout, result)
         self.samples_fed += len(t_ms)
+        self._tag_counts += np.bincount(tag, minlength=len(TAG_NAMES))[:len(TAG_NAMES)]
         self.latest_t_ms = int(t_ms[-1])
         self._row_t = self.latest_t_ms
         self._row_has_sample = bool(layout.own_sample[-1])

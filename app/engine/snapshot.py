@@ -240,6 +240,30 @@ class Snapshot:
     # a replay's whole session for the plots, once indexed (app.engine.session_index.SessionPlot;
     # shared, never changed once handed out)
     session_plot: Any = None
+    # samples of each tag fed to the estimators in this session, {"gyr", "acc", "mag", "ori"}
+    # (empty: not known, e.g. a test double): which sensors the stream delivers
+    session_samples: dict[str, int] = field(default_factory=dict)
+
+
+#: A sensor with no sample after this much phone time of the session is "not in this stream".
+NO_SENSOR_AFTER_MS = 2000
+SENSOR_NAMES = {"gyr": "gyroscope", "acc": "accelerometer", "mag": "magnetometer"}
+
+
+def absent_sensors(snapshot: Snapshot) -> frozenset[str]:
+    """The sensors ("gyr", "acc", "mag") the stream has not delivered although the session has
+    run NO_SENSOR_AFTER_MS of phone time (other tags arriving): a log without a gyroscope gives
+    {"gyr"}. Empty while the session is younger, and when the counts are not known."""
+    counts = snapshot.session_samples
+    if (not counts or snapshot.t_ms is None or snapshot.t0_ms is None
+            or snapshot.t_ms - snapshot.t0_ms < NO_SENSOR_AFTER_MS):
+        return frozenset()
+    return frozenset(sensor for sensor in SENSOR_NAMES if not counts.get(sensor, 0))
+
+
+def absent_text(sensor: str) -> str:
+    """"no gyroscope in this stream"."""
+    return f"no {SENSOR_NAMES.get(sensor, sensor)} in this stream"
 
 
 class PlotBuffer:

@@ -828,7 +828,8 @@ class Engine:
             user=self._user.status(),
             recording=self.recording.status() if self.recording is not None
             else self._last_recording_status,
-            session_plot=manager.plot if manager is not None else None)
+            session_plot=manager.plot if manager is not None else None,
+            session_samples=runner.session_samples)
         published = time.perf_counter()
         with self._lock:
             self._plot.add(piece)

@@ -16,7 +16,7 @@ from PySide6 import QtCore, QtWidgets
 
 from app.engine.commands import (AlignHeading, ResetFilter, SetComparisonsEnabled, SetEstimator,
                                  SetSensorEnabled)
-from app.engine.snapshot import Comparison, FilterStatus
+from app.engine.snapshot import SENSOR_NAMES, Comparison, FilterStatus, absent_text
 
 ESTIMATOR_CHOICES = (
     ("ekf", "EKF (default preset)"),
@@ -80,6 +80,14 @@ class FilterPanel(QtWidgets.QWidget, _FollowsEngine):
             sensors_layout.addWidget(checkbox)
             self.sensor_checkboxes[sensor] = checkbox
         layout.addWidget(sensors_box)
+        # "no gyroscope in this stream" under the switches, while a sensor is absent
+        self.sensor_note = QtWidgets.QLabel()
+        self.sensor_note.setObjectName("sensor_note")
+        self.sensor_note.setWordWrap(True)
+        self.sensor_note.setStyleSheet("color: #555;")
+        self.sensor_note.setVisible(False)
+        layout.addWidget(self.sensor_note)
+        self.absent: frozenset[str] = frozenset()
 
         filter_box = QtWidgets.QGroupBox("Estimator (OWN)")
         filter_layout = QtWidgets.QGridLayout(filter_box)
@@ -135,6 +143,23 @@ class FilterPanel(QtWidgets.QWidget, _FollowsEngine):
             self.estimator_combo.setCurrentIndex(index)
 
     # ---- engine state -> widgets ----------------------------------------------------------
+
+    def set_absent(self, absent: frozenset[str]) -> None:
+        """Sensors the stream does not deliver (app.engine.snapshot.absent_sensors): their
+        switches greyed out, saying "no gyroscope in this stream"; the tick (the user's choice)
+        stays as it is and applies when the sensor arrives."""
+        absent = frozenset(absent)
+        if absent == self.absent:
+            return
+        self.absent = absent
+        for sensor, checkbox in self.sensor_checkboxes.items():
+            missing = sensor in absent
+            checkbox.setEnabled(not missing)
+            checkbox.setToolTip(f"{absent_text(sensor)}: the switch applies when its samples "
+                                "arrive" if missing else "")
+        notes = [absent_text(sensor) for sensor in SENSOR_NAMES if sensor in absent]
+        self.sensor_note.setText("; ".join(notes))
+        self.sensor_note.setVisible(bool(notes))
 
     def update_status(self, status: FilterStatus) -> None:
         """Follow the engine's view of the switches without sending commands back."""
@@ -216,7 +241,10 @@ class ComparisonPanel(QtWidgets.QWidget, _FollowsEngine):
         self.caption.setText(f"{ESTIMATOR_LABELS.get(estimator, estimator)} with each sensor "
                              "combination: RMSE against PHONE, at PHONE's time stamps")
 
-    def update_comparisons(self, comparisons: list[Comparison], estimator: str) -> None:
+    def update_comparisons(self, comparisons: list[Comparison], estimator: str,
+                           absent: frozenset[str] = frozenset()) -> None:
+        """The rows; a combination using a sensor in `absent` (not in the stream) says "no
+        gyroscope" across its figures instead of the other sensors' results."""
         if estimator != self.estimator() and not self._user_recently_changed("comparisons"):
             index = self.estimator_combo.findData(estimator)
             if index >= 0:
@@ -230,9 +258,17 @@ class ComparisonPanel(QtWidgets.QWidget, _FollowsEngine):
         for row, comparison in enumerate(comparisons):
             enough = comparison.samples >= MIN_COMPARED
             # "YOURS (my_filter.py)" is too wide for the column: the file name in the tooltip
-            name = "YOURS" if comparison.name.startswith("YOURS") else comparison.name
-            texts = [name] + [
-                _degrees(value) if enough else "—" for value in comparison.rmse_deg]
+            yours = comparison.name.startswith("YOURS")
+            name = "YOURS" if yours else comparison.name
+            missing = () if yours else [sensor for sensor in SENSOR_NAMES
+                                        if sensor in absent
+                                        and sensor in comparison.name.split("+")]
+            if missing:
+                note = "no " + " or ".join(SENSOR_NAMES[sensor] for sensor in missing)
+                texts = [name] + [note] * (len(self.COLUMNS) - 1)
+            else:
+                texts = [name] + [
+                    _degrees(value) if enough else "—" for value in comparison.rmse_deg]
             for column, text in enumerate(texts):
                 item = table.item(row, column)
                 if item is None:
@@ -245,6 +281,23 @@ class ComparisonPanel(QtWidgets.QWidget, _FollowsEngine):
                     item.setText(text)
                     if not column:
                         item.setToolTip(comparison.name)
+                    else:
+                        item.setToolTip(f"{text} in this stream: the figures would be those of "
+                                        "the other sensors alone" if missing else "")
+            self._set_note_span(row, bool(missing))
+
+    def _set_note_span(self, row: int, spanned: bool) -> None:
+        """A row's note spans its three figure columns (one text, centred)."""
+        table = self.table
+        span = len(self.COLUMNS) - 1 if spanned else 1
+        if table.columnSpan(row, 1) != span:
+            table.setSpan(row, 1, 1, span)
+            item = table.item(row, 1)
+            if item is not None:
+                item.setTextAlignment(
+                    (QtCore.Qt.AlignmentFlag.AlignHCenter if spanned
+                     else QtCore.Qt.AlignmentFlag.AlignRight)
+                    | QtCore.Qt.AlignmentFlag.AlignVCenter)
 
     def rows(self) -> list[tuple[str, ...]]:
         """The table's text, row by row (for tests)."""

@@ -35,7 +35,7 @@ import ekf
 from app import __version__
 from app.engine.commands import LoadUserFilter, SetSettings, UnloadUserFilter
 from app.engine.profiles import ProfileStore
-from app.engine.snapshot import Snapshot
+from app.engine.snapshot import SENSOR_NAMES, Snapshot, absent_sensors, absent_text
 from app.ui.calibration import CalibrationWorkspace
 from app.ui.connection import ConnectionPanel, connection_text
 from app.ui.consistency import ConsistencyView
@@ -137,6 +137,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self._frame_times: deque[float] = deque()
         self._painted_tick = -1
         self._panel_snapshot: Snapshot | None = None   # not yet shown in the slow panels
+        self._absent: frozenset[str] = frozenset()     # sensors not in this stream
         self._panels_shown_at = -math.inf
         self._linking_cameras = False
         self.filter_settings = ekf.PRESETS["default"]   # what the filter runs with (status)
@@ -424,6 +425,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.phone_view.set_orientation(snapshot.phone_quat)
         self.lights.update_status(snapshot.status, has_data)
         self.controls.update_status(snapshot.status)
+        self._show_absent(absent_sensors(snapshot))
         running = snapshot.status.settings
         if running is not None and running is not self._engine_settings:
             self._engine_settings = running
@@ -451,6 +453,21 @@ class MainWindow(QtWidgets.QMainWindow):
             self._failures_shown = latest.number
             self.failure_dialog.show_failure(latest, latest.number)
             self.statusBar().showMessage(f"engine error: {latest.message}", 15000)
+
+    def _show_absent(self, absent: frozenset[str]) -> None:
+        """Sensors the stream does not deliver: "no gyroscope in this stream" on their switches
+        (greyed out, the tick kept; their menu entries too), over their plots and in the
+        combination rows that use them (at the next refresh_panels)."""
+        if absent == self._absent:
+            return
+        self._absent = absent
+        self.controls.set_absent(absent)
+        for sensor, action in self.sensor_actions.items():
+            action.setEnabled(sensor not in absent)
+            action.setToolTip(absent_text(sensor) if sensor in absent else action.text())
+        for sensor in SENSOR_NAMES:
+            self.plots.set_no_data(sensor, absent_text(sensor) if sensor in absent else "")
+        self._panels_shown_at = -math.inf        # the table at the next tick
 
     def _apply_user(self, snapshot: Snapshot) -> None:
         """YOURS: its 3D view, its curves (a re-run's history replaces them), its panel."""
@@ -485,7 +502,8 @@ class MainWindow(QtWidgets.QMainWindow):
         _set_text(self.fps_status, f"{self.frames_per_second():.0f} fps")
         if snapshot is None:
             return
-        self.comparison.update_comparisons(snapshot.comparisons, snapshot.comparison_estimator)
+        self.comparison.update_comparisons(snapshot.comparisons, snapshot.comparison_estimator,
+                                           self._absent)
         self.connection.update_health(snapshot.health)
         self.user_panel.update_status(snapshot.user)
         self._update_status_bar(snapshot)
@@ -517,6 +535,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.plots.set_session(None)
         self.plots.clear()
         self.plots.follow()
+        self._show_absent(frozenset())
         self.last_snapshot = None
         self._failures_shown = 0
         try:

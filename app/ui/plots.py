@@ -16,6 +16,7 @@ over the visible window, peak-downsampled to the plot's width. Following shows t
 `window_s` seconds; pausing (button, Space, or dragging/zooming a plot) freezes the view while
 samples keep being stored, Follow resumes. The legend of each tab is a row of toggles above
 its plots (never over the data); the cursor reads every visible curve into a small table.
+A sensor the stream does not deliver has its plot say so ("no gyroscope in this stream").
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import pyqtgraph as pg
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.engine.snapshot import FilterStatus, PlotChunk
+from app.ui.no_data import NoDataText
 from app.ui.plot_data import (SampleBuffer, break_at_wraps, peak_downsample, rejected_spans,
                               time_text, unwrap_deg, unwrap_in_turn)
 
@@ -252,6 +254,7 @@ class PlotPanel(QtWidgets.QWidget):
         self.cursors: dict[str, pg.InfiniteLine] = {}
         self.groups: dict[str, _Group] = {}
         self._band_spans: dict[str, np.ndarray] = {}
+        self.no_data_items: dict[str, NoDataText] = {}
         self.user_present = False
 
         layout = QtWidgets.QVBoxLayout(self)
@@ -398,6 +401,7 @@ class PlotPanel(QtWidgets.QWidget):
             self.gate_lines[spec.key] = lines
         group.plots.append(spec.key)
         self.plots[spec.key] = plot
+        self.no_data_items[spec.key] = NoDataText(view_box)
         return plot
 
     def _add_curve(self, spec: _CurveSpec) -> None:
@@ -526,6 +530,18 @@ class PlotPanel(QtWidgets.QWidget):
                 plot.addItem(line, ignoreBounds=True)
                 lines.append(line)
             self._marker_lines[key] = lines
+
+    def set_no_data(self, key: str, text: str) -> None:
+        """Say why a plot is empty ("no gyroscope in this stream"), centred over it instead of
+        an empty axis (its y values hidden); "" when it has data to show."""
+        item = self.no_data_items[key]
+        if text != item.text():
+            item.set_text(text)
+            self.plots[key].getAxis("left").setStyle(showValues=not text)
+
+    def no_data_text(self, key: str) -> str:
+        """The plot's no-data text ("" when none is shown)."""
+        return self.no_data_items[key].text()
 
     def set_status(self, status: FilterStatus) -> None:
         """Draw the gate limits on the norms: g ± acc_gate and L ± mag_gate."""
