@@ -257,6 +257,12 @@ class MainWindow(QtWidgets.QMainWindow):
         filter_layout.addWidget(self.controls)
         filter_layout.addStretch(1)
         self.filter_dock = self._add_dock("Filter", "filter_dock", filter_widget)
+        # never narrower than its switches and buttons need: without a sideways scroll bar the
+        # panel would be cut at the right
+        scroll = self.filter_dock.widget()
+        self.filter_dock.setMinimumWidth(max(330, min(
+            420, filter_widget.minimumSizeHint().width()
+            + scroll.verticalScrollBar().sizeHint().width() + 2 * scroll.frameWidth())))
         self.comparison_dock = self._add_dock("Sensor combinations", "comparison_dock",
                                               self.comparison)
         self.connection_dock = self._add_dock("Connection", "connection_dock", self.connection)
@@ -283,7 +289,8 @@ class MainWindow(QtWidgets.QMainWindow):
                                  QtCore.Qt.Orientation.Vertical)
             self.tabifyDockWidget(self.connection_dock, self.user_dock)
             self.connection_dock.raise_()
-        self.resizeDocks([self.filter_dock], [max(340, int(self.width() * 0.24))],
+        self.resizeDocks([self.filter_dock], [max(340, self.filter_dock.minimumWidth(),
+                                                  int(self.width() * 0.24))],
                          QtCore.Qt.Orientation.Horizontal)
         self.central_splitter.setSizes([int(height * 0.36), int(height * 0.64)])
         self.views_splitter.setSizes([1, 1, 1])

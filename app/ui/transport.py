@@ -258,11 +258,11 @@ class TransportBar(QtWidgets.QFrame):
             self.timeline_checkbox.setVisible(has_session)
         if replay is None:
             _set_text(self.position_label, "live")
-            _set_text(self.source_label, source or "not a replay")
+            _set_elided(self.source_label, source or "not a replay")
             return
         if not replay.get("indexed", True):
             source = f"indexing {100 * float(replay.get('index_progress', 0.0)):.0f} %"
-        _set_text(self.source_label, source)
+        _set_elided(self.source_label, source)
         finished = bool(replay.get("finished", False))
         self._show_play(bool(replay.get("paused", False)) or finished)
         self._show_speed(float(replay.get("speed", 1.0)))
@@ -393,3 +393,13 @@ class TransportBar(QtWidgets.QFrame):
 def _set_text(widget, text: str) -> None:
     if widget.text() != text:
         widget.setText(text)
+
+
+def _set_elided(label: QtWidgets.QLabel, text: str) -> None:
+    """`text` cut in the middle to the label's width ("…" where it is cut), whole in its
+    tooltip."""
+    shown = label.fontMetrics().elidedText(text, QtCore.Qt.TextElideMode.ElideMiddle,
+                                           label.maximumWidth())
+    _set_text(label, shown)
+    if label.toolTip() != text:
+        label.setToolTip(text)

@@ -108,3 +108,33 @@ def test_no_data_looks_like_no_data(make_window, fake_engine):
     window.tick()
     assert window.own_view.quat is not None and window.own_view.no_data_text == ""
     assert "waiting" not in window.own_view.placeholder.text()
+
+
+@pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
+def test_the_filter_dock_shows_its_switches_and_buttons_whole(make_window, fake_engine, size):
+    window = _shown(make_window(fake_engine), size)
+    viewport = window.filter_dock.widget().viewport()
+    controls = window.controls
+    widgets = [*controls.sensor_checkboxes.values(),
+               *controls.findChildren(QtWidgets.QPushButton),
+               *controls.findChildren(QtWidgets.QGroupBox)]
+    assert widgets
+    for widget in widgets:
+        if not widget.isVisible():
+            continue
+        right = widget.mapTo(viewport, QtCore.QPoint(widget.width(), 0)).x()
+        assert right <= viewport.width(), (widget.objectName() or widget.text(), right,
+                                           viewport.width())
+        if isinstance(widget, QtWidgets.QAbstractButton):
+            assert widget.width() >= widget.minimumSizeHint().width()
+
+
+def test_a_long_file_name_in_the_transport_bar_is_cut_with_the_whole_name_in_its_tooltip(
+        make_window, fake_engine):
+    window = _shown(make_window(fake_engine), (1280, 720))
+    name = "a_recording_with_a_really_rather_long_name_2026-12-04_21-30-00.txt"
+    window.transport.update_replay({"position_s": 1.0, "duration_s": 90.0, "speed": 1.0,
+                                 "paused": False, "loop": False, "finished": False}, name)
+    label = window.transport.source_label
+    assert "…" in label.text() and label.toolTip() == name
+    assert label.fontMetrics().horizontalAdvance(label.text()) <= label.maximumWidth()
