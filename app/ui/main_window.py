@@ -156,7 +156,14 @@ class MainWindow(QtWidgets.QMainWindow):
         self.workspaces.setDocumentMode(True)
         self.add_workspace(self.live_workspace, "Live / Replay")
         self._build_tool_workspaces(use_gl, tune_log)
-        self.setCentralWidget(self.workspaces)
+        central = QtWidgets.QWidget()
+        central.setObjectName("central")
+        box = QtWidgets.QVBoxLayout(central)
+        box.setContentsMargins(0, 0, 0, 0)
+        box.setSpacing(2)
+        box.addWidget(self.workspaces, 1)
+        box.addWidget(self.transport)   # below every workspace: the replay and REC always there
+        self.setCentralWidget(central)
         self._build_docks()
         self._build_status_bar()
         self.sessions = SessionControls(self, self._engine_factory)
@@ -205,7 +212,6 @@ class MainWindow(QtWidgets.QMainWindow):
         box.setContentsMargins(0, 0, 0, 0)
         box.setSpacing(2)
         box.addWidget(self.central_splitter, 1)
-        box.addWidget(self.transport)        # outside the splitter: always visible
         for view in self.views():
             view.camera_changed.connect(lambda v=view: self._on_camera_changed(v))
 

@@ -138,3 +138,16 @@ def test_a_long_file_name_in_the_transport_bar_is_cut_with_the_whole_name_in_its
     label = window.transport.source_label
     assert "…" in label.text() and label.toolTip() == name
     assert label.fontMetrics().horizontalAdvance(label.text()) <= label.maximumWidth()
+
+
+@pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
+def test_the_transport_bar_and_rec_stay_in_every_workspace(make_window, fake_engine, size):
+    window = _shown(make_window(fake_engine), size)
+    for index in range(window.workspaces.count()):
+        window.workspaces.setCurrentIndex(index)
+        QtWidgets.QApplication.processEvents()
+        assert window.transport.isVisible(), window.workspaces.tabText(index)
+        assert window.transport.record_button.isVisible()
+        bar = _rect_in_window(window, window.transport)
+        assert window.rect().contains(bar)
+        assert not bar.intersects(_rect_in_window(window, window.workspaces.currentWidget()))

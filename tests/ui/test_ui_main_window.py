@@ -165,7 +165,7 @@ def test_space_pauses_plots_or_the_replay(make_window, fake_engine, qtbot):
 
 
 def _change_everything(window) -> None:
-    window.resize(1111, 655)
+    window.resize(1201, 655)
     window.plots.set_window_s(25)
     window.plots.set_current_group("error")
     window.controls.set_estimator("accmag")
@@ -187,7 +187,7 @@ def test_layout_persists_but_switches_start_at_their_defaults(make_window, fake_
     second_engine = FakeEngine()
     again = make_window(second_engine)
     again.show()
-    assert again.size() == QtCore.QSize(1111, 655)
+    assert again.size() == QtCore.QSize(1201, 655)
     assert again.plots.window_s == 25 and again.plots.current_group() == "error"
     assert not again.controls.uncertainty_checkbox.isChecked()
     assert not again.own_view.uncertainty_visible
