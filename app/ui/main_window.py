@@ -301,6 +301,12 @@ class MainWindow(QtWidgets.QMainWindow):
         self.central_splitter.setSizes([int(height * 0.36), int(height * 0.64)])
         self.views_splitter.setSizes([1, 1, 1])
 
+    def clear_plots(self) -> None:
+        """Ctrl+L: forget the plotted samples, and say so (the filter goes on)."""
+        self.plots.clear()
+        self.statusBar().showMessage("plots cleared: the filter goes on; new samples are "
+                                     "plotted from now", 4000)
+
     def docks(self) -> tuple[QtWidgets.QDockWidget, ...]:
         return (self.filter_dock, self.comparison_dock, self.connection_dock, self.user_dock)
 
@@ -353,7 +359,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.view_menu = menu
         self.pause_action = self._action(menu, "&Pause / follow (replay: play / pause)", "Space",
                                          self.toggle_pause)
-        self.clear_action = self._action(menu, "&Clear plots", "Ctrl+L", self.plots.clear)
+        self.clear_action = self._action(menu, "&Clear plots", "Ctrl+L", self.clear_plots)
         self.unwrap_action = self._action(menu, "&Unwrap Euler angles", None,
                                           self.plots.set_unwrapped, checkable=True)
         self.plots.unwrap_checkbox.toggled.connect(self.unwrap_action.setChecked)

@@ -273,13 +273,15 @@ class TransportBar(QtWidgets.QFrame):
             self.timeline_checkbox.setChecked(following)
         position = float(replay.get("position_s", 0.0))
         duration = float(replay.get("duration_s", 0.0))
-        if not self._seeking and not self.slider.isSliderDown() and duration > 0:
+        dragging = self._seeking or self.slider.isSliderDown()
+        if not dragging and duration > 0:
             value = int(round(SEEK_STEPS * min(position / duration, 1.0)))
             if value != self.slider.value():
                 self.slider.blockSignals(True)
                 self.slider.setValue(value)
                 self.slider.blockSignals(False)
-        _set_text(self.position_label, position_text(position, duration))
+        if not dragging:      # while dragging the label shows where the slider is
+            _set_text(self.position_label, position_text(position, duration))
 
     def _show_speed(self, speed: float) -> None:
         index = self.speed_combo.findData(speed)
@@ -383,6 +385,10 @@ class TransportBar(QtWidgets.QFrame):
     def _on_seek_value_changed(self, value: int) -> None:
         if not self._seeking and not self.slider.isSliderDown():
             self.seek_to_fraction(value / SEEK_STEPS)
+        elif self._replay is not None:
+            duration = self.duration_s()
+            _set_text(self.position_label,
+                      position_text(value / SEEK_STEPS * duration, duration))
 
     def seek_to_fraction(self, fraction: float) -> None:
         if self._replay is None:

@@ -230,3 +230,31 @@ def test_transport_bar_alone_greys_out_replay_controls_but_not_recording(qtbot):
     assert bar.record_button.isEnabled() and not bar.timeline_checkbox.isVisible()
     bar.update_replay({**REPLAY, "indexed": False, "index_progress": 0.42})
     assert bar.source_label.text() == "indexing 42 %"
+
+
+def test_dragging_the_slider_shows_where_it_is_before_the_release(window, fake_engine):
+    snapshot = make_snapshot(1, 4.0)
+    snapshot.replay = dict(REPLAY)
+    fake_engine.snapshots.append(snapshot)
+    window.tick()
+    transport = window.transport
+    before = transport.position_label.text()
+    transport.slider.setSliderDown(True)              # (emits sliderPressed)
+    transport.slider.setValue(transport.slider.maximum() // 2)
+    assert transport.position_label.text() != before
+    assert transport.position_label.text().startswith("0:10.0")     # half of 20 s
+    again = make_snapshot(2, 4.1)
+    again.replay = dict(REPLAY)
+    fake_engine.snapshots.append(again)
+    window.tick()                                    # the replay goes on: the label stays
+    assert transport.position_label.text().startswith("0:10.0")
+    commands = len(fake_engine.commands)
+    transport.slider.setSliderDown(False)             # (emits sliderReleased): one seek
+    assert fake_engine.commands[commands:] == [ReplayControl(seek_s=10.0)]
+
+
+def test_ctrl_l_clears_the_plots_and_says_so(window, fake_engine, qtbot):
+    fake_engine.snapshots.append(make_snapshot(1, 4.0))
+    window.tick()
+    window.clear_action.trigger()
+    assert "plots cleared" in window.statusBar().currentMessage()
