@@ -155,8 +155,7 @@ def test_simulated_session_through_tcp_equals_run_offline_and_is_recorded(tmp_pa
 def test_a_paced_replay_starts_at_its_beginning_once_the_kernels_are_ready(tmp_path,
                                                                            monkeypatch):
     """The first start compiles the kernels in the engine's thread; meanwhile the snapshots say
-    so, and the replay's clock starts only when they are ready (it jumped ahead by the compile
-    time before)."""
+    so, and the replay's clock starts only when they are ready, not at the engine's start."""
     import app.engine.worker as worker
 
     released = []

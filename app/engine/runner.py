@@ -462,7 +462,7 @@ class EstimatorRunner:
         self._row_t = snapshot["row_t"]
         self._row_has_sample = snapshot["row_has_sample"]
         self._last_sample = snapshot.get("last_sample")
-        # (a recording's start_state written before the counts were kept: none seen)
+        # (a start_state without counts: none seen)
         counts = snapshot.get("tag_counts") or (0,) * len(TAG_NAMES)
         self._tag_counts = np.array([int(n) for n in counts], np.int64)
         self.take_rows()
