@@ -2,7 +2,7 @@
 
 Shows the file (name and content hash), what it is doing (running / paused / catching up /
 failed to load), its three lights as the course kit's (setAccDist, setMagDist, setStandStill;
-"off" where the filter does not report one), its time per sample (and, when it cannot keep up,
+"no data" where the filter does not report one), its time per sample (and, when it cannot keep up,
 how much of the stream it got), its error against PHONE, the course steps not written yet, and
 a problem with file, line and message, the traceback on demand and a copy button.
 
@@ -62,9 +62,10 @@ def new_filter_dialog(parent: QtWidgets.QWidget | None, send: Send,
     return path, f"wrote {Path(path).name} from the template: open it in your editor"
 
 
-def _light_state(value: bool | None, disturbed: str, calm: str) -> tuple[str, str]:
+def _light_state(value: bool | None, disturbed: str, calm: str, key: str) -> tuple[str, str]:
     if value is None:
-        return "off", "your filter does not report this light"
+        return "no data", (f"your filter does not report this light (return \"{key}\" from "
+                           "step to show it)")
     return (disturbed, "your filter says so") if value else (calm, "your filter says so")
 
 
@@ -200,9 +201,12 @@ class UserFilterPanel(QtWidgets.QGroupBox):
         self._update_problem(status)
 
     def _update_lights(self, status: UserFilterStatus) -> None:
-        states = {"acc": _light_state(status.acc_disturbed, "acc disturbed", "ok"),
-                  "mag": _light_state(status.mag_disturbed, "mag disturbed", "ok"),
-                  "standstill": _light_state(status.standstill, "still", "moving")}
+        states = {"acc": _light_state(status.acc_disturbed, "acc disturbed", "ok",
+                                      "acc_disturbed"),
+                  "mag": _light_state(status.mag_disturbed, "mag disturbed", "ok",
+                                      "mag_disturbed"),
+                  "standstill": _light_state(status.standstill, "still", "moving",
+                                             "standstill")}
         for name, (state, reason) in states.items():
             self.lights[name].set_state(state, reason)
 

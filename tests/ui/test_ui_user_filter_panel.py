@@ -46,7 +46,8 @@ def test_a_running_filter(qtbot):
     assert "mine.py" in panel.file_label.text() and "ab12cd34" in panel.file_label.text()
     assert "running" in panel.state_label.text()
     assert panel.lights["acc"].state == "acc disturbed" and panel.lights["mag"].state == "ok"
-    assert panel.lights["standstill"].state == "off"            # not reported by this filter
+    assert panel.lights["standstill"].state == "no data"        # not reported by this filter
+    assert "does not report this light" in panel.lights["standstill"].toolTip()
     assert panel.speed_label.text() == "42 µs per sample"
     assert panel.error_label.text() == "to PHONE 3.2°, RMSE 4.5°"
     assert "Not written yet (skipped): mu_m (mine.py:88)" in panel.missing_label.text()
