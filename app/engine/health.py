@@ -22,6 +22,16 @@ RATE_WINDOW_MS = 2000          # per-tag rates are measured over this much phone
 WARNING_INTERVAL_S = 5.0       # one warning of a kind per this many seconds
 
 
+def _jumped(times: deque[int], t_ms: int) -> bool:
+    """Whether a tag's next time does not continue its times (a seek, a reconnect, a pause):
+    back in time, or later than ten of its intervals and 250 ms. Its rate then starts anew."""
+    if not times:
+        return False
+    gap = t_ms - times[-1]
+    interval = (times[-1] - times[0]) / (len(times) - 1) if len(times) > 1 else 0.0
+    return gap < 0 or gap > max(250.0, 10.0 * interval)
+
+
 class HealthTracker:
     """Rates, line rate and rate-limited warnings."""
 
@@ -52,7 +62,10 @@ class HealthTracker:
                 queue_ = times.get(tag)
                 if queue_ is None:
                     queue_ = times[tag] = deque()
-                queue_.extend(parsed.t_ms[codes == code].tolist())
+                new = parsed.t_ms[codes == code]
+                if _jumped(queue_, int(new[0])):
+                    queue_.clear()
+                queue_.extend(new.tolist())
             return
         else:
             return
@@ -60,6 +73,8 @@ class HealthTracker:
             queue_ = times.get(sample.tag)
             if queue_ is None:
                 queue_ = times[sample.tag] = deque()
+            if _jumped(queue_, sample.t_ms):
+                queue_.clear()
             queue_.append(sample.t_ms)
 
     def rates(self) -> dict[str, float]:
