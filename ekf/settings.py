@@ -84,7 +84,8 @@ def _is_number(value: Any) -> bool:
         and value.dtype.kind in "iuf" and getattr(value, "ndim", 0) == 0)
 
 
-def _shown(value: Any) -> str:
+def shown_value(value: Any) -> str:
+    """A value as JSON for a one-line message, at most 60 characters."""
     try:
         text = json.dumps(value, allow_nan=True, default=repr)
     except (TypeError, ValueError):
@@ -111,7 +112,7 @@ def check_value(f: Any, value: Any) -> Any:
     meta, kind = f.metadata, _kind(f)
 
     def bad() -> SettingsError:
-        return SettingsError(f"setting {f.name} = {_shown(value)}: must be {allowed_text(f)}")
+        return SettingsError(f"setting {f.name} = {shown_value(value)}: must be {allowed_text(f)}")
 
     if kind == "word":
         if not isinstance(value, str) or value not in meta["choices"]:
@@ -433,7 +434,7 @@ class EKFSettings:
         values = dict(d)
         preset = values.pop("preset", "default")
         if not isinstance(preset, str) or preset not in PRESETS:
-            raise SettingsError(f"setting preset = {_shown(preset)}: must be "
+            raise SettingsError(f"setting preset = {shown_value(preset)}: must be "
                                 + " or ".join(repr(p) for p in PRESETS))
         unknown = sorted(set(values) - {f.name for f in fields(cls)}, key=str)
         if unknown:
@@ -450,8 +451,13 @@ class EKFSettings:
     def load(cls, path: str | Path) -> "EKFSettings":
         """Read a settings JSON file (a plain settings dict, or a `calibrate` output holding one
         under the key "settings"); a file larger than :data:`MAX_FILE_BYTES` is refused."""
-        data = read_json(path)
-        if isinstance(data, dict) and "settings" in data and isinstance(data["settings"], dict):
+        return cls.from_file_value(read_json(path))
+
+    @classmethod
+    def from_file_value(cls, data: Any) -> "EKFSettings":
+        """Settings from a settings file's JSON value: a plain settings dict, or a file holding
+        one under the key "settings" (`calibrate`, `tune`, a session.json)."""
+        if isinstance(data, dict) and isinstance(data.get("settings"), dict):
             data = data["settings"]
         if not isinstance(data, dict):
             raise SettingsError("settings file must hold a JSON object")

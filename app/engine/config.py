@@ -65,11 +65,7 @@ def load_settings(spec: str | Path | None) -> ekf.EKFSettings | None:
         data = read_json(path)
         if isinstance(data, dict) and data.get("kind") == profiles.KIND:
             return profiles.Profile.from_dict(data).to_settings()
-        if isinstance(data, dict) and isinstance(data.get("settings"), dict):
-            data = data["settings"]
-        if not isinstance(data, dict):
-            raise ValueError("settings file must hold a JSON object")
-        return ekf.EKFSettings.from_dict(data)
+        return ekf.EKFSettings.from_file_value(data)
     except (OSError, ValueError, TypeError) as error:
         raise ConfigError(f"bad settings file {text}: "
                           f"{getattr(error, 'strerror', None) or error}") from None

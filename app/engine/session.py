@@ -37,7 +37,7 @@ import numpy as np
 
 import ekf
 from app import paths
-from ekf.settings import read_json
+from ekf.settings import read_json, shown_value
 from app.stream.recorder import new_session_folder, write_json_atomic
 
 SESSION_FORMAT = 2
@@ -167,9 +167,7 @@ def _whole(value: Any) -> bool:
 
 def _expect(ok: bool, where: str, value: Any, allowed: str) -> None:
     if not ok:
-        shown = json.dumps(value, default=repr)
-        shown = shown if len(shown) <= 40 else shown[:37] + "..."
-        raise ValueError(f"{where} = {shown}: must be {allowed}")
+        raise ValueError(f"{where} = {shown_value(value)}: must be {allowed}")
 
 
 def check_session(data: Any) -> ekf.EKFSettings | None:
