@@ -17,29 +17,30 @@ frames actually painted, not timer ticks.
 Layout, geometry and view options persist (QSettings); named layouts can be saved and restored
 (View → Layouts); the sensor switches and the estimator start at their defaults unless the user
 chose View → "Remember my set-up". The first start is sized to the screen it opens on.
+
+The window is put together from mixins, one responsibility each: window_menus.py (the menus and
+their actions), window_status.py (the status bar, the slow panels, the frame count) and
+window_persistence.py (the default layout, named layouts, QSettings).
 """
 
 from __future__ import annotations
 
 import math
-import platform
 import time
 from collections import deque
 from pathlib import Path
 from typing import Any, Protocol
 
-import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
 import ekf
-from app import __version__
-from app.engine.commands import LoadUserFilter, SetSettings, UnloadUserFilter
+from app.engine.commands import LoadUserFilter, SetSettings
 from app.engine.profiles import ProfileStore
 from app.engine.snapshot import SENSOR_NAMES, Snapshot, absent_sensors, absent_text
 from app.ui.calibration import CalibrationWorkspace
 from app.ui.connection import ConnectionPanel, connection_text
 from app.ui.consistency import ConsistencyView
-from app.ui.controls import ESTIMATOR_CHOICES, SENSOR_LABELS, ComparisonPanel, FilterPanel
+from app.ui.controls import ComparisonPanel, FilterPanel
 from app.ui.failures import FailureDialog
 from app.ui.layouts import LayoutStore
 from app.ui.lights import LightsPanel
@@ -48,7 +49,10 @@ from app.ui.plots import PlotPanel
 from app.ui.sessions import SessionControls
 from app.ui.transport import TransportBar
 from app.ui.tune_workspace import TuneWorkspace
-from app.ui.user_filter_panel import UserFilterPanel, load_filter_dialog, new_filter_dialog
+from app.ui.user_filter_panel import UserFilterPanel
+from app.ui.window_menus import WindowMenus
+from app.ui.window_persistence import WindowPersistence
+from app.ui.window_status import PaintCounter, WindowStatus
 
 ORGANIZATION = "OrientationLab"
 APPLICATION = "OrientationLab"
@@ -57,8 +61,6 @@ FRAME_INTERVAL_MS = 16          # ~60 Hz display rate (hardware OpenGL or no 3D)
 # the motion smooth (>= 30 fps) at two thirds of the cost.
 SOFTWARE_GL_FRAME_INTERVAL_MS = 25
 PANEL_INTERVAL_S = 0.2          # tables, counters, status bar: 5 updates per second
-SETTINGS_VERSION = 2
-DEFAULT_SIZE = (1600, 1000)     # the first start: this, or 92 % of a smaller screen
 NO_ORI_AFTER_MS = 2000          # samples but no ORI for this long: "no ORI in this stream"
 
 
@@ -73,15 +75,6 @@ class EngineLike(Protocol):
 
 def default_settings() -> QtCore.QSettings:
     return QtCore.QSettings(ORGANIZATION, APPLICATION)
-
-
-def _to_bool(value: Any, default: bool) -> bool:
-    # QSettings returns strings ("true"/"false") from INI files and bools from the registry.
-    if value is None:
-        return default
-    if isinstance(value, str):
-        return value.lower() in ("true", "1", "yes")
-    return bool(value)
 
 
 PREPARING_TEXT = "preparing the filter\n(the first start compiles it: about a minute)"
@@ -99,7 +92,7 @@ def phone_no_data_text(snapshot: Snapshot) -> str:
     return "waiting for data"
 
 
-class MainWindow(QtWidgets.QMainWindow):
+class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWindow):
     """The application window around one engine.
 
     Args:
@@ -172,7 +165,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.layouts = LayoutStore(self.settings)
         self.restore_settings()
 
-        self._frame_filter = _PaintCounter(self._on_paint)
+        self._frame_filter = PaintCounter(self._on_paint)
         for widget in self._drawn_widgets():
             widget.installEventFilter(self._frame_filter)
         if frame_interval_ms is None:
@@ -278,127 +271,8 @@ class MainWindow(QtWidgets.QMainWindow):
         self.controls.sensor_toggled.connect(self._on_sensor_toggled)
         self.controls.estimator_changed.connect(self._on_estimator_changed)
 
-    def arrange_default_layout(self) -> None:
-        """The docks on the right: Filter above, the table and the connection below, tabbed
-        together on screens too short to stack all three; the views above the plots."""
-        for dock in self.docks():
-            dock.setFloating(False)
-            dock.show()
-            self.addDockWidget(QtCore.Qt.DockWidgetArea.RightDockWidgetArea, dock)
-        height = self.height()
-        if height < 950:
-            self.tabifyDockWidget(self.comparison_dock, self.connection_dock)
-            self.tabifyDockWidget(self.connection_dock, self.user_dock)
-            self.comparison_dock.raise_()
-        else:
-            self.splitDockWidget(self.comparison_dock, self.connection_dock,
-                                 QtCore.Qt.Orientation.Vertical)
-            self.tabifyDockWidget(self.connection_dock, self.user_dock)
-            self.connection_dock.raise_()
-        self.resizeDocks([self.filter_dock], [max(340, self.filter_dock.minimumWidth(),
-                                                  int(self.width() * 0.24))],
-                         QtCore.Qt.Orientation.Horizontal)
-        self.central_splitter.setSizes([int(height * 0.36), int(height * 0.64)])
-        self.views_splitter.setSizes([1, 1, 1])
-
-    def clear_plots(self) -> None:
-        """Ctrl+L: forget the plotted samples, and say so (the filter goes on)."""
-        self.plots.clear()
-        self.statusBar().showMessage("plots cleared: the filter goes on; new samples are "
-                                     "plotted from now", 4000)
-
     def docks(self) -> tuple[QtWidgets.QDockWidget, ...]:
         return (self.filter_dock, self.comparison_dock, self.connection_dock, self.user_dock)
-
-    def _build_status_bar(self) -> None:
-        bar = self.statusBar()
-        self.state_status = QtWidgets.QLabel("waiting")
-        self.time_status = QtWidgets.QLabel("t = –")
-        self.rates_status = QtWidgets.QLabel("")
-        self.fps_status = QtWidgets.QLabel("")
-        for label in (self.state_status, self.time_status, self.rates_status, self.fps_status):
-            bar.addPermanentWidget(label)
-
-    def _action(self, menu: QtWidgets.QMenu, text: str, shortcut: str | None, slot,
-                checkable: bool = False, checked: bool = False) -> QtGui.QAction:
-        action = QtGui.QAction(text, self)
-        if shortcut is not None:
-            action.setShortcut(QtGui.QKeySequence(shortcut))
-            # Window-wide, so the shortcut works whichever panel has focus.
-            action.setShortcutContext(QtCore.Qt.ShortcutContext.WindowShortcut)
-        action.setCheckable(checkable)
-        if checkable:
-            action.setChecked(checked)
-        action.triggered.connect(slot)
-        menu.addAction(action)
-        self.addAction(action)
-        return action
-
-    def _build_actions(self) -> None:
-        menus = self.menuBar()
-        self.file_menu = menus.addMenu("&File")
-        self.sessions.build_file_menu(self.file_menu)
-        self.load_filter_action = self._action(
-            self.file_menu, "&Load your filter…", None, lambda: load_filter_dialog(self, self.send))
-        self.new_filter_action = self._action(
-            self.file_menu, "&New filter from the course template…", None,
-            lambda: new_filter_dialog(self, self.send))
-        self.unload_filter_action = self._action(self.file_menu, "&Unload your filter", None,
-                                                 lambda: self.send(UnloadUserFilter()))
-        self.file_menu.addSeparator()
-        self.quit_action = self._action(self.file_menu, "&Quit", "Ctrl+Q", self.close)
-        self._build_view_menu(menus.addMenu("&View"))
-        self.replay_menu = menus.addMenu("&Replay")
-        self.replay_menu.addAction(self.pause_action)
-        self.sessions.build_replay_menu(self.replay_menu)
-        self._build_filter_menu(menus.addMenu("F&ilter"))
-        help_menu = menus.addMenu("&Help")
-        self.about_action = self._action(help_menu, "&About", "F1", self.show_about)
-
-    def _build_view_menu(self, menu: QtWidgets.QMenu) -> None:
-        self.view_menu = menu
-        self.pause_action = self._action(menu, "&Pause / follow (replay: play / pause)", "Space",
-                                         self.toggle_pause)
-        self.clear_action = self._action(menu, "&Clear plots", "Ctrl+L", self.clear_plots)
-        self.unwrap_action = self._action(menu, "&Unwrap Euler angles", None,
-                                          self.plots.set_unwrapped, checkable=True)
-        self.plots.unwrap_checkbox.toggled.connect(self.unwrap_action.setChecked)
-        menu.addSeparator()
-        self.link_cameras_action = self._action(menu, "&Link 3D cameras", None,
-                                                self.set_cameras_linked, checkable=True)
-        self._action(menu, "Reset 3D &views", None, self.reset_cameras)
-        menu.addSeparator()
-        self.layouts_menu = menu.addMenu("&Layouts")
-        self.layouts_menu.aboutToShow.connect(self._fill_layouts_menu)
-        self._action(menu, "&Reset to defaults", None, self.reset_to_defaults)
-        self.remember_action = self._action(menu, "Re&member my set-up (sensors, estimator)",
-                                            None, self._on_remember_toggled, checkable=True)
-        menu.addSeparator()
-        for dock in self.docks():
-            menu.addAction(dock.toggleViewAction())
-
-    def _build_filter_menu(self, menu: QtWidgets.QMenu) -> None:
-        self.reset_action = self._action(menu, "&Reset filter", "Ctrl+R",
-                                         self._reset_filter)
-        self.align_action = self._action(menu, "&Align heading with PHONE", "Ctrl+H",
-                                         self._align_heading)
-        menu.addSeparator()
-        self.sensor_actions: dict[str, QtGui.QAction] = {}
-        for number, (sensor, label) in enumerate(SENSOR_LABELS, start=1):
-            self.sensor_actions[sensor] = self._action(
-                menu, label, f"Ctrl+{number}",
-                lambda checked, s=sensor: self.controls.set_sensor(s, checked),
-                checkable=True, checked=True)
-        menu.addSeparator()
-        estimator_menu = menu.addMenu("&Estimator (OWN)")
-        self.estimator_group = QtGui.QActionGroup(self)
-        self.estimator_actions: dict[str, QtGui.QAction] = {}
-        for name, label in ESTIMATOR_CHOICES:
-            action = self._action(estimator_menu, label, None,
-                                  lambda checked, n=name: self.controls.set_estimator(n),
-                                  checkable=True, checked=name == "ekf")
-            self.estimator_group.addAction(action)
-            self.estimator_actions[name] = action
 
     # ---- engine --------------------------------------------------------------------------
 
@@ -512,37 +386,6 @@ class MainWindow(QtWidgets.QMainWindow):
             self.plots.replace_user_history((history.t_ms - t0) / 1000.0, history.euler_deg,
                                             (history.t_err_ms - t0) / 1000.0, history.error_deg)
 
-    def refresh_panels(self) -> None:
-        """Show the latest snapshot in the comparison table, connection panel and status bar
-        (called from tick() at most every PANEL_INTERVAL_S)."""
-        snapshot = self._panel_snapshot
-        self._panel_snapshot = None
-        self._panels_shown_at = time.monotonic()
-        _set_text(self.fps_status, f"{self.frames_per_second():.0f} fps")
-        if snapshot is None:
-            return
-        self.comparison.update_comparisons(snapshot.comparisons, snapshot.comparison_estimator,
-                                           self._absent)
-        self.connection.update_health(snapshot.health)
-        self.user_panel.update_status(snapshot.user)
-        self._update_status_bar(snapshot)
-
-    def _update_status_bar(self, snapshot: Snapshot) -> None:
-        health = snapshot.health
-        _set_text(self.state_status, connection_text(health))
-        if snapshot.t_ms is None or snapshot.t0_ms is None:
-            _set_text(self.time_status, "t = –")
-        else:
-            _set_text(self.time_status, f"t = {(snapshot.t_ms - snapshot.t0_ms) / 1000.0:.1f} s")
-            self.time_status.setToolTip(f"time since the session's start; the phone's clock: "
-                                        f"{snapshot.t_ms / 1000.0:.3f} s")
-        _set_text(self.rates_status, "  ".join(f"{tag} {rate:.0f} Hz"
-                                               for tag, rate in sorted(health.rates_hz.items())
-                                               if tag in ("ACC", "GYR", "MAG", "ORI") and rate > 0))
-        if health.warnings and health.warnings[-1] != self._last_warning:
-            self._last_warning = health.warnings[-1]
-            self.statusBar().showMessage(self._last_warning, 8000)
-
     # ---- sessions ---------------------------------------------------------------------------
 
     def swap_engine(self, engine: EngineLike) -> None:
@@ -579,227 +422,6 @@ class MainWindow(QtWidgets.QMainWindow):
             event.acceptProposedAction()
             self.sessions.open(paths[0])
 
-    # ---- frame counting -------------------------------------------------------------------
-
-    def _drawn_widgets(self) -> list[QtWidgets.QWidget]:
-        """The widgets that change every frame: their paint events are the frames."""
-        widgets = [group.graphics.viewport() for group in self.plots.groups.values()]
-        for view in self.views():
-            widgets.append(view.gl_view if view.gl_view is not None else view.placeholder)
-        return widgets
-
-    def _on_paint(self) -> None:
-        # Qt paints all widgets changed in one event-loop pass together: count one frame
-        # per display tick that got painted, however many widgets it repainted.
-        if self._painted_tick == self.ticks:
-            return
-        self._painted_tick = self.ticks
-        self.frames_painted += 1
-        now = time.monotonic()
-        self._frame_times.append(now)
-        while self._frame_times and now - self._frame_times[0] > 1.0:
-            self._frame_times.popleft()
-
-    def frames_per_second(self) -> float:
-        """Frames painted in the last second."""
-        now = time.monotonic()
-        while self._frame_times and now - self._frame_times[0] > 1.0:
-            self._frame_times.popleft()
-        return float(len(self._frame_times))
-
-    # ---- actions --------------------------------------------------------------------------
-
-    def toggle_pause(self) -> None:
-        """Space: play/pause a replay; otherwise pause/follow the plots."""
-        if self.transport.replaying:
-            self.transport.toggle_paused()
-        else:
-            self.plots.toggle_paused()
-            self.statusBar().showMessage("plots paused: drag to look back, Space or Follow "
-                                         "to follow again" if self.plots.paused
-                                         else "plots follow the newest samples", 4000)
-
-    def _reset_filter(self) -> None:
-        self.controls.reset_button.click()
-        self.statusBar().showMessage("filter reset: it starts again from the next samples", 4000)
-
-    def _align_heading(self) -> None:
-        self.controls.align_button.click()
-        self.statusBar().showMessage("aligning OWN's heading with PHONE's…", 4000)
-
-    def _on_sensor_toggled(self, sensor: str, enabled: bool) -> None:
-        action = self.sensor_actions[sensor]
-        if action.isChecked() != enabled:
-            action.setChecked(enabled)
-        label = dict(SENSOR_LABELS)[sensor].lower()
-        self.statusBar().showMessage(f"{label} {'in' if enabled else 'out of'} the filter", 3000)
-
-    def _on_estimator_changed(self, name: str) -> None:
-        action = self.estimator_actions.get(name)
-        if action is not None and not action.isChecked():
-            action.setChecked(True)
-        self.statusBar().showMessage(f"OWN is now: {dict(ESTIMATOR_CHOICES).get(name, name)}",
-                                     3000)
-
-    def set_cameras_linked(self, linked: bool) -> None:
-        if self.link_cameras_action.isChecked() != bool(linked):
-            self.link_cameras_action.setChecked(bool(linked))
-        if linked:
-            for other in (self.phone_view, self.user_view):
-                other.set_camera(self.own_view.camera())
-        self.statusBar().showMessage("3D cameras linked: turning one turns both" if linked
-                                     else "3D cameras move on their own", 3000)
-
-    def _on_camera_changed(self, view: PhoneView) -> None:
-        if not self.link_cameras_action.isChecked() or self._linking_cameras:
-            return
-        self._linking_cameras = True
-        try:
-            for other in self.views():
-                if other is not view:
-                    other.set_camera(view.camera())
-        finally:
-            self._linking_cameras = False
-
-    def reset_cameras(self) -> None:
-        for view in self.views():
-            view.reset_camera()
-
-    def about_text(self) -> str:
-        import pyqtgraph
-        import PySide6
-        return (f"<h3>Orientation Lab {__version__}</h3>"
-                "<p>Live orientation estimation for the Sensor Fusion phone app: "
-                "a quaternion EKF (OWN) beside the phone's own estimate (PHONE).</p>"
-                f"<p>Python {platform.python_version()}<br>"
-                f"Qt {QtCore.qVersion()}, PySide6 {PySide6.__version__}<br>"
-                f"pyqtgraph {pyqtgraph.__version__}<br>numpy {np.__version__}</p>")
-
-    def show_about(self) -> None:
-        QtWidgets.QMessageBox.about(self, "About Orientation Lab", self.about_text())
-
-    # ---- layouts and persistence ----------------------------------------------------------
-
-    def _fill_layouts_menu(self) -> None:
-        menu = self.layouts_menu
-        menu.clear()
-        menu.addAction("Save current layout as…", self.save_layout_as)
-        names = self.layouts.names()
-        if names:
-            menu.addSeparator()
-            for name in names:
-                menu.addAction(name, lambda n=name: self.apply_layout(n))
-            delete = menu.addMenu("Delete")
-            for name in names:
-                delete.addAction(name, lambda n=name: self.delete_layout(n))
-
-    def save_layout_as(self, name: str | None = None) -> None:
-        if name is None:
-            name, ok = QtWidgets.QInputDialog.getText(self, "Save layout", "Layout name:")
-            if not ok:
-                return
-        name = name.strip()
-        if not name:
-            return
-        self.layouts.save(name, self)
-        self.statusBar().showMessage(f"layout '{name}' saved", 3000)
-
-    def apply_layout(self, name: str) -> None:
-        if self.layouts.apply(name, self):
-            self.statusBar().showMessage(f"layout '{name}'", 3000)
-
-    def delete_layout(self, name: str) -> None:
-        self.layouts.delete(name)
-        self.statusBar().showMessage(f"layout '{name}' deleted", 3000)
-
-    def reset_to_defaults(self) -> None:
-        """Default layout, view options, switches and estimator (saved layouts stay)."""
-        self.arrange_default_layout()
-        self.plots.set_window_s(10.0)
-        self.plots.set_unwrapped(False)
-        self.plots.set_current_group("sensors")
-        self.set_cameras_linked(False)
-        self.reset_cameras()
-        self.controls.uncertainty_checkbox.setChecked(True)
-        for sensor in self.controls.sensor_checkboxes:
-            self.controls.set_sensor(sensor, True)
-        self.controls.set_estimator("ekf")
-        self.statusBar().showMessage("layout and switches back to their defaults", 4000)
-
-    def _on_remember_toggled(self, remember: bool) -> None:
-        self.settings.setValue("setup/remember", bool(remember))
-        self.statusBar().showMessage(
-            "sensor switches and estimator will be restored at the next start" if remember
-            else "the next start begins with all sensors and the default EKF", 4000)
-
-    def size_to_screen(self) -> None:
-        """The first start: DEFAULT_SIZE, or 92 % of a smaller screen, centred on it."""
-        screen = self.screen() or QtGui.QGuiApplication.primaryScreen()
-        if screen is None:
-            self.resize(*DEFAULT_SIZE)
-            return
-        available = screen.availableGeometry()
-        width = min(DEFAULT_SIZE[0], int(available.width() * 0.92))
-        height = min(DEFAULT_SIZE[1], int(available.height() * 0.92))
-        self.resize(width, height)
-        self.move(available.x() + (available.width() - width) // 2,
-                  available.y() + (available.height() - height) // 2)
-
-    def save_settings(self) -> None:
-        s = self.settings
-        s.setValue("version", SETTINGS_VERSION)
-        s.setValue("window/geometry", self.saveGeometry())
-        self.layouts.write_current(s, self, "window")
-        s.setValue("plots/window_s", self.plots.window_s)
-        s.setValue("view/uncertainty", self.controls.uncertainty_checkbox.isChecked())
-        s.setValue("view/link_cameras", self.link_cameras_action.isChecked())
-        s.setValue("view/unwrapped", self.plots.unwrapped)
-        s.setValue("setup/remember", self.remember_action.isChecked())
-        s.setValue("filter/estimator", self.controls.estimator())
-        for sensor, checkbox in self.controls.sensor_checkboxes.items():
-            s.setValue(f"filter/sensor_{sensor}", checkbox.isChecked())
-        s.setValue("filter/comparisons", self.comparison.comparisons_checkbox.isChecked())
-        s.setValue("filter/comparison_estimator", self.comparison.estimator())
-        s.sync()
-
-    def restore_settings(self) -> None:
-        """Apply saved geometry, layout and view options; the switches and the estimator only
-        when the user chose "Remember my set-up" (their changes reach the engine as
-        commands)."""
-        s = self.settings
-        geometry = s.value("window/geometry")
-        if geometry is None or not self.restoreGeometry(geometry):
-            self.size_to_screen()
-        self.arrange_default_layout()
-        if _to_bool(s.value("version"), False):
-            self.layouts.read_current(s, self, "window")
-        window_s = s.value("plots/window_s")
-        if window_s is not None:
-            try:
-                self.plots.set_window_s(float(window_s))
-            except (TypeError, ValueError):
-                pass
-        self.controls.uncertainty_checkbox.setChecked(_to_bool(s.value("view/uncertainty"), True))
-        self.own_view.set_uncertainty_visible(self.controls.uncertainty_checkbox.isChecked())
-        self.link_cameras_action.setChecked(_to_bool(s.value("view/link_cameras"), False))
-        self.plots.set_unwrapped(_to_bool(s.value("view/unwrapped"), False))
-        remember = _to_bool(s.value("setup/remember"), False)
-        self.remember_action.setChecked(remember)
-        if not remember:
-            return
-        estimator = s.value("filter/estimator")
-        if isinstance(estimator, str):
-            self.controls.set_estimator(estimator)
-        for sensor, checkbox in self.controls.sensor_checkboxes.items():
-            checkbox.setChecked(_to_bool(s.value(f"filter/sensor_{sensor}"), True))
-        self.comparison.comparisons_checkbox.setChecked(
-            _to_bool(s.value("filter/comparisons"), True))
-        comparison_estimator = s.value("filter/comparison_estimator")
-        if isinstance(comparison_estimator, str):
-            index = self.comparison.estimator_combo.findData(comparison_estimator)
-            if index >= 0:
-                self.comparison.estimator_combo.setCurrentIndex(index)
-
     # ---- shutdown -------------------------------------------------------------------------
 
     def shutdown(self) -> None:
@@ -816,22 +438,3 @@ class MainWindow(QtWidgets.QMainWindow):
         self.save_settings()
         self.shutdown()
         super().closeEvent(event)
-
-
-def _set_text(label: QtWidgets.QLabel, text: str) -> None:
-    """Change a label only when its text changes (setText re-lays out and repaints)."""
-    if label.text() != text:
-        label.setText(text)
-
-
-class _PaintCounter(QtCore.QObject):
-    """Event filter calling `on_paint()` for every paint event of the widgets it watches."""
-
-    def __init__(self, on_paint) -> None:
-        super().__init__()
-        self._on_paint = on_paint
-
-    def eventFilter(self, watched: QtCore.QObject, event: QtCore.QEvent) -> bool:  # noqa: N802
-        if event.type() == QtCore.QEvent.Type.Paint:
-            self._on_paint()
-        return False

@@ -17,213 +17,30 @@ over the visible window, peak-downsampled to the plot's width. Following shows t
 samples keep being stored, Follow resumes. The legend of each tab is a row of toggles above
 its plots (never over the data); the cursor reads every visible curve into a small table.
 A sensor the stream does not deliver has its plot say so ("no gyroscope in this stream").
+
+What is drawn (the plots, curves, legends, the readout's table) is declared in plot_specs.py,
+the graphics items are in plot_items.py, and the panel's construction is in plot_build.py.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6 import QtCore, QtGui, QtWidgets
+from PySide6 import QtCore, QtWidgets
 
 from app.engine.snapshot import FilterStatus, PlotChunk
 from app.ui.no_data import NoDataText
+from app.ui.plot_build import PlotPanelBuild
 from app.ui.plot_data import (SampleBuffer, break_at_wraps, peak_downsample, rejected_spans,
                               time_text, unwrap_deg, unwrap_in_turn)
+from app.ui.plot_items import Curve, PlotGroup
+from app.ui.plot_specs import (BAND_FRACTION, FIRST_PLOTS, GROUPS, MARKER_COLOR, STREAM_COLUMNS,
+                               USER_STREAMS, USER_TOGGLES, CurveSpec, curve_specs,
+                               readout_table)
 
-DEFAULT_WINDOW_S = 10.0
-MAX_WINDOW_S = 600.0
-AXIS_COLORS = ((220, 50, 50), (40, 160, 60), (50, 100, 230))    # x, y, z
-NORM_COLOR = (90, 90, 90)
-REJECTED_COLOR = (225, 40, 40)
-GATE_COLOR = (200, 120, 0)
-MARKER_COLOR = (230, 120, 0)
-FIRST_PLOTS = ("acc", "yaw", "error")    # the top plot of each tab labels the markers
-ERROR_COLORS = ((130, 40, 170), (230, 120, 0), (0, 150, 150))   # total, heading, inclination
-EULER_NAMES = ("yaw", "pitch", "roll")
-# yaw is about z, pitch about y, roll about x: each in its axis' colour
-EULER_COLORS = (AXIS_COLORS[2], AXIS_COLORS[1], AXIS_COLORS[0])
-EULER_TOOLTIP = ("Euler angles z-y-x (the course's q2euler intent, its errata fixed): "
-                 "R = Rz(yaw) Ry(pitch) Rx(roll), sensor -> East-North-Up; yaw about up "
-                 "(0 = the phone's y axis to the north, counter-clockwise positive), pitch about "
-                 "the turned y axis (±90°), roll about the phone's x axis.")
-LEFT_AXIS_WIDTH = 64        # px, the same for every plot so their time axes line up
-BAND_FRACTION = 0.035       # the rejected band: this much of the plot's height, at the bottom
-
-
-@dataclass
-class _CurveSpec:
-    stream: str
-    column: int
-    plot: str
-    label: str           # the cursor readout's row/column name
-    tags: frozenset[str]  # the legend toggles that show/hide it
-    color: tuple[int, int, int]
-    dashed: bool = False
-    dotted: bool = False
-
-
-@dataclass
-class _PlotSpec:
-    key: str
-    group: str
-    title: str
-    units: str
-    tooltip: str = ""
-
-
-GROUPS = (("sensors", "Sensors"), ("orientation", "Orientation"), ("error", "Error vs PHONE"))
-PLOTS = (
-    _PlotSpec("acc", "sensors", "acc", "m/s²", "specific force, sensor frame"),
-    _PlotSpec("gyr", "sensors", "gyr", "rad/s", "angular rate, sensor frame"),
-    _PlotSpec("mag", "sensors", "mag", "µT", "magnetic field, sensor frame"),
-    _PlotSpec("yaw", "orientation", "yaw", "°", EULER_TOOLTIP),
-    _PlotSpec("pitch", "orientation", "pitch", "°", EULER_TOOLTIP),
-    _PlotSpec("roll", "orientation", "roll", "°", EULER_TOOLTIP),
-    _PlotSpec("error", "error", "OWN vs PHONE", "°",
-              "e = q_OWN ⊗ conj(q_PHONE) at PHONE's time stamps (OWN slerped to them): total "
-              "angle 2·acos|e_w|, heading 2·atan|e_z/e_w| (about up), inclination (tilt)"),
-)
-STREAM_COLUMNS = {"acc": 5, "gyr": 4, "mag": 5, "own": 3, "phone": 3, "error": 3, "user": 3,
-                  "user_error": 3}
-USER_STREAMS = ("user", "user_error")   # YOURS: replaced by a re-run's history, never clear others
-
-
-def _curve_specs() -> list[_CurveSpec]:
-    specs = []
-    for key in ("acc", "gyr", "mag"):
-        for column, name in enumerate(("x", "y", "z")):
-            specs.append(_CurveSpec(key, column, key, f"{key} {name}", frozenset({name}),
-                                    AXIS_COLORS[column]))
-        specs.append(_CurveSpec(key, 3, key, f"{key} norm", frozenset({"norm"}), NORM_COLOR))
-    for column, name in enumerate(EULER_NAMES):
-        specs.append(_CurveSpec("own", column, name, f"OWN {name}", frozenset({"OWN"}),
-                                EULER_COLORS[column]))
-        specs.append(_CurveSpec("phone", column, name, f"PHONE {name}", frozenset({"PHONE"}),
-                                EULER_COLORS[column], dashed=True))
-        specs.append(_CurveSpec("user", column, name, f"YOURS {name}", frozenset({"YOURS"}),
-                                EULER_COLORS[column], dotted=True))
-    for column, name in enumerate(("total", "heading", "inclination")):
-        specs.append(_CurveSpec("error", column, "error", name, frozenset({name, "OWN"}),
-                                ERROR_COLORS[column]))
-        specs.append(_CurveSpec("user_error", column, "error", f"YOURS {name}",
-                                frozenset({name, "YOURS"}), ERROR_COLORS[column], dotted=True))
-    return specs
-
-
-LEGENDS = {
-    "sensors": (("x", AXIS_COLORS[0], "line"), ("y", AXIS_COLORS[1], "line"),
-                ("z", AXIS_COLORS[2], "line"), ("norm", NORM_COLOR, "line"),
-                ("rejected", REJECTED_COLOR, "band"), ("gates", GATE_COLOR, "dash")),
-    "orientation": (("OWN", (60, 60, 60), "line"), ("PHONE", (60, 60, 60), "dash"),
-                    ("YOURS", (60, 60, 60), "dot")),
-    "error": (("total", ERROR_COLORS[0], "line"), ("heading", ERROR_COLORS[1], "line"),
-              ("inclination", ERROR_COLORS[2], "line"), ("OWN", (60, 60, 60), "line"),
-              ("YOURS", (60, 60, 60), "dot")),
-}
-USER_TOGGLES = (("orientation", "YOURS"), ("error", "YOURS"), ("error", "OWN"))
-
-
-class _Curve(pg.PlotCurveItem):
-    """A PlotCurveItem whose bounds come with the data (computed in numpy by the panel).
-
-    pyqtgraph recomputes a curve's bounds, with pixel padding, every time the view moves,
-    i.e. on every frame while following; here they are set once per setData.
-    """
-
-    def __init__(self, **options) -> None:
-        self._rect = QtCore.QRectF()
-        super().__init__(**options)
-
-    def set_curve(self, x: np.ndarray, y: np.ndarray, finite: bool,
-                  y_bounds: tuple[float, float] | None, connect: str | None = None) -> None:
-        """New points; `finite`: no NaN in y (the fast path); y_bounds: (min, max) of y."""
-        if len(x) and y_bounds is not None:
-            low, high = y_bounds
-            x_pad = 0.01 * max(float(x[-1] - x[0]), 1e-9)
-            y_pad = 0.02 * max(high - low, 1e-9)
-            self._rect = QtCore.QRectF(float(x[0]) - x_pad, low - y_pad,
-                                       float(x[-1] - x[0]) + 2 * x_pad, high - low + 2 * y_pad)
-        else:
-            self._rect = QtCore.QRectF()
-        self.setData(x, y, connect=connect or ("all" if finite else "finite"),
-                     skipFiniteCheck=finite)
-
-    def dataBounds(self, ax: int, frac: float = 1.0, orthoRange=None):  # noqa: N802 (pg name)
-        if self._rect.isNull():
-            return (None, None)
-        if ax == 0:
-            return (self._rect.left(), self._rect.right())
-        return (self._rect.top(), self._rect.bottom())
-
-    def boundingRect(self) -> QtCore.QRectF:  # noqa: N802 (Qt name)
-        return self._rect
-
-
-class TimeAxis(pg.AxisItem):
-    """Seconds since the session's start ("m:ss" for long views); the phone's clock on hover."""
-
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        self.origin_ms: int | None = None
-        self.enableAutoSIPrefix(False)
-
-    def tickStrings(self, values, scale, spacing):  # noqa: N802 (pg name)
-        low, high = self.range
-        span = abs(high - low)
-        decimals = 0 if spacing >= 1.0 else (1 if spacing >= 0.1 else 2)
-        return [time_text(v, span, decimals) for v in values]
-
-    def set_origin(self, origin_ms: int | None) -> None:
-        if origin_ms == self.origin_ms:
-            return
-        self.origin_ms = origin_ms
-        self.setToolTip("" if origin_ms is None else
-                        f"time since the session's start; 0 is {origin_ms / 1000.0:.3f} s on "
-                        "the phone's clock")
-
-
-def _cache_painting(item: QtWidgets.QGraphicsItem) -> None:
-    """Paint `item` and its children from pixmaps redrawn only when they call update():
-    axis titles are text, and laying out text is the slowest part of a frame."""
-    item.setCacheMode(QtWidgets.QGraphicsItem.CacheMode.DeviceCoordinateCache)
-    for child in item.childItems():
-        _cache_painting(child)
-
-
-def _legend_icon(color: tuple[int, int, int], style: str) -> QtGui.QIcon:
-    pixmap = QtGui.QPixmap(22, 12)
-    pixmap.fill(QtCore.Qt.GlobalColor.transparent)
-    painter = QtGui.QPainter(pixmap)
-    if style == "band":
-        painter.fillRect(QtCore.QRectF(1, 8, 20, 3), QtGui.QColor(*color))
-    else:
-        pen = QtGui.QPen(QtGui.QColor(*color), 2)
-        if style == "dash":
-            pen.setStyle(QtCore.Qt.PenStyle.DashLine)
-        elif style == "dot":
-            pen.setStyle(QtCore.Qt.PenStyle.DotLine)
-        painter.setPen(pen)
-        painter.drawLine(1, 6, 21, 6)
-    painter.end()
-    return QtGui.QIcon(pixmap)
-
-
-@dataclass
-class _Group:
-    """One tab: its legend toggles and its plots in one graphics view."""
-
-    key: str
-    widget: QtWidgets.QWidget
-    graphics: pg.GraphicsLayoutWidget
-    legend: QtWidgets.QWidget
-    toggles: dict[str, QtWidgets.QToolButton] = field(default_factory=dict)
-    plots: list[str] = field(default_factory=list)
-
-
-class PlotPanel(QtWidgets.QWidget):
+class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
     """Toolbar (window length, Pause/Follow, Cursor, Unwrap, Clear), three tabs of plots and
     the cursor readout."""
 
@@ -248,11 +65,11 @@ class PlotPanel(QtWidgets.QWidget):
         self._marker_lines: dict[str, list[pg.InfiniteLine]] = {}
         self._markers_shown: tuple = ()
         self.plots: dict[str, pg.PlotItem] = {}
-        self.curves: list[tuple[_CurveSpec, _Curve]] = []
-        self.bands: dict[str, _Curve] = {}
+        self.curves: list[tuple[CurveSpec, Curve]] = []
+        self.bands: dict[str, Curve] = {}
         self.gate_lines: dict[str, tuple[pg.InfiniteLine, pg.InfiniteLine]] = {}
         self.cursors: dict[str, pg.InfiniteLine] = {}
-        self.groups: dict[str, _Group] = {}
+        self.groups: dict[str, PlotGroup] = {}
         self._band_spans: dict[str, np.ndarray] = {}
         self.no_data_items: dict[str, NoDataText] = {}
         self.user_present = False
@@ -277,141 +94,9 @@ class PlotPanel(QtWidgets.QWidget):
             self.tabs.addTab(group.widget, title)
         self.tabs.currentChanged.connect(self._on_tab_changed)
         layout.addWidget(self.tabs, 1)
-        for spec in _curve_specs():
+        for spec in curve_specs():
             self._add_curve(spec)
         self.set_user_present(False)
-
-    # ---- construction ---------------------------------------------------------------------
-
-    def _build_toolbar(self) -> QtWidgets.QHBoxLayout:
-        toolbar = QtWidgets.QHBoxLayout()
-        toolbar.setContentsMargins(2, 0, 2, 0)
-        toolbar.addWidget(QtWidgets.QLabel("Window"))
-        self.window_spin = QtWidgets.QDoubleSpinBox()
-        self.window_spin.setRange(1.0, MAX_WINDOW_S)
-        self.window_spin.setDecimals(0)
-        self.window_spin.setSingleStep(5.0)
-        self.window_spin.setSuffix(" s")
-        self.window_spin.setValue(DEFAULT_WINDOW_S)
-        self.window_spin.setToolTip("Length of the rolling window while following")
-        self.window_spin.valueChanged.connect(self._mark_dirty)
-        self.pause_button = QtWidgets.QPushButton("Pause")
-        self.pause_button.setCheckable(True)
-        self.pause_button.setToolTip("Freeze the view to inspect it; samples keep being stored "
-                                     "(Space when live)")
-        self.pause_button.toggled.connect(lambda checked: self.set_paused(checked))
-        self.follow_button = QtWidgets.QPushButton("Follow")
-        self.follow_button.setToolTip("Show the newest samples again")
-        self.follow_button.clicked.connect(self.follow)
-        self.cursor_checkbox = QtWidgets.QCheckBox("Cursor")
-        self.cursor_checkbox.setToolTip("A draggable line reading every visible curve")
-        self.cursor_checkbox.toggled.connect(self.set_cursor_visible)
-        self.unwrap_checkbox = QtWidgets.QCheckBox("Unwrap angles")
-        self.unwrap_checkbox.setToolTip("Euler angles continuous over whole turns (OWN and PHONE "
-                                        "in the same turn) instead of wrapped to ±180°")
-        self.unwrap_checkbox.toggled.connect(self.set_unwrapped)
-        self.clear_button = QtWidgets.QPushButton("Clear")
-        self.clear_button.setToolTip("Forget the plotted samples (Ctrl+L)")
-        self.clear_button.clicked.connect(self.clear)
-        for widget in (self.window_spin, self.pause_button, self.follow_button,
-                       self.cursor_checkbox, self.unwrap_checkbox, self.clear_button):
-            toolbar.addWidget(widget)
-        toolbar.addStretch(1)
-        return toolbar
-
-    def _build_group(self, key: str) -> _Group:
-        widget = QtWidgets.QWidget()
-        widget.setObjectName(f"plot_group_{key}")
-        box = QtWidgets.QVBoxLayout(widget)
-        box.setContentsMargins(0, 0, 0, 0)
-        box.setSpacing(0)
-        legend = QtWidgets.QWidget()
-        legend.setObjectName(f"legend_{key}")
-        row = QtWidgets.QHBoxLayout(legend)
-        row.setContentsMargins(LEFT_AXIS_WIDTH, 0, 0, 0)
-        row.setSpacing(4)
-        graphics = pg.GraphicsLayoutWidget()
-        graphics.setBackground((250, 250, 252))
-        # Every curve moves on every frame: keeping Qt's spatial index (a BSP tree) of the
-        # items up to date costs more than it saves.
-        graphics.scene().setItemIndexMethod(QtWidgets.QGraphicsScene.ItemIndexMethod.NoIndex)
-        group = _Group(key, widget, graphics, legend)
-        for name, color, style in LEGENDS[key]:
-            button = QtWidgets.QToolButton()
-            button.setText(name)
-            button.setIcon(_legend_icon(color, style))
-            button.setToolButtonStyle(QtCore.Qt.ToolButtonStyle.ToolButtonTextBesideIcon)
-            button.setCheckable(True)
-            button.setChecked(True)
-            button.setAutoRaise(True)
-            button.setToolTip(f"Show or hide {name}")
-            button.toggled.connect(lambda checked, g=key, n=name: self.set_shown(g, n, checked))
-            row.addWidget(button)
-            group.toggles[name] = button
-        row.addStretch(1)
-        box.addWidget(legend)
-        box.addWidget(graphics, 1)
-        specs = [spec for spec in PLOTS if spec.group == key]
-        for index, spec in enumerate(specs):
-            self._new_plot(group, spec, last=index == len(specs) - 1)
-        return group
-
-    def _new_plot(self, group: _Group, spec: _PlotSpec, last: bool) -> pg.PlotItem:
-        axis = TimeAxis("bottom")
-        plot = group.graphics.addPlot(row=len(group.plots), col=0, axisItems={"bottom": axis})
-        plot.setLabel("left", spec.title, units=spec.units)
-        left = plot.getAxis("left")
-        left.enableAutoSIPrefix(False)
-        left.setWidth(LEFT_AXIS_WIDTH)
-        left.setToolTip(spec.tooltip)
-        for name in ("left", "bottom"):
-            # Fewer tick levels: the time axis is regenerated on every frame while following.
-            plot.getAxis(name).setStyle(maxTickLevel=1, maxTextLevel=1)
-        # The y axis changes only when the y range does: paint it from a cached pixmap.
-        _cache_painting(left)
-        # Clipping and peak downsampling are done here, in numpy, once per stream and frame;
-        # y follows the visible samples (computed in refresh()).
-        plot.setClipToView(False)
-        plot.setDownsampling(ds=1, auto=False, mode="peak")
-        plot.disableAutoRange()
-        plot.getViewBox().setMouseEnabled(x=True, y=False)
-        plot.setMenuEnabled(True)
-        if last:
-            plot.setLabel("bottom", "time since start", units="s")
-        else:
-            # Only the bottom plot of a tab shows time: the others share it.
-            plot.hideAxis("bottom")
-        cursor = pg.InfiniteLine(angle=90, movable=True, pen=pg.mkPen((120, 60, 160), width=1.5))
-        cursor.setVisible(False)
-        cursor.sigPositionChanged.connect(self._on_cursor_moved)
-        plot.addItem(cursor, ignoreBounds=True)
-        self.cursors[spec.key] = cursor
-        view_box = plot.getViewBox()
-        view_box.sigRangeChangedManually.connect(self._on_manual_range)
-        view_box.sigXRangeChanged.connect(self._on_x_range_changed)
-        if spec.key in ("acc", "mag"):
-            band = _Curve(pen=pg.mkPen(REJECTED_COLOR, width=4), antialias=False)
-            plot.addItem(band, ignoreBounds=True)
-            self.bands[spec.key] = band
-            pen = pg.mkPen(GATE_COLOR, width=1, style=QtCore.Qt.PenStyle.DashLine)
-            lines = (pg.InfiniteLine(angle=0, pen=pen), pg.InfiniteLine(angle=0, pen=pen))
-            for line in lines:
-                line.setVisible(False)
-                plot.addItem(line, ignoreBounds=True)
-            self.gate_lines[spec.key] = lines
-        group.plots.append(spec.key)
-        self.plots[spec.key] = plot
-        self.no_data_items[spec.key] = NoDataText(view_box)
-        return plot
-
-    def _add_curve(self, spec: _CurveSpec) -> None:
-        # 1-px pens without antialiasing: Qt's fast line path (dashes cost more: PHONE and
-        # YOURS only).
-        style = (QtCore.Qt.PenStyle.DashLine if spec.dashed else
-                 QtCore.Qt.PenStyle.DotLine if spec.dotted else QtCore.Qt.PenStyle.SolidLine)
-        curve = _Curve(pen=pg.mkPen(spec.color, width=1, style=style), antialias=False)
-        self.plots[spec.plot].addItem(curve)
-        self.curves.append((spec, curve))
 
     # ---- data in ---------------------------------------------------------------------------
 
@@ -852,33 +537,3 @@ class PlotPanel(QtWidgets.QWidget):
         span = self.x_range()[1] - self.x_range()[0]
         self.readout_label.setText(readout_table(values, self.cursor_time(), span,
                                                  self.current_group()))
-
-
-READOUT_ROWS = {
-    "sensors": ((("acc", "m/s²"), ("gyr", "rad/s"), ("mag", "µT")), ("x", "y", "z", "norm")),
-    "orientation": ((("OWN", "°"), ("PHONE", "°"), ("YOURS", "°")), EULER_NAMES),
-    "error": (((None, "°"), ("YOURS", "°")), ("total", "heading", "inclination")),
-}
-
-
-def readout_table(values: dict[str, float], t: float, span: float, group: str) -> str:
-    """The cursor's readout: a small HTML table of the tab's values with units."""
-    rows, columns = READOUT_ROWS[group]
-    head = "".join(f"<th align='right'>&nbsp;{c}&nbsp;</th>" for c in columns)
-    lines = [f"<table cellspacing='0' cellpadding='1'><tr><th align='left'>t = "
-             f"{time_text(t, span, 3)} s</th>{head}<th></th></tr>"]
-    for name, unit in rows:
-        labels = [column if name is None else f"{name} {column}" for column in columns]
-        if name == "YOURS" and all(label not in values for label in labels):
-            continue            # no YOURS loaded (or all its curves hidden)
-        cells = []
-        for label in labels:
-            value = values.get(label)
-            cells.append("–" if value is None or not math.isfinite(value) else f"{value:.3f}")
-        title = name or "OWN vs PHONE"
-        if group == "error" and name == "YOURS":
-            title = "YOURS vs PHONE"
-        lines.append(f"<tr><td>{title}</td>" + "".join(f"<td align='right'>&nbsp;{c}&nbsp;</td>"
-                                                        for c in cells)
-                     + f"<td>{unit}</td></tr>")
-    return "".join(lines) + "</table>"
