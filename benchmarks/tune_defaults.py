@@ -68,32 +68,22 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import ekf  # noqa: E402
+from ekf.settings import search_ranges  # noqa: E402
 from augment import perturbed  # noqa: E402
 from datasets import Recording, load_all, run_ours, run_vqf  # noqa: E402
 
 AUGMENTED = "tyrex+"   # the kind of a perturbed copy of a Nexus 5 recording (--augment)
 
-# name: (low, high, log scale, round to) — the searched settings (matrices as r·I)
-SPACE = {
-    "acc_lowpass_s": (0.25, 3.0, True, 0.25),
-    "acc_noise_cov": (0.1, 3.0, True, 0.1),
-    # 30 at least: the low-pass (~0.75 s) of step-correlated accelerations (~0.1-0.2 s) keeps
-    # ~τ_c/2τ of their variance, 0.2·k/g² ≈ 0.07-0.13 gives k ≈ 30-65 (twice that counting the
-    # two axes the norm does not see); below it a fold tuned without running lets running tilt
-    # the estimate (held out 9-13 deg)
-    "acc_noise_adapt": (30.0, 300.0, True, 1.0),
-    "mag_noise_cov": (0.1, 10.0, True, 0.1),
-    "mag_gate": (4.0, 16.0, True, 1.0),
-    "mag_dip_gate_deg": (10.0, 40.0, True, 1.0),
-    "mag_return_s": (2.0, 20.0, True, 1.0),
-    "mag_noise_adapt": (100.0, 10000.0, True, 100.0),
-    "mag_hard_iron_tau_s": (20.0, 300.0, True, 10.0),
-    "mag_hard_iron_prior": (0.3, 10.0, True, 0.1),
-    # not searched: mag_bias_innovation_limit is Huber's k = 1.345 (95 % efficiency under
-    # Gaussian innovations, a clip beyond); every fold of `--grid` chose 1.345 or 1.5, and
-    # searched over 0.5-10 a fold tuned without pockets chose 7.7 (the disturbed back pocket
-    # 6 deg held out)
-}
+# the searched settings (matrices as r·I); name: (low, high, log scale, round to), from each
+# setting's declared search range (ekf.settings' `search`)
+SEARCHED = ("acc_lowpass_s", "acc_noise_cov", "acc_noise_adapt", "mag_noise_cov", "mag_gate",
+            "mag_dip_gate_deg", "mag_return_s", "mag_noise_adapt", "mag_hard_iron_tau_s",
+            "mag_hard_iron_prior")
+# not searched: mag_bias_innovation_limit is Huber's k = 1.345 (95 % efficiency under Gaussian
+# innovations, a clip beyond); every fold of `--grid` chose 1.345 or 1.5, and searched over
+# 0.5-10 a fold tuned without pockets chose 7.7 (the disturbed back pocket 6 deg held out)
+SPACE = {name: (r.low, r.high, True, r.round_to) for name, r in
+         ((n, search_ranges()[n]) for n in SEARCHED)}
 FOLDS = {
     "broad-undisturbed": lambda r: r.kind == "broad" and not r.disturbed,
     "broad-disturbed": lambda r: r.kind == "broad" and r.disturbed,

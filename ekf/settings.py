@@ -5,7 +5,8 @@ completely. ``PRESETS["course"]`` is the plain course filter (model 4a, tasks 1-
 ``PRESETS["default"]`` adds the extensions that pay on real data (docs/filter.md).
 
 Each field's unit and one-line explanation are in its ``dataclasses.field`` metadata ("unit",
-"doc"; "shape" for vectors and matrices, "choices" for a word), readable at run time:
+"doc"; "shape" for vectors and matrices, "choices" for a word; "search" for the range a
+tuning search tries, :func:`search_ranges`), readable at run time:
 :func:`settings_rows` lists every setting with its default, course value, unit and explanation
 (the table in docs/filter.md and a settings panel are made from it), and the compiled
 filter's packed settings layout is generated from the same fields (``ekf.fast.layout``).
@@ -28,17 +29,30 @@ def _setting(default: Any = MISSING, *, unit: str, doc: str, shape: tuple[int, .
              choices: tuple[str, ...] | None = None,
              factory: Callable[[], Any] | None = None, low: float = 0.0, above: bool = False,
              high: float | None = None, inf: bool = False, matrix: str | None = None,
-             optional: bool = False) -> Any:
+             optional: bool = False, search: tuple[float, ...] | None = None) -> Any:
     """A settings field with its unit ("-" when it has none), one-line explanation and what it
     allows: a number from ``low`` (excluded when ``above``) up to ``high``, infinity only with
     ``inf``; a vector of ``shape`` (``optional``: or none); a matrix that is ``"covariance"``
-    (symmetric positive definite) or ``"invertible"``; a word from ``choices``."""
+    (symmetric positive definite) or ``"invertible"``; a word from ``choices``. ``search``:
+    the range a tuning search tries, ``(low, high)`` or ``(low, high, round_to)``
+    (:class:`SearchRange`), inside what the setting allows."""
     metadata = {"unit": unit, "doc": doc, "shape": shape, "choices": choices, "low": low,
                 "above": above, "high": high, "inf": inf, "matrix": matrix,
-                "optional": optional}
+                "optional": optional, "search": None if search is None else SearchRange(*search)}
     if factory is not None:
         return field(default_factory=factory, metadata=metadata)
     return field(default=default, metadata=metadata)
+
+
+class SearchRange(NamedTuple):
+    """Where a tuning search (``tune``, the window's auto-tune, benchmarks/tune_defaults.py)
+    looks for a setting: from ``low`` to ``high`` on a log scale (both positive; a covariance
+    matrix as r·I, r in the range); ``round_to``: the step the default-tuning benchmark rounds
+    its fit to (None: not searched there)."""
+
+    low: float
+    high: float
+    round_to: float | None = None
 
 
 class SettingsError(ValueError):
@@ -197,19 +211,20 @@ class EKFSettings:
     # --- noise ----------------------------------------------------------------------------
     gyr_noise_cov: list[list[float]] = _setting(
         unit="(rad/s)²", shape=(3, 3), factory=lambda: _diag(1e-4),
-        doc="R_w: covariance of the angular-rate noise v_k (eq. 5)", matrix="covariance")
+        doc="R_w: covariance of the angular-rate noise v_k (eq. 5)", matrix="covariance",
+        search=(1e-6, 1e-1))
     acc_noise_cov: list[list[float]] = _setting(
         unit="(m/s²)²", shape=(3, 3), factory=lambda: _diag(0.1),
         doc="R_a: accelerometer noise, larger than the sensor's own to absorb small specific "
-            "forces", matrix="covariance")
+            "forces", matrix="covariance", search=(0.1, 3.0, 0.1))
     mag_noise_cov: list[list[float]] = _setting(
         unit="µT²", shape=(3, 3), factory=lambda: _diag(2.0),
         doc="R_m: magnetometer noise (heading-only: σ_ψ² = tr(R_m)/3 / ‖m_horizontal‖²)",
-        matrix="covariance")
+        matrix="covariance", search=(0.1, 10.0, 0.1))
     gyr_scale_noise: float = _setting(
         0.0, unit="-",
         doc="relative uncertainty k of the gyroscope's scale: R_w grows by (k‖ω‖)² I, so fast "
-            "turns are trusted less (0: the course's constant R_w)", high=1.0)
+            "turns are trusted less (0: the course's constant R_w)", high=1.0, search=(1e-4, 0.1))
     gyr_rate_before_sample: bool = _setting(
         False, unit="-",
         doc="true: a gyroscope sample is the rate over the interval that ends at its time stamp "
@@ -218,24 +233,25 @@ class EKFSettings:
     no_gyro_random_walk: float = _setting(
         1.0, unit="rad/√s",
         doc="orientation random walk when no gyroscope sample drives the time update: q stays, "
-            "P grows (task 12, acc+mag only)")
+            "P grows (task 12, acc+mag only)", search=(1e-2, 10.0))
     initial_attitude_std: float = _setting(
         0.05, unit="rad", doc="standard deviation of the initial attitude from acc+mag",
-        above=True)
+        above=True, search=(1e-3, 1.0))
 
     # --- outlier gates (tasks 8 and 11) -----------------------------------------------------
     acc_gate: float = _setting(
         1.0, unit="m/s²",
         doc="reject an accelerometer reading when |‖y_a‖ − g| > gate (task 8); with the low-pass "
-            "the reading is only flagged; 0: every reading out; inf: off", inf=True)
+            "the reading is only flagged; 0: every reading out; inf: off", inf=True,
+        search=(0.2, 10.0))
     mag_gate: float = _setting(
         5.0, unit="µT",
         doc="reject a magnetometer reading when |‖y_m‖ − L_k| > gate (task 11); 0: every "
-            "reading out; inf: off", inf=True)
+            "reading out; inf: off", inf=True, search=(4.0, 16.0, 1.0))
     mag_alpha: float = _setting(
         0.01, unit="-",
         doc="AR(1) coefficient of the field strength L_k = (1 − α) L_{k−1} + α ‖y_m‖",
-        high=1.0)
+        high=1.0, search=(1e-3, 0.3))
     mag_strength_update: str = _setting(
         "always", unit="-", choices=("always", "accepted"),
         doc="'always': every reading moves L_k (the course); 'accepted': only readings that pass "
@@ -245,11 +261,11 @@ class EKFSettings:
         doc="with 'accepted': rejected (or still settling) readings that agree with each other "
             "this long (strength and dip within the gates of their running mean) are the new "
             "normal: L_k and m0 are re-learned from the current reading; a magnet that moves "
-            "with the phone never agrees for long", inf=True)
+            "with the phone never agrees for long", inf=True, search=(1.0, 120.0))
     mag_dip_gate_deg: float = _setting(
         math.inf, unit="deg",
         doc="also reject a magnetometer reading whose angle to up differs from the reference "
-            "dip by more than this; inf: off", above=True, inf=True)
+            "dip by more than this; inf: off", above=True, inf=True, search=(10.0, 40.0, 1.0))
     acc_range: float = _setting(
         math.inf, unit="m/s²",
         doc="an accelerometer reading with an axis at the sensor's range is clipped and never "
@@ -260,12 +276,17 @@ class EKFSettings:
         0.0, unit="s",
         doc="time constant of a low-pass of the accelerometer that the gyroscope carries along "
             "with the phone; the update sees the average specific force, in which accelerations "
-            "cancel (0: off, the raw reading is used)")
+            "cancel (0: off, the raw reading is used)", search=(0.25, 3.0, 0.25))
     acc_noise_adapt: float = _setting(
         0.0, unit="-",
         doc="with the low-pass: R_a grows with how hard the phone is shaken, R_a (1 + this · "
             "d²/g²), d² the low-passed (‖y_a‖ − g)² (clipped readings included): running and "
-            "swinging cannot tilt the estimate (0: off)")
+            "swinging cannot tilt the estimate (0: off)",
+        # searched from 30: the low-pass (~0.75 s) of step-correlated accelerations (~0.1-0.2 s)
+        # keeps ~τ_c/2τ of their variance, 0.2·k/g² ≈ 0.07-0.13 gives k ≈ 30-65 (twice that
+        # counting the two axes the norm does not see); below it a fold tuned without running
+        # lets running tilt the estimate (held out 9-13 deg)
+        search=(30.0, 300.0, 1.0))
     acc_tilt_only_after_s: float = _setting(
         math.inf, unit="s",
         doc="once no magnetometer update has run for this long (none, switched off, or out for "
@@ -280,18 +301,18 @@ class EKFSettings:
     mag_settle_s: float = _setting(
         0.0, unit="s",
         doc="after a rejection, readings must pass the gates this long before the magnetometer "
-            "is used again (a magnet on the phone stays out)", inf=True)
+            "is used again (a magnet on the phone stays out)", inf=True, search=(0.05, 5.0))
     mag_hard_iron_tau_s: float = _setting(
         0.0, unit="s",
         doc="estimate the magnetometer's offset in the sensor frame (hard iron: a magnet on the "
             "phone) online and subtract it from every reading: pairs of readings the phone turned "
             "20° between must differ by that turn (y_j − b = Q_jᵀ Q_i (y_i − b)), a weighted "
-            "least-squares fit remembering this long; 0: off")
+            "least-squares fit remembering this long; 0: off", search=(20.0, 300.0, 10.0))
     mag_hard_iron_prior: float = _setting(
         1.0, unit="-",
         doc="weight of the prior b_m = 0 in that fit, in pairs of a full turn's worth: small "
             "offsets (a field that is not quite uniform) stay near zero, a magnet's hundreds of "
-            "µT do not", above=True)
+            "µT do not", above=True, search=(0.3, 10.0, 0.1))
     mag_delay_s: float = _setting(
         0.0, unit="s",
         doc="the magnetometer's readings are this much older than their time stamps (its own "
@@ -303,7 +324,7 @@ class EKFSettings:
         doc="R_m grows where the field is uneven: R_m (1 + this · d²/L_k²), d² the low-pass "
             "(time constant mag_return_s) of (‖y_m‖ − L_k)² over every reading, rejected ones "
             "included (each at most `mag_noise_adapt_clip` gates off); only while the gyroscope "
-            "drives the filter (0: off)")
+            "drives the filter (0: off)", search=(100.0, 10000.0, 100.0))
     mag_noise_adapt_clip: float = _setting(
         math.inf, unit="gates",
         doc="in that low-pass a reading counts as at most this many `mag_gate`s off: a reading "
@@ -348,7 +369,7 @@ class EKFSettings:
         doc="the heading follows the magnetometer no faster than this time constant: each "
             "heading update corrects at most dt/(dt + this) of the innovation (dt since the "
             "previous update), so the estimate comes back from a disturbance without a jump "
-            "(0: off)")
+            "(0: off)", search=(2.0, 20.0, 1.0))
     mag_bias_innovation_limit: float = _setting(
         math.inf, unit="σ",
         doc="a heading update teaches the gyroscope bias from at most this many standard "
@@ -381,13 +402,13 @@ class EKFSettings:
         doc="true: model 4c, x = (q, b_ω) with the bias a random walk, plus a zero-rate update "
             "at rest")
     gyro_bias_random_walk: float = _setting(
-        1e-4, unit="rad/s/√s", doc="bias random walk (model 4c)")
+        1e-4, unit="rad/s/√s", doc="bias random walk (model 4c)", search=(1e-7, 1e-3))
     initial_gyro_bias_std: float = _setting(
         0.01, unit="rad/s", doc="initial bias standard deviation (model 4c)")
     rest_rate_noise_std: float = _setting(
         0.01, unit="rad/s",
         doc="standard deviation of the zero-rate pseudo-measurement at rest (model 4c)",
-        above=True)
+        above=True, search=(1e-4, 0.1))
 
     # --- timing -----------------------------------------------------------------------------
     max_dt: float = _setting(
@@ -553,8 +574,8 @@ def resolve_settings(settings: EKFSettings | str | None) -> EKFSettings:
 
 # ---- the settings as rows (docs/filter.md table, settings panel) ----------------------------
 class SettingRow(NamedTuple):
-    """One setting: its name, the default and course presets' values, unit, explanation and
-    what it allows."""
+    """One setting: its name, the default and course presets' values, unit, explanation, what
+    it allows and the range a tuning search tries ("" where none is declared)."""
 
     name: str
     default: Any
@@ -562,14 +583,26 @@ class SettingRow(NamedTuple):
     unit: str
     doc: str
     allowed: str
+    search: str = ""
+
+
+def search_text(r: SearchRange | None) -> str:
+    """A search range in words: ``0.1..3`` (searched on a log scale), "" for none."""
+    return "" if r is None else f"{r.low:g}..{r.high:g}"
 
 
 def settings_rows() -> list[SettingRow]:
     """Every field of :class:`EKFSettings` in declaration order (values as stored)."""
     return [SettingRow(f.name, getattr(PRESETS["default"], f.name),
                        getattr(PRESETS["course"], f.name), f.metadata["unit"], f.metadata["doc"],
-                       allowed_text(f))
+                       allowed_text(f), search_text(f.metadata["search"]))
             for f in fields(EKFSettings)]
+
+
+def search_ranges() -> dict[str, SearchRange]:
+    """The declared search range of every setting that has one, in declaration order."""
+    return {f.name: f.metadata["search"] for f in fields(EKFSettings)
+            if f.metadata["search"] is not None}
 
 
 def format_value(value: Any) -> str:

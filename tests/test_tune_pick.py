@@ -1,5 +1,6 @@
 """benchmarks/tune_defaults.py: what a search returns (--top K) is the centre of its K best
-trials, geometric on a log-scale range, and the single best trial for K = 1."""
+trials, geometric on a log-scale range, and the single best trial for K = 1; it, `tune` and the
+window's auto-tune search the ranges the settings declare."""
 
 from __future__ import annotations
 
@@ -32,3 +33,31 @@ def test_the_centre_of_the_best_is_geometric_on_a_log_scale():
 def test_k_takes_the_k_lowest_objectives_or_all_there_are():
     assert centre_of_best(DONE, 10, SPACE)["b_lin"] == pytest.approx(9.0 / 4.0)
     assert centre_of_best(DONE, 3, SPACE)["b_lin"] == pytest.approx(5.0 / 3.0)
+
+
+# ---- the search ranges come from the settings' declarations ------------------------------------
+def test_every_search_reads_the_declared_search_ranges():
+    import tune_defaults
+
+    from app.engine import tuning
+    from ekf.settings import search_ranges
+    declared = search_ranges()
+    assert tuning.RANGES == {n: (r.low, r.high) for n, r in declared.items()}
+    assert tune_defaults.SPACE == {n: (declared[n].low, declared[n].high, True,
+                                       declared[n].round_to) for n in tune_defaults.SEARCHED}
+    base = tune_defaults.ekf.PRESETS["default"]
+    assert {p.name: (p.low, p.high) for p in tuning.parse_parameters("mag_gate,acc_noise_cov",
+                                                                     base)} == {
+        "mag_gate": (declared["mag_gate"].low, declared["mag_gate"].high),
+        "acc_noise_cov": (declared["acc_noise_cov"].low, declared["acc_noise_cov"].high)}
+
+
+def test_declared_search_ranges_are_values_the_settings_allow():
+    import ekf
+    from ekf.settings import search_ranges
+    for name, r in search_ranges().items():
+        assert 0 < r.low < r.high, name                    # a log scale
+        for v in (r.low, r.high):                          # checked against the declaration
+            value = [[v if i == j else 0.0 for j in range(3)] for i in range(3)] if name.endswith(
+                "_cov") else v
+            ekf.EKFSettings().with_changes(**{name: value})

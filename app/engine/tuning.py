@@ -27,19 +27,15 @@ import numpy as np
 import ekf
 from ekf._optional import MissingLibrary, require
 from ekf.metrics import ErrorSummary
+from ekf.settings import search_ranges
 from app.engine.errors import ConfigError
 from app.engine.refilter import PreparedLog, refilter
 from app.engine.runner import SENSORS
 
-# (low, high) searched for a setting, log scale; values outside them are never tried.
+# (low, high) searched for a setting, log scale, from its declaration (ekf.settings'
+# `search`); values outside them are never tried.
 RANGES: dict[str, tuple[float, float]] = {
-    "gyr_noise_cov": (1e-6, 1e-1), "acc_noise_cov": (1e-3, 10.0), "mag_noise_cov": (1e-2, 100.0),
-    "acc_lowpass_s": (0.05, 3.0), "gyr_scale_noise": (1e-4, 0.1),
-    "gyro_bias_random_walk": (1e-7, 1e-3), "rest_rate_noise_std": (1e-4, 0.1),
-    "acc_gate": (0.2, 10.0), "mag_gate": (0.5, 30.0), "mag_dip_gate_deg": (2.0, 45.0),
-    "mag_alpha": (1e-3, 0.3), "mag_settle_s": (0.05, 5.0), "mag_relearn_s": (1.0, 120.0),
-    "initial_attitude_std": (1e-3, 1.0), "no_gyro_random_walk": (1e-2, 10.0),
-}
+    name: (r.low, r.high) for name, r in search_ranges().items()}
 DEFAULT_PARAMETERS = ("gyr_noise_cov", "acc_noise_cov", "mag_noise_cov", "acc_lowpass_s")
 OBJECTIVES = ("total", "heading", "inclination")
 
@@ -93,8 +89,8 @@ def _diag(value: float) -> list[list[float]]:
 
 def parse_parameters(text: str | Sequence[str] | None,
                      base: ekf.EKFSettings) -> list[Parameter]:
-    """"a,b=lo:hi,c" -> Parameters (known ranges from RANGES, else a decade either side of the
-    base value). ConfigError for unknown, non-numeric or unbounded settings."""
+    """"a,b=lo:hi,c" -> Parameters (the declared search ranges, RANGES, else a decade either
+    side of the base value). ConfigError for unknown, non-numeric or unbounded settings."""
     items = (list(DEFAULT_PARAMETERS) if not text else
              [p.strip() for p in text.split(",") if p.strip()] if isinstance(text, str)
              else list(text))

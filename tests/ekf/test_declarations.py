@@ -158,12 +158,12 @@ def _cell(text: str) -> str:
 
 
 def settings_table() -> str:
-    lines = ["| setting | default | course | unit | allowed | meaning |",
-             "|---|---|---|---|---|---|"]
+    lines = ["| setting | default | course | unit | allowed | search range | meaning |",
+             "|---|---|---|---|---|---|---|"]
     for r in settings_rows():
         lines.append(f"| `{r.name}` | {_cell(format_value(r.default))} | "
                      f"{_cell(format_value(r.course))} | {_cell(r.unit)} | {_cell(r.allowed)} | "
-                     f"{_cell(r.doc)} |")
+                     f"{_cell(r.search)} | {_cell(r.doc)} |")
     return "\n".join(lines)
 
 
