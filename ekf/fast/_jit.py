@@ -28,10 +28,12 @@ from ekf.fast.layout import describe
 # the refcount pruning pass cannot remove in branching code, more than half the time per
 # sample (BROAD trial 01, default preset: 408 -> 174 ns per row, the same estimates bit for bit).
 _OPTIONS = dict(cache=True, fastmath=False, nogil=True, _nrt=False)
+# No numba-level inlining (inline="always"): it copies a callee's IR into every caller before
+# typing, so each kernel was typed and optimised once per call site, which made the first
+# compile of the engine's kernels twice as long. LLVM still inlines the small helpers, and the
+# n-specialised bodies, called with n = 4 or 7 as a literal, are still compiled once for each n
+# so that the fixed loops unroll (docs/decisions/compile-time.md).
 jit = njit(**_OPTIONS)
-# Inlined at numba level: small helpers (no call overhead) and the n-specialised bodies, which
-# their dispatchers call with n = 4 or 7 as a constant so that LLVM unrolls the fixed loops.
-jit_inline = njit(inline="always", **_OPTIONS)
 
 KERNEL_MODULES = ("algebra", "time_update", "measurements", "steps")
 """The modules of ekf.fast that hold compiled functions (file stems)."""

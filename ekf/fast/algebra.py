@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import math
 
-from ekf.fast._jit import CACHE_KEY, check_cache, jit, jit_inline
+from ekf.fast._jit import CACHE_KEY, check_cache, jit
 from ekf.fast.layout import C, S
 
 _INF = math.inf
 
 
-@jit_inline
+@jit
 def _quat_normalize(q0, q1, q2, q3):
     """ekf.quaternion.normalize: unit, w >= 0."""
     norm = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
@@ -71,7 +71,7 @@ def _from_matrix(r00, r01, r02, r10, r11, r12, r20, r21, r22):
     return _quat_normalize(q[0], q[1], q[2], q[3])
 
 
-@jit_inline
+@jit
 def _to_matrix(q0, q1, q2, q3):
     """Q(q) of eq. (2a), row-major as a 9-tuple."""
     return (2 * (q0 * q0 + q1 * q1) - 1, 2 * (q1 * q2 - q0 * q3), 2 * (q1 * q3 + q0 * q2),
@@ -79,7 +79,7 @@ def _to_matrix(q0, q1, q2, q3):
             2 * (q1 * q3 - q0 * q2), 2 * (q2 * q3 + q0 * q1), 2 * (q0 * q0 + q3 * q3) - 1)
 
 
-@jit_inline
+@jit
 def _cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
@@ -150,7 +150,7 @@ def _add_attitude_cov(s, scale):
     _attitude_cov(s, scale, True)
 
 
-@jit_inline
+@jit
 def _normalise(s):
     """q <- q/|q| (w >= 0), P <- J P J^T with J = (I - u u^T)/|q| on the q block, u = q/|q|.
 
@@ -191,7 +191,7 @@ def _normalise(s):
                 s[P + 7 * j + i] = v
 
 
-@jit_inline
+@jit
 def _flip_sign(s):
     """reference ``_flip_sign``: q <- -q (same rotation, w >= 0); P_qb changes sign."""
     for i in range(4):
@@ -204,7 +204,7 @@ def _flip_sign(s):
                 s[S.P + 7 * j + i] = v
 
 
-@jit_inline
+@jit
 def _inverse3(s, src, dst):
     """dst = src^-1 (3x3, row-major in the state's scratch) by the adjugate; returns det."""
     a = s[src + 0]
@@ -233,7 +233,7 @@ def _inverse3(s, src, dst):
     return det
 
 
-@jit_inline
+@jit
 def _gain_n(s, e0, e1, e2, gate, n):
     """The NIS and, when it passes the gate, the optimal gain K = B S^-1 (n x 3) at S.work_gain,
     given B = P H^T (n x 3) at S.work_pht and S = H P H^T + R (3x3) at S.work_s."""
@@ -257,7 +257,7 @@ def _gain_n(s, e0, e1, e2, gate, n):
     return nis
 
 
-@jit_inline
+@jit
 def _correct_state_n(s, e0, e1, e2, n):
     """x <- x + K e with the gain at S.work_gain."""
     K = S.work_gain
@@ -265,7 +265,7 @@ def _correct_state_n(s, e0, e1, e2, n):
         s[S.x + i] += s[K + 3 * i] * e0 + s[K + 3 * i + 1] * e1 + s[K + 3 * i + 2] * e2
 
 
-@jit_inline
+@jit
 def _joseph_update_n(s, e0, e1, e2, gate, n):
     """reference ``_update`` for a 3-vector measurement, given B = P H^T (n x 3) at S.work_pht
     and the innovation covariance H P H^T + R (3x3) at S.work_s. Returns the NIS; the state is
@@ -301,7 +301,7 @@ def _joseph_update(s, e0, e1, e2, gate):
     return _joseph_update_n(s, e0, e1, e2, gate, 4)
 
 
-@jit_inline
+@jit
 def _tilt_only_update_n(s, e0, e1, e2, gate, n):
     """reference ``_update`` with ``keep = _tilt_only(q)``: the gain K = B S^-1 (``_gain_n``)
     without its component along a turn about world up in q (u, the direction of
@@ -348,7 +348,7 @@ def _tilt_only_update_n(s, e0, e1, e2, gate, n):
     return nis
 
 
-@jit_inline
+@jit
 def _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, n, scale, tilt_only):
     """Update with a measurement whose H (3 x n) is non-zero only in the q columns:
     h = the 3x4 block (row-major 12-tuple), cov = offset of R in the settings, R x scale;

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from ekf.fast._jit import CACHE_KEY, check_cache, jit, jit_inline
+from ekf.fast._jit import CACHE_KEY, check_cache, jit
 from ekf.fast.algebra import _measurement_update_q, _normalise, _to_matrix
 from ekf.fast.layout import C, S
 from ekf.outputs import (ACC_NIS_GATE, ACC_NORM_GATE, MAG_DIP_GATE, MAG_NIS_GATE, MAG_SETTLING,
@@ -134,7 +134,7 @@ def _explaining_offset(s, c, y0, y1, y2):
     s[S.mag_offset_norm] = math.sqrt(s[U] ** 2 + s[U + 1] ** 2 + s[U + 2] ** 2)
 
 
-@jit_inline
+@jit
 def _turned_to_stamp(s, c, y0, y1, y2):
     """reference ``_turned_to_stamp``: y <- b + R(-(w - b_w) mag_delay_s) (y - b) (Rodrigues),
     not while the offset is acquired or without a gyroscope."""
@@ -359,7 +359,7 @@ def _heading_error(s, m0, m1):
     return psi, (dot * -ry - cross * rx) / denom, (dot * rx - cross * ry) / denom
 
 
-@jit_inline
+@jit
 def _mag_heading_update_n(s, c, y0, y1, y2, n, gate, noise_scale, gain_cap):
     """reference ``_mag_heading_update``: heading pseudo-measurement, gain projected on a turn
     about world up, at most `gain_cap` of the innovation corrected (mag_return_s). Returns the
@@ -457,7 +457,7 @@ def _reference_dip_deg(s):
     return math.degrees(math.acos(m2 / (math.sqrt(m0 * m0 + m1 * m1 + m2 * m2) + 1e-300)))
 
 
-@jit_inline
+@jit
 def _level_m0(s, y0, y1, y2):
     """m0 = (0, sqrt(mx^2 + my^2), mz) of the reading expressed in the (level) world frame."""
     Q = _to_matrix(s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3])
@@ -487,7 +487,7 @@ def _set_m0_from(s, c, y0, y1, y2):
         s[S.mag_reference_count] = 1.0
 
 
-@jit_inline
+@jit
 def _elevation_deg(v0, v1, v2):
     """reference ``_elevation_deg``: angle of a world-frame vector above the horizontal."""
     return math.degrees(math.atan2(v2, math.hypot(v0, v1)))
@@ -580,7 +580,7 @@ def _dip_deg(s, c, y0, y1, y2):
     return math.degrees(math.acos(max(-1.0, min(1.0, cv))))
 
 
-@jit_inline
+@jit
 def _unbiased_rate(s, c):
     """reference ``_unbiased_rate``: w - b of the latest gyroscope sample (b the estimate, or
     the setting gyr_bias without the bias in the state)."""
@@ -647,7 +647,7 @@ def _track_new_field_world(s, c, y0, y1, y2, t):
     s[S.mag_candidate_t] = t
 
 
-@jit_inline
+@jit
 def _track_new_field(s, c, y0, y1, y2, t, norm, dip):
     """reference ``_track_new_field``: a new field is learned only when the rejected readings
     agree with each other (strength and dip within the gates of their running mean) for
@@ -724,7 +724,7 @@ def _heading_gain_cap(s, c, dt):
     return 1.0
 
 
-@jit_inline
+@jit
 def _count_disturbance(s, c, t, bound):
     """reference ``_count_disturbance``: a rejected reading adds the time since the previous
     one when that was rejected too (while the count is within the bound); returns the count."""
@@ -734,7 +734,7 @@ def _count_disturbance(s, c, t, bound):
     return s[S.mag_disturbed_time]
 
 
-@jit_inline
+@jit
 def _count_passing(s, c, t):
     """reference ``_count_passing``: a reading that passes counts towards confirming the
     learned field (``_count_confirmed``) and ends the disturbance."""

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-from ekf.fast._jit import CACHE_KEY, check_cache, jit, jit_inline
+from ekf.fast._jit import CACHE_KEY, check_cache, jit
 from ekf.fast.algebra import (_acc_mag_quaternion, _add_attitude_cov, _cross, _quat_normalize,
                               _rotate_world_about_up, _set_attitude_cov, _tilt_quaternion,
                               _to_matrix, _zero_rate_update)
@@ -31,7 +31,7 @@ _CLIP_MIN_G = 1.5
 
 
 # ---- degenerate samples ---------------------------------------------------------------------
-@jit_inline
+@jit
 def _usable(t, v0, v1, v2, needs_direction):
     """ekf.reference.usable: finite time and values within MAX_READING, and (acc, mag) a
     direction."""
@@ -43,7 +43,7 @@ def _usable(t, v0, v1, v2, needs_direction):
     return not needs_direction or math.sqrt(v0 * v0 + v1 * v1 + v2 * v2) >= _MIN_NORM
 
 
-@jit_inline
+@jit
 def _accept(s, t, v0, v1, v2, needs_direction):
     """reference ``_accept``: a degenerate sample is refused and counted."""
     if _usable(t, v0, v1, v2, needs_direction):
@@ -52,7 +52,7 @@ def _accept(s, t, v0, v1, v2, needs_direction):
     return False
 
 
-@jit_inline
+@jit
 def _not_before(s, t):
     """reference ``_not_before``: a late sample counts as at the latest time."""
     if math.isnan(s[S.t]) or t >= s[S.t]:
@@ -260,7 +260,7 @@ def _update_acc(s, c, t, v0, v1, v2):
     else:
         # no gyroscope drives the filter (off, none, silent): the reading itself
         s[S.acc_carried_valid] = 0.0
-        _acc_update(s, c, v0, v1, v2, c[C.acc_gate])
+        _acc_update(s, c, v0, v1, v2, c[C.acc_gate], 1.0)
 
 
 @jit
@@ -305,11 +305,11 @@ def _update_mag(s, c, t, v0, v1, v2):
     _check_uncalibrated(s, c)
 
 
-@jit_inline
+@jit
 def _step(s, c, t, present, g0, g1, g2, a0, a1, a2, m0, m1, m2):
     """reference ``step``, the one dispatch: the samples present at time t (bit mask: GYR 1,
     ACC 2, MAG 4; 0 only moves the clock), in the order gyroscope, accelerometer, magnetometer.
-    Used by FastEKF.step, update_gyr/acc/mag and the batch loop (inlined there)."""
+    Used by FastEKF.step, update_gyr/acc/mag and the batch loop."""
     if present & GYR:
         _update_gyr(s, c, t, g0, g1, g2)
     if present & ACC:

@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import math
 
-from ekf.fast._jit import CACHE_KEY, check_cache, jit, jit_inline
+from ekf.fast._jit import CACHE_KEY, check_cache, jit
 from ekf.fast.algebra import _add_attitude_cov, _flip_sign, _normalise
 from ekf.fast.layout import C, S
 
 
-@jit_inline
+@jit
 def _carry(s, wx, wy, wz, rate, cs, sn):
     """reference ``_carry``: turn the carried specific force into the new body frame,
     v <- R(w T)^T v (Rodrigues; cs, sn: cosine and sine of the angle |w| T)."""
@@ -34,7 +34,7 @@ def _carry(s, wx, wy, wz, rate, cs, sn):
     s[S.acc_carried + 2] = v2 * cs - cz * sn + kz * kv * (1 - cs)
 
 
-@jit_inline
+@jit
 def _carry_along(s, c, T, wx, wy, wz, rate, sinc, cs):
     """Turn the carried low-pass by the rotation |w| T of this time update: with the exact F,
     cos = 2 cos^2(half) - 1 and sin = 2 sin(half) cos(half) from F's entries; with the course's
@@ -46,7 +46,7 @@ def _carry_along(s, c, T, wx, wy, wz, rate, sinc, cs):
         _carry(s, wx, wy, wz, r, math.cos(r * T), math.sin(r * T))
 
 
-@jit_inline
+@jit
 def _turn_pair(s, F):
     """The hard-iron fit's open pair: its turn since the first reading, from the gyro alone
     (mag_pair_q <- F mag_pair_q, the reference's _time_update_gyro)."""
@@ -56,7 +56,7 @@ def _turn_pair(s, F):
         s[M + i] = F[i][0] * p0 + F[i][1] * p1 + F[i][2] * p2 + F[i][3] * p3
 
 
-@jit_inline
+@jit
 def _time_update_gyro_n(s, c, T, n):
     """reference ``_time_update_gyro``: q = F q, P = A P A^T + Q with A = [[F, -G], [0, I]]."""
     q0, q1, q2, q3 = s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3]
