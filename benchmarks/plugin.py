@@ -34,8 +34,8 @@ sys.path.insert(0, str(REPO))
 from ekf.simulate import simulate  # noqa: E402
 from app.engine.warmup import warm_up  # noqa: E402
 from app.engine.runner import EstimatorRunner  # noqa: E402
-from app.engine.user_filter import UserFilterEstimator  # noqa: E402
-from app.engine.user_lane import UserLane  # noqa: E402
+from app.engine.userfilter.filter import UserFilterEstimator  # noqa: E402
+from app.engine.userfilter.lane import UserLane  # noqa: E402
 from app.stream.fastparse import samples_to_arrays  # noqa: E402
 from app.stream.protocol import Sample  # noqa: E402
 

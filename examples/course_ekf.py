@@ -308,7 +308,7 @@ if __name__ == "__main__":
     import ekf
     from ekf.simulate import simulate
     from app.engine.offline import run_offline
-    from app.engine.user_filter import UserFilterEstimator
+    from app.engine.userfilter.filter import UserFilterEstimator
     from app.stream.protocol import Sample
 
     seconds = float(sys.argv[sys.argv.index("--seconds") + 1]) if "--seconds" in sys.argv else 30

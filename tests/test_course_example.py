@@ -12,7 +12,7 @@ import ekf
 from app.engine.config import open_log
 from app.engine.offline import filter_log
 
-from app.engine.user_filter import UserFilterEstimator
+from app.engine.userfilter.filter import UserFilterEstimator
 
 COURSE_EKF = Path(__file__).resolve().parents[1] / "examples" / "course_ekf.py"
 LOGS = ["sensorLog_20200324T153441-running.txt", "sensorLog_20221020T074342.txt",

@@ -21,6 +21,7 @@ from app.engine.session import read_session, write_markers
 from app.engine.worker import Engine
 from app.stream.emulator import PhoneEmulator
 from app.stream.protocol import Sample, format_line
+from app.stream.recorder import FLUSH_INTERVAL_S, JSON_INTERVAL_S, Recorder
 from app.stream.sources import LogFileSource, TcpSource
 
 
@@ -249,3 +250,23 @@ def test_recording_a_replay_mid_way_with_a_switch_replays_exactly(lines, tmp_pat
     replayed = replayed_rows(folder)
     assert len(recorded) > 1500
     assert replayed[:len(recorded)] == recorded and len(replayed) - len(recorded) < 100
+
+
+def test_raw_txt_and_session_json_are_written_on_the_recorders_clock(tmp_path):
+    now = [50.0]
+    recorder = Recorder(tmp_path, min_free_bytes=0, clock=lambda: now[0])
+    line = b"1000\tACC\t0.1\t0.2\t9.8\n"
+    recorder.write_line(line)
+    recorder.add_event("marker", 1000)
+    recorder.tick()
+    raw, session = tmp_path / "raw.txt", tmp_path / "session.json"
+    assert raw.read_bytes() == b"" and json.loads(session.read_text())["timeline"] == []
+    now[0] = 50.0 + FLUSH_INTERVAL_S + 0.01
+    recorder.tick()
+    assert raw.read_bytes() == line                                   # flushed once due
+    assert json.loads(session.read_text())["timeline"] == []          # not due yet
+    now[0] = 50.0 + JSON_INTERVAL_S + 0.01
+    recorder.tick()
+    assert [e["kind"] for e in json.loads(session.read_text())["timeline"]] == ["marker"]
+    assert recorder.elapsed_s == pytest.approx(JSON_INTERVAL_S + 0.01)
+    recorder.close()

@@ -20,7 +20,7 @@ from app.engine.commands import (LoadUserFilter, ReplayControl, SetConsistencyEn
                                  UnloadUserFilter)
 from app.engine.config import open_log
 from app.engine.offline import filter_log
-from app.engine.user_filter import UserFilterEstimator
+from app.engine.userfilter.filter import UserFilterEstimator
 from app.engine.worker import Engine
 from app.stream.emulator import PhoneEmulator
 from app.stream.recorder import Recorder
@@ -237,7 +237,7 @@ def test_after_a_seek_your_filter_catches_up_in_the_background(tmp_path):
 def test_the_re_run_reads_a_log_as_the_engine_feeds_it(realphone_dir):
     """Same samples in the same order as the live engine's runner gets them (damaged and
     out-of-order lines included), so a re-run up to sample N is the live run up to N."""
-    from app.engine.user_host import ordered_log
+    from app.engine.userfilter.host import ordered_log
     path = realphone_dir / "sensorLog_20221024T182616_standstill.txt"   # 2 damaged, 420 late
     t_ms, tag, values = ordered_log(path)
     fed = []

@@ -11,9 +11,9 @@ import pytest
 
 import ekf
 from app.engine.offline import run_offline
-from app.engine.user_code import UserFilterError, load_code
-from app.engine.user_filter import UserFilterEstimator, filter_settings, make_estimator
-from app.engine.user_template import template_text, write_template
+from app.engine.userfilter.code import UserFilterError, load_code
+from app.engine.userfilter.filter import UserFilterEstimator, filter_settings, make_estimator
+from app.engine.userfilter.template import template_text, write_template
 from app.stream.protocol import parse_line
 from user_filters import FILTERS, log_lines, write_filter
 
@@ -145,7 +145,7 @@ def test_an_exception_pauses_the_filter_with_file_line_and_message(tmp_path):
     assert problem.message.startswith("raises.py:11 in update: ValueError:")
     assert problem.t_s == pytest.approx(1.51)
     assert "return self.update(acc)" in problem.details            # the user's frames
-    assert "user_filter.py" not in problem.details                  # not ours
+    assert "app/engine/userfilter" not in problem.details           # not ours
     calls = estimator.filter.calls
     estimator.step(5.0, None, [0, 0, 9.8], None)                    # paused: not called again
     assert estimator.filter.calls == calls
@@ -155,7 +155,7 @@ def test_an_exception_pauses_the_filter_with_file_line_and_message(tmp_path):
 def test_an_endless_loop_is_stopped_at_its_line_and_nothing_else_is_hit(tmp_path):
     import time
 
-    from app.engine.user_watchdog import times_fired
+    from app.engine.userfilter.watchdog import times_fired
     fired = times_fired()
     estimator = UserFilterEstimator(write_filter(tmp_path, "endless"))
     estimator.step_limit_s = 0.2
@@ -176,7 +176,7 @@ def test_an_endless_loop_is_stopped_at_its_line_and_nothing_else_is_hit(tmp_path
 
 
 def test_a_file_or_constructor_that_never_returns_is_stopped(tmp_path, monkeypatch):
-    import app.engine.user_code as user_code
+    import app.engine.userfilter.code as user_code
     monkeypatch.setattr(user_code, "LOAD_LIMIT_S", 0.2)
     body = """
         while True:

@@ -29,8 +29,8 @@ from app.engine import config, estimates
 from app.engine.offline import evaluate_log, evaluate_phone, filter_log, sibling_truth
 from app.engine.outputs import atomic_output, check_output
 from app.engine.session import read_session, session_json_for
-from app.engine.user_filter import UserFilterEstimator
-from app.engine.user_template import write_template
+from app.engine.userfilter.filter import UserFilterEstimator
+from app.engine.userfilter.template import write_template
 from app.stream.demo import write_session
 from app.stream.logfile import LogData
 

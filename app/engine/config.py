@@ -22,8 +22,8 @@ from app.engine import profiles
 from app.engine.errors import ConfigError   # defined apart (profiles raise it too)
 from app.engine.pipeline import check_start_state
 from app.engine.session import read_session, session_json_for
-from app.engine.user_code import UserFilterError, is_filter_file
-from app.engine.user_filter import make_estimator as _make_estimator
+from app.engine.userfilter.code import UserFilterError, is_filter_file
+from app.engine.userfilter.filter import make_estimator as _make_estimator
 from app.stream.fastparse import FastLineParser
 from app.stream.lines import LogError
 from app.stream.logfile import LogData, read_log

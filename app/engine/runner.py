@@ -26,8 +26,8 @@ import ekf
 from ekf import SENSORS, magcal
 from app.engine.compare import ErrorRows, ErrorSums, SameInstant
 from app.engine.innovations import YOURS, InnovationBuffer, InnovationProbe
-from app.engine.user_filter import make_estimator
-from app.engine.user_lane import UserLane
+from app.engine.userfilter.filter import make_estimator
+from app.engine.userfilter.lane import UserLane
 from app.stream.fastparse import samples_to_arrays
 from app.stream.protocol import FILTER_TAGS, Sample
 from app.stream.repeats import Last, repeats

@@ -66,8 +66,8 @@ from app.engine.session import SessionInfo, default_session_folder
 from app.engine.warmup import warm_up
 from app.engine.snapshot import (Comparison, EngineFailure, FilterStatus, PlotBuffer, PlotChunk,
                                  Snapshot, StreamHealth)
-from app.engine.user_code import is_filter_file
-from app.engine.user_host import UserFilterHost
+from app.engine.userfilter.code import is_filter_file
+from app.engine.userfilter.host import UserFilterHost
 from app.stream import fastparse
 from app.stream.events import CONNECTION_COMMANDS, Chunk, SourceEvent
 from app.stream.fastparse import ParsedArrays
@@ -98,7 +98,7 @@ class Engine:
     bounds a sample must respect (others are damaged lines); session: the session.json of a
     replayed recording (default: found beside the replayed raw.txt); index: build a replay's
     index (checkpoints, whole-session plots) in the background; user_filter: a user's filter
-    file run beside the main estimator (YOURS, :mod:`app.engine.user_host`); forwarder: a
+    file run beside the main estimator (YOURS, :mod:`app.engine.userfilter.host`); forwarder: a
     :class:`~app.stream.forwarder.LineForwarder` that gets a copy of every line from the phone.
     """
 

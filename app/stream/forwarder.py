@@ -9,7 +9,8 @@ bounded queue (whole lines; a line cut by a disconnect is never sent), and a bac
 (plain ``threading``, no Qt) sends it. A slow receiver fills the queue and the lines that do
 not fit are dropped and counted; while there is no receiver the lines are dropped and counted
 too (a receiver that connects late gets the stream from then on, not a stale backlog). The
-thread reconnects by itself, every ``reconnect_s``.
+thread reconnects by itself, every ``reconnect_s`` on its clock (``time.monotonic`` unless a
+test gives another).
 """
 
 from __future__ import annotations
@@ -17,11 +18,14 @@ from __future__ import annotations
 import select
 import socket
 import threading
+import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 DEFAULT_MAX_QUEUED_BYTES = 4 << 20
 SEND_TIMEOUT_S = 5.0
+CLOCK_POLL_S = 0.05     # waiting to reconnect, the thread reads its clock this often
 
 
 @dataclass
@@ -59,15 +63,18 @@ class LineForwarder:
 
     ``feed(data, connection)`` takes received bytes (not necessarily cut at line ends) of
     connection number ``connection``; only complete lines are queued. ``max_queued_bytes``
-    bounds the queue.
+    bounds the queue. clock: the monotonic seconds the reconnection delays count in;
+    :attr:`next_attempt` is the clock time of the next connection attempt (None: now).
     """
 
     def __init__(self, host: str, port: int, max_queued_bytes: int = DEFAULT_MAX_QUEUED_BYTES,
-                 reconnect_s: float = 1.0) -> None:
+                 reconnect_s: float = 1.0, clock: Callable[[], float] = time.monotonic) -> None:
         self.host = host
         self.port = int(port)
         self.max_queued_bytes = int(max_queued_bytes)
         self.reconnect_s = float(reconnect_s)
+        self._clock = clock
+        self.next_attempt: float | None = None
         self._status = ForwardStatus(f"{host}:{port}")
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
@@ -228,14 +235,26 @@ class LineForwarder:
                 self._status.bytes_forwarded += len(data)
         self._disconnect(sock, "stopped")
 
+    def _attempt_due(self) -> bool:
+        """True when a connection attempt is due; otherwise wait a little (at most
+        CLOCK_POLL_S, less when stopped) and say False."""
+        due = self.next_attempt
+        wait = 0.0 if due is None else due - self._clock()
+        if wait <= 0.0:
+            return True
+        self._stop.wait(min(wait, CLOCK_POLL_S))
+        return False
+
     def _run(self) -> None:
         while not self._stop.is_set():
+            if not self._attempt_due():
+                continue
             sock = self._connect()
             if sock is None:
-                self._stop.wait(self.reconnect_s)
+                self.next_attempt = self._clock() + self.reconnect_s
                 continue
+            self.next_attempt = None
             self._serve(sock)
-            if not self._stop.is_set():
-                self._stop.wait(min(self.reconnect_s, 0.2))
+            self.next_attempt = self._clock() + min(self.reconnect_s, 0.2)
         with self._lock:
             self._status.state = "stopped"

@@ -18,6 +18,7 @@ import os
 import stat
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, is_dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -97,12 +98,14 @@ class Recorder:
     session.json when something changed and checks the free space). Thread-safe: the engine
     thread writes, a GUI may read size/elapsed/error. Raises OSError only from the constructor
     (the folder or raw.txt cannot be made); afterwards a fault stops the recording (see the
-    module docstring). max_bytes / min_free_bytes: 0 = no limit.
+    module docstring). max_bytes / min_free_bytes: 0 = no limit. clock: the monotonic seconds
+    the flush, session.json and free-space intervals and elapsed_s count in (tests give a fake).
     """
 
     def __init__(self, directory: str | Path, settings: Any = None,
                  info: dict[str, Any] | None = None, max_bytes: int = DEFAULT_MAX_BYTES,
-                 min_free_bytes: int = DEFAULT_MIN_FREE_BYTES) -> None:
+                 min_free_bytes: int = DEFAULT_MIN_FREE_BYTES,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.directory = Path(directory)
         try:
             self.directory.mkdir(parents=True, exist_ok=True)
@@ -111,10 +114,11 @@ class Recorder:
             raise OSError(f"cannot record into {self.directory}: {error.strerror or error}") \
                 from None
         self._lock = threading.Lock()
+        self._clock = clock
         self.max_bytes = int(max_bytes)
         self.min_free_bytes = int(min_free_bytes)
         self.started_utc = datetime.now(timezone.utc).isoformat(timespec="milliseconds")
-        self._started = time.monotonic()
+        self._started = self._clock()
         self._last_flush = self._started
         self._last_json = 0.0
         self._last_free_check = -float("inf")
@@ -132,11 +136,11 @@ class Recorder:
         }
         with self._lock:
             self._guarded(self._write_json)
-            self._check_free_space(time.monotonic())
+            self._check_free_space(self._clock())
 
     @property
     def elapsed_s(self) -> float:
-        return time.monotonic() - self._started
+        return self._clock() - self._started
 
     @property
     def recording(self) -> bool:
@@ -159,7 +163,7 @@ class Recorder:
                 self.bytes_written += len(data)
                 if self.min_free_bytes and self.bytes_written - self._bytes_at_free_check \
                         > self.min_free_bytes // 4:
-                    self._check_free_space(time.monotonic())
+                    self._check_free_space(self._clock())
 
     def add_event(self, kind: str, t_ms: int | None = None, **data: Any) -> None:
         """A timeline entry: sensor toggles ("sensor", sensor=..., enabled=...), markers,
@@ -192,7 +196,7 @@ class Recorder:
     def tick(self) -> None:
         """Flush raw.txt if due; rewrite session.json if it changed and is due; check the
         free space once a second."""
-        now = time.monotonic()
+        now = self._clock()
         with self._lock:
             if self.closed:
                 return
@@ -283,5 +287,5 @@ class Recorder:
         self.session["raw_lines"] = self.lines_written
         self.session["raw_bytes"] = self.bytes_written
         write_json_atomic(self.directory / "session.json", self.session)
-        self._last_json = time.monotonic()
+        self._last_json = self._clock()
         self._dirty = False

@@ -21,7 +21,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.engine.commands import LoadUserFilter, UnloadUserFilter
 from app.engine.snapshot import UserFilterStatus
-from app.engine.user_template import write_template
+from app.engine.userfilter.template import write_template
 from app.ui.lights import Light
 
 Send = Callable[[object], None]

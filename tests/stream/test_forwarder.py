@@ -233,3 +233,26 @@ def test_a_forward_started_and_stopped_by_command_while_the_phone_streams(receiv
                               if "nonsense" in w or "'port'" in w])
         assert engine.snapshot_now().health.forward is None
     assert note[0] == "forward to 'nonsense:port': not a port number: 'port'"
+
+
+def test_reconnection_waits_on_the_forwarders_clock_not_on_real_time():
+    now = [100.0]
+    listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    listener.bind(("127.0.0.1", 0))          # bound, not listening: connections are refused
+    port = listener.getsockname()[1]
+    try:
+        with LineForwarder("127.0.0.1", port, reconnect_s=30.0,
+                           clock=lambda: now[0]) as forwarder:
+            _wait(lambda: forwarder.status().last_error)           # the first attempt failed
+            assert forwarder.next_attempt == 130.0
+            listener.listen(1)
+            now[0] = 130.0          # 30 s on the forwarder's clock: it connects at once
+            _wait(lambda: forwarder.status().state == "connected", timeout=10.0)
+            assert forwarder.next_attempt is None
+            client, _ = listener.accept()
+            client.close()                                         # the receiver hangs up
+            _wait(lambda: forwarder.next_attempt is not None)
+            assert forwarder.next_attempt == pytest.approx(130.2)  # a hang-up: 0.2 s
+            assert forwarder.status().connections == 1
+    finally:
+        listener.close()

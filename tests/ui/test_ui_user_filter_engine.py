@@ -31,7 +31,7 @@ def _log(tmp_path: Path) -> Path:
 
 
 def test_the_widgets_draw_a_real_engine_s_snapshots(qtbot, tmp_path):
-    # speed 2, not 8: live, your filter gets a share of the elapsed time (app.engine.user_lane)
+    # speed 2, not 8: live, your filter gets a share of the elapsed time (app.engine.userfilter.lane)
     # and is thinned to what fits; at 8x a slow machine ran course_ekf.py on 142 of 400 rows
     engine = Engine(LogFileSource(_log(tmp_path), speed=2), comparisons=False,
                     user_filter=str(REPO / "examples" / "course_ekf.py"))

@@ -10,7 +10,7 @@ Never holding up the engine: with ``realtime`` (the live engine), the user's cod
 Catching up (after a reload or a seek): the engine thread keeps handing rows over, the lane
 only buffers them, and a background thread runs first the log up to now and then the buffer
 through the new filter; when the buffer is empty the new filter takes over, under the lane's
-lock, so no row is run twice or skipped (see :mod:`app.engine.user_host`).
+lock, so no row is run twice or skipped (see :mod:`app.engine.userfilter.host`).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import numpy as np
 
 from ekf import SENSORS
 from app.engine.compare import ErrorSums, SameInstant
-from app.engine.user_filter import UserFilterEstimator
+from app.engine.userfilter.filter import UserFilterEstimator
 
 MAX_BUDGET_S = 0.1          # unused time carried forward at most this long
 RECENT_S = 2.0              # used_fraction and "slow" look back this far [s, wall clock]

@@ -8,7 +8,7 @@ filter is resumed. What happens to the session so far:
 * a replay (a log file, the demo): the log is re-filtered with the new code from the start of
   the current pass up to exactly the sample the engine has reached, in a background thread;
   rows arriving meanwhile are buffered and run after it, then the new filter takes over
-  (:class:`~app.engine.user_lane.UserLane`), and the whole session's YOURS curve is published
+  (:class:`~app.engine.userfilter.lane.UserLane`), and the whole session's YOURS curve is published
   once (UserFilterStatus.history);
 * a live phone: the new code continues from now (there is nothing to re-run it on; the
   session recordings issue brings checkpoints) and the status says so.
@@ -35,9 +35,9 @@ import ekf
 from app.engine.compare import ErrorSums
 from app.engine.runner import EstimatorRunner
 from app.engine.snapshot import Comparison, UserFilterStatus, UserHistory, UserProblem
-from app.engine.user_code import FilterCode, UserFilterError, load_code, unload_code
-from app.engine.user_filter import UserFilterEstimator
-from app.engine.user_lane import UserLane, run_chosen
+from app.engine.userfilter.code import FilterCode, UserFilterError, load_code, unload_code
+from app.engine.userfilter.filter import UserFilterEstimator
+from app.engine.userfilter.lane import UserLane, run_chosen
 from app.stream.fastparse import FastLineParser
 from app.stream.lines import read_lines
 from app.stream.ordering import TimeOrderer

@@ -33,7 +33,7 @@ from typing import Any, Callable
 import numpy as np
 
 from app.engine.snapshot import INNOVATION_SENSORS, UserProblem
-from app.engine.user_watchdog import UserCodeTimeout, guard
+from app.engine.userfilter.watchdog import UserCodeTimeout, guard
 
 LOAD_LIMIT_S = 10.0          # executing the file, Filter(): imports may take a while
 

@@ -1,5 +1,5 @@
 """Your own filter as an estimator: :class:`UserFilterEstimator` wraps a user's ``Filter`` class
-(see :mod:`app.engine.user_code`) in the ``ekf.Estimator`` protocol, so it runs wherever an
+(see :mod:`app.engine.userfilter.code`) in the ``ekf.Estimator`` protocol, so it runs wherever an
 estimator runs: beside ours in the live engine (YOURS), over a log in `filter` and `evaluate`
 (``--estimator FILE.py``), in replays.
 
@@ -18,7 +18,7 @@ Errors never escape: an exception in the user's code or a return value that brea
 again un-pauses it); ``NotImplementedError`` means "not written yet": that step (or that sample)
 is skipped and noted. Time in the user's code is measured per call; a call that does not come
 back within ``step_limit_s`` (an endless loop) is stopped where it is and pauses the filter like
-an exception (app.engine.user_watchdog).
+an exception (app.engine.userfilter.watchdog).
 
 The user's code runs in this process with this process's rights: it is the user's own program.
 """
@@ -41,10 +41,10 @@ from ekf import SENSORS
 from ekf.estimator import batch_rows
 from ekf.settings import EKFSettings, resolve_settings
 from app.engine.snapshot import UserProblem
-from app.engine.user_code import (USER_ERRORS, BadOutput, FilterCode, Output, UserFilterError,
+from app.engine.userfilter.code import (USER_ERRORS, BadOutput, FilterCode, Output, UserFilterError,
                                   instantiate, is_filter_file, load_code, output_problem,
                                   parse_output, problem_from_exception)
-from app.engine.user_watchdog import DEFAULT_LIMIT_S, UserCodeTimeout, guard
+from app.engine.userfilter.watchdog import DEFAULT_LIMIT_S, UserCodeTimeout, guard
 
 __all__ = ["UserFilterEstimator", "UserFilterError", "filter_settings", "is_filter_file",
            "make_estimator"]
