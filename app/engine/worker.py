@@ -48,12 +48,9 @@ from typing import Any
 import numpy as np
 
 import ekf
-from app.engine.commands import (AddMarker, AlignHeading, LoadUserFilter, ReplayControl,
-                                 ResetFilter, SetConsistencyEnabled, SetFollowTimeline,
-                                 SetForward, SetMarkerLabel, StartRecording, StopRecording,
-                                 UnloadUserFilter)
+from app.engine.commands import ReplayControl, StartRecording
 from app.engine.config import ConfigError, megabytes
-from app.engine.filter_commands import SETUP_COMMANDS, apply_setup
+from app.engine.command_table import Mark, handler_of
 from app.engine.forwarding import switch_forward
 from app.engine.estimates import EstimatesWriter
 from app.engine.health import HealthTracker, stats_dict
@@ -69,7 +66,7 @@ from app.engine.snapshot import (Comparison, EngineFailure, FilterStatus, PlotBu
 from app.engine.userfilter.code import is_filter_file
 from app.engine.userfilter.host import UserFilterHost
 from app.stream import fastparse
-from app.stream.events import CONNECTION_COMMANDS, Chunk, SourceEvent
+from app.stream.events import Chunk, SourceEvent
 from app.stream.fastparse import ParsedArrays
 from app.stream.forwarder import LineForwarder
 from app.stream.protocol import DEFAULT_LIMITS, Limits
@@ -272,7 +269,7 @@ class Engine:
         nothing more for a moment."""
         deadline = time.monotonic() + timeout
         marker = threading.Event()
-        self.send(_Mark(marker))
+        self.send(Mark(marker))
         if not marker.wait(timeout):
             return False
         while time.monotonic() < deadline:
@@ -578,56 +575,12 @@ class Engine:
             moved = self._apply(command) or moved
 
     def _apply(self, command: Any) -> bool:
-        runner = self._runner
-        if isinstance(command, ReplayControl):
-            return self._replay_control(command)
-        if isinstance(command, SETUP_COMMANDS):
-            if not self._apply_setup(command):
-                return False
-            return self._setup_changed()
-        if isinstance(command, ResetFilter):
-            runner.reset()
-            self._record_event("reset")
-        elif isinstance(command, AlignHeading):
-            turned = runner.align_heading()
-            if turned is None:
-                self._health.warn("align", "align heading: no PHONE orientation (ORI) yet",
-                                  force=True)
-            else:
-                self._record_event("align_heading", turned_deg=round(turned, 2))
-                self._health.warn("align", f"heading aligned with PHONE: OWN turned by "
-                                           f"{turned:+.1f}° about up", force=True)
-        elif isinstance(command, StartRecording):
-            self._start_recording(command)
-        elif isinstance(command, StopRecording):
-            self._stop_recording()
-        elif isinstance(command, AddMarker):
-            self._add_marker(command.label)
-        elif isinstance(command, SetMarkerLabel):
-            self._set_marker_label(command.id, command.label)
-        elif isinstance(command, SetFollowTimeline):
-            return self._set_follow(command.enabled)
-        elif isinstance(command, CONNECTION_COMMANDS):
-            self.source.control(command)
-        elif isinstance(command, LoadUserFilter):
-            self._user.load(command.path)
-        elif isinstance(command, UnloadUserFilter):
-            self._user.unload()
-        elif isinstance(command, SetConsistencyEnabled):
-            runner.set_consistency_enabled(command.enabled)
-        elif isinstance(command, SetForward):
-            self._set_forward(command.target)
-        elif isinstance(command, _Mark):
-            self._marks.append(command.event)        # set once published
-        else:
+        """One command through the command table; True when it moved a replay."""
+        handler = handler_of(command)
+        if handler is None:
             self._health.warn("command", f"unknown command {command!r}", force=True)
-        return False
-
-    def _apply_setup(self, command: Any) -> bool:
-        """A sensor switch, estimator, settings or comparisons command; False when refused."""
-        return apply_setup(self._runner, command, self._record_event,
-                           lambda text: self._health.warn("command", text, force=True),
-                           self.recording, self.pipeline.fed_total)
+            return False
+        return bool(handler(self, command))
 
     def _setup_changed(self) -> bool:
         """Replaying: the user chose another set-up (index again, re-sync once indexed). While
@@ -877,10 +830,3 @@ class Engine:
             return f"recording stopped: {recording.error}"
         return (f"recording into {recording.folder} "
                 f"({recording.recorder.bytes_written / 2**20:.1f} MB)")
-
-
-@dataclasses.dataclass(frozen=True)
-class _Mark:
-    """wait_idle's command: set when the engine reaches it."""
-
-    event: threading.Event
