@@ -20,10 +20,14 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ekf.estimator import SENSORS as _FILTER_ORDER
+
 if TYPE_CHECKING:
     from ekf.settings import EKFSettings
 
-SENSORS = ("acc", "gyr", "mag")
+#: The sensors in the order calibration reports, tables and JSON list them: alphabetical
+#: (acc, gyr, mag), not the filters' feeding order of :data:`ekf.SENSORS`.
+REPORT_ORDER: tuple[str, ...] = tuple(sorted(_FILTER_ORDER))
 UNITS = {"acc": "m/s^2", "gyr": "rad/s", "mag": "uT"}
 AXES = ("x", "y", "z")
 
@@ -115,7 +119,7 @@ class CalibrationResult:
     def histograms(self, bins: int = 40, pdf_points: int = 200) -> dict[str, list[Histogram]]:
         """Per available sensor ("acc", "gyr", "mag"), one :class:`Histogram` per axis x, y, z."""
         out: dict[str, list[Histogram]] = {}
-        for name in SENSORS:
+        for name in REPORT_ORDER:
             stats = self.sensor(name)
             if stats is None:
                 continue
@@ -149,7 +153,7 @@ class CalibrationResult:
         header = f"{'sensor':<7}{'samples':>8}  {'mean x':>12}{'mean y':>12}{'mean z':>12}" \
                  f"  {'std x':>11}{'std y':>11}{'std z':>11}  unit"
         lines += [header, "-" * len(header)]
-        for name in SENSORS:
+        for name in REPORT_ORDER:
             stats = self.sensor(name)
             if stats is None:
                 lines.append(f"{name:<7}{0:>8}  (no data)")
@@ -157,7 +161,7 @@ class CalibrationResult:
             means = "".join(f"{v:>12.5g}" for v in stats.mean)
             stds = "".join(f"{v:>11.3g}" for v in stats.std)
             lines.append(f"{name:<7}{stats.count:>8}  {means}  {stds}  {UNITS[name]}")
-        for name in SENSORS:
+        for name in REPORT_ORDER:
             stats = self.sensor(name)
             if stats is None:
                 continue
@@ -212,7 +216,7 @@ class CalibrationResult:
             return None if v is None else [float(x) for x in v]
 
         out: dict[str, Any] = {}
-        for name in SENSORS:
+        for name in REPORT_ORDER:
             stats = self.sensor(name)
             out[name] = None if stats is None else {
                 "count": stats.count, "mean": vec(stats.mean), "std": vec(stats.std),

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ekf._optional import require
-from ekf.calibration import AXES, SENSORS, UNITS, CalibrationResult, calibrate, rest_mask
+from ekf.calibration import AXES, REPORT_ORDER, UNITS, CalibrationResult, calibrate, rest_mask
 
 FIELD_RANGE_UT = (25.0, 65.0)
 """The Earth's field strength anywhere on the surface is within about this range [µT]."""
@@ -226,12 +226,12 @@ def analyse_rest(t_acc: ArrayLike | None = None, acc: ArrayLike | None = None,
     the autocorrelation is each sensor's median sampling period."""
     series = {"acc": _clean(t_acc, acc), "gyr": _clean(t_gyr, gyr), "mag": _clean(t_mag, mag)}
     result = calibrate(*(series[s][1] if len(series[s][1]) else None
-                         for s in ("acc", "gyr", "mag")))
+                         for s in REPORT_ORDER))
     t_all, columns = _merged_axis(series)
     origin = float(t_all[0]) if len(t_all) else 0.0
     warnings: list[RestWarning] = []
     axes: dict[str, list[AxisReport]] = {}
-    for name in SENSORS:
+    for name in REPORT_ORDER:
         t, v = series[name]
         if len(t) < 2:
             warnings.append(RestWarning("missing", f"no {NAMES[name]} samples"))

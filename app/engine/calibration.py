@@ -16,14 +16,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ekf import calibration, magcal
+from ekf.calibration import REPORT_ORDER
 from ekf._optional import MissingLibrary
 from ekf.allan import AllanResult, allan_deviation
 from ekf.noise import RestAnalysis, analyse_rest
 from app.engine.errors import ConfigError
 from app.stream.logfile import LogData
-
-SENSORS = ("acc", "gyr", "mag")
-
 
 @dataclass
 class RestCalibration:
@@ -41,7 +39,7 @@ def _sensor_series(log: LogData, chosen: np.ndarray | None = None) -> dict[str, 
     arrays = log.to_arrays()
     t_s = arrays.t_s
     out: dict[str, np.ndarray] = {}
-    for name in SENSORS:
+    for name in REPORT_ORDER:
         values = getattr(arrays, name)
         keep = np.all(np.isfinite(values), axis=1)
         if chosen is not None:
@@ -128,20 +126,20 @@ class SampleCollector:
     duration_s: float | None = 10.0
     max_samples: int = 2_000_000
     _parts: dict[str, list[tuple[np.ndarray, np.ndarray]]] = field(
-        default_factory=lambda: {name: [] for name in SENSORS})
+        default_factory=lambda: {name: [] for name in REPORT_ORDER})
     start_s: float | None = None
     latest_s: float | None = None
-    counts: dict[str, int] = field(default_factory=lambda: {name: 0 for name in SENSORS})
+    counts: dict[str, int] = field(default_factory=lambda: {name: 0 for name in REPORT_ORDER})
     past_end: bool = False
 
     def add(self, chunk: object) -> None:
         if self.start_s is None:
-            firsts = [float(getattr(chunk, "t_" + name)[0]) for name in SENSORS
+            firsts = [float(getattr(chunk, "t_" + name)[0]) for name in REPORT_ORDER
                       if len(getattr(chunk, "t_" + name))]
             if not firsts:
                 return
             self.start_s = min(firsts)
-        for name in SENSORS:
+        for name in REPORT_ORDER:
             t = np.asarray(getattr(chunk, "t_" + name), dtype=float)
             if len(t) == 0 or self.counts[name] >= self.max_samples:
                 continue
@@ -168,7 +166,7 @@ class SampleCollector:
 
     def series(self) -> dict[str, np.ndarray]:
         out: dict[str, np.ndarray] = {}
-        for name in SENSORS:
+        for name in REPORT_ORDER:
             parts = self._parts[name]
             out["t_" + name] = (np.concatenate([p[0] for p in parts]) if parts
                                 else np.empty(0))
