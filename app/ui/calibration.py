@@ -30,7 +30,10 @@ from app.engine.calibration import (RestCalibration, SampleCollector, analyse_se
 from app.engine.commands import SetSettings
 from app.engine.profiles import Profile, ProfileStore
 from app.ui import figures
+from app.ui.no_data import NoDataText
 
+NO_REST_DATA = "no data"
+NO_MAG_DATA = "no readings"
 MAG_FIT_EVERY = 25        # refit the magnetometer after this many new readings
 MAG_FIT_POINTS = 3000     # at most this many readings (evenly thinned) in a live fit
 
@@ -77,6 +80,10 @@ class RestTab(QtWidgets.QWidget):
         self.acf = pg.GraphicsLayoutWidget()
         self.acf.setBackground("w")
         self.acf_plots = [self.acf.addPlot(row=r, col=0) for r in range(3)]
+        self.no_data = [NoDataText(plot.getViewBox()) for plot in
+                        [*sum(self.histogram_plots, []), *self.series_plots, *self.acf_plots]]
+        for text in self.no_data:
+            text.set_text(NO_REST_DATA)
         self.table = QtWidgets.QTableWidget(0, 10)
         self.table.setHorizontalHeaderLabels(["sensor", "axis", "mean", "std", "cov x", "cov y",
                                               "cov z", "normality p", "acf(1)", "verdict"])
@@ -142,6 +149,8 @@ class RestTab(QtWidgets.QWidget):
         self.result = result
         analysis = result.analysis
         self.status.setText(f"{result.how}: {analysis.duration_s:.1f} s analysed")
+        for text in self.no_data:
+            text.set_text("")
         self.warnings.setText("\n".join("⚠ " + w.message for w in analysis.warnings))
         histograms = analysis.result.histograms()
         for r, sensor in enumerate(("acc", "gyr", "mag")):
@@ -182,7 +191,7 @@ class AllanTab(QtWidgets.QWidget):
 
     def __init__(self, parent: QtWidgets.QWidget | None = None) -> None:
         super().__init__(parent)
-        self.plot_widget = pg.PlotWidget()
+        self.plot_widget = pg.PlotWidget(axisItems=figures.log_axes())
         self.plot_widget.setBackground("w")
         self.plot = self.plot_widget.getPlotItem()
         self.summary = _label("Record at rest (the At rest tab; minutes for the bias "
@@ -191,10 +200,13 @@ class AllanTab(QtWidgets.QWidget):
         layout.addWidget(self.summary)
         layout.addWidget(self.plot_widget, 1)
         self.allan = None
+        self.no_data = NoDataText(self.plot.getViewBox())
+        self.no_data.set_text("no data: record at rest first")
 
     def show_result(self, allan: Any) -> None:
         self.allan = allan
         figures.draw_allan(self.plot, allan)
+        self.no_data.set_text("no gyroscope samples" if allan is None else "")
         if allan is None:
             self.summary.setText("too few gyroscope samples for an Allan deviation")
             return
@@ -238,6 +250,8 @@ class MagTab(QtWidgets.QWidget):
         self.cloud = pg.GraphicsLayoutWidget()
         self.cloud.setBackground("w")
         self.projection_plots = [self.cloud.addPlot(row=0, col=k) for k in range(3)]
+        self.no_data = [NoDataText(plot.getViewBox()) for plot in self.projection_plots]
+        self._show_no_data(True)
         self.view3d = self._make_3d() if use_gl else None
         layout = QtWidgets.QVBoxLayout(self)
         layout.addLayout(controls)
@@ -268,7 +282,12 @@ class MagTab(QtWidgets.QWidget):
         self.readings, self.count, self._fitted_at, self.result = [], 0, 0, None
         self.coverage_bar.setValue(0)
         figures.draw_projections(self.projection_plots, np.empty((0, 3)), None)
+        self._show_no_data(True)
         self.summary.setText("cleared")
+
+    def _show_no_data(self, empty: bool) -> None:
+        for text in self.no_data:
+            text.set_text(NO_MAG_DATA if empty else "")
 
     def all_readings(self) -> np.ndarray:
         return np.concatenate(self.readings) if self.readings else np.empty((0, 3))
@@ -302,6 +321,7 @@ class MagTab(QtWidgets.QWidget):
         self.result = result
         self.coverage_bar.setValue(int(round(100 * result.coverage)))
         figures.draw_projections(self.projection_plots, readings, result)
+        self._show_no_data(len(readings) == 0)
         if self.view3d is not None and len(readings):
             self.scatter3d.setData(pos=result.correct(readings))
         offset = ", ".join(f"{v:.1f}" for v in result.offset)

@@ -85,6 +85,35 @@ def draw_autocorrelation(plot: pg.PlotItem, analysis: RestAnalysis, sensor: str)
     plot.setLabel("bottom", "lag", units="s")
 
 
+class LogAxis(pg.AxisItem):
+    """A log axis that labels 1, 2 and 5 of each decade where they fit, and only the decades
+    where they do not (the plain axis labels every minor tick, and they overlap)."""
+
+    LABEL_PX = {"horizontal": 52.0, "vertical": 18.0}
+
+    def logTickStrings(self, values, scale, spacing):
+        strings = super().logTickStrings(values, scale, spacing)
+        low, high = self.range
+        horizontal = self.orientation in ("top", "bottom")
+        length = self.geometry().width() if horizontal else self.geometry().height()
+        per_decade = length / max(high - low, 1e-9)
+        room = self.LABEL_PX["horizontal" if horizontal else "vertical"]
+        kept = (1, 2, 5) if np.log10(2.5) * per_decade >= room else (1,)
+        return [text if self.labelled(value, kept) else ""
+                for value, text in zip(values, strings)]
+
+    @staticmethod
+    def labelled(value: float, kept: tuple[int, ...]) -> bool:
+        """Whether the tick at log10 value `value` is one of the mantissas `kept`."""
+        mantissa = 10.0 ** (value - np.floor(value + 1e-9))
+        return any(abs(mantissa - k) < 1e-6 * k for k in kept)
+
+
+def log_axes() -> dict[str, LogAxis]:
+    """axisItems for a log-log plot (pg.PlotWidget(axisItems=...), addPlot(axisItems=...))."""
+    return {"bottom": LogAxis("bottom"), "left": LogAxis("left")}
+
+
 def draw_allan(plot: pg.PlotItem, allan: AllanResult | None) -> None:
     """σ(τ) per axis on log-log axes; dashed: the ARW line N/√τ; dots: the bias-instability
     minimum; a dot at τ = 1 s on each ARW line (N is read there)."""
@@ -183,7 +212,7 @@ def save_rest_figures(analysis: RestAnalysis, allan: AllanResult | None,
             draw(grid.addPlot(row=row, col=0), analysis, sensor)
         written.append(_export(grid, folder / name))
     grid = _layout(900, 650)
-    draw_allan(grid.addPlot(), allan)
+    draw_allan(grid.addPlot(axisItems=log_axes()), allan)
     written.append(_export(grid, folder / "gyro_allan.png"))
     return written
 

@@ -14,13 +14,15 @@ from PySide6 import QtCore, QtWidgets
 
 from app.engine.snapshot import Snapshot
 from app.ui.connection import connection_text
+from app.ui.status_bar import ElidingStatusBar
 
 
 class WindowStatus:
     """The status bar, the slow panels and the painted-frame counter."""
 
     def _build_status_bar(self) -> None:
-        bar = self.statusBar()
+        bar = ElidingStatusBar()
+        self.setStatusBar(bar)
         self.state_status = QtWidgets.QLabel("waiting")
         self.time_status = QtWidgets.QLabel("t = –")
         self.rates_status = QtWidgets.QLabel("")

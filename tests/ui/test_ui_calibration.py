@@ -185,3 +185,57 @@ def test_apply_warns_of_an_earth_field_outside_25_to_65_ut(workspace):
     workspace.apply()
     assert "warning: m0 is" in workspace.message.text()
     assert "not the Earth's 25-65 uT" in workspace.message.text()
+
+
+def _no_data_texts(workspace):
+    return ([t.text() for t in workspace.rest.no_data if t.isVisible()],
+            workspace.allan.no_data.text() if workspace.allan.no_data.isVisible() else "",
+            [t.text() for t in workspace.mag.no_data if t.isVisible()])
+
+
+def test_empty_plots_say_no_data_until_a_result_comes(workspace):
+    workspace.show()
+    rest, allan, mag = _no_data_texts(workspace)
+    assert rest == ["no data"] * 15 and allan.startswith("no data") and mag == ["no readings"] * 3
+    for snapshot in snapshots(simulate(duration_s=12.0, script="rest", seed=11)):
+        workspace.feed(snapshot)
+    workspace.rest.start()
+    for snapshot in snapshots(simulate(duration_s=12.0, script="rest", seed=11)):
+        workspace.feed(snapshot)
+    readings = _turning_readings(600)
+    workspace.mag.start_button.click()
+    for k in range(0, len(readings), 60):
+        workspace.feed(Snapshot(seq=k, plot=PlotChunk(t_mag=np.arange(60) * 0.02 + k,
+                                                      mag=readings[k:k + 60])))
+    assert _no_data_texts(workspace) == ([], "", [])
+    workspace.mag.clear_button.click()
+    assert _no_data_texts(workspace)[2] == ["no readings"] * 3
+
+
+def test_the_allan_plots_log_tick_labels_do_not_overlap_at_1280(workspace, qtbot):
+    workspace.resize(880, 520)              # the workspace's share of a 1280x720 window
+    workspace.show()
+    workspace.rest.start()
+    for snapshot in snapshots(simulate(duration_s=14.0, script="rest", seed=4)):
+        workspace.feed(snapshot)
+    workspace.tabs.setCurrentWidget(workspace.allan)
+    qtbot.waitUntil(lambda: workspace.allan.plot_widget.isVisible())
+    for name in ("bottom", "left"):
+        axis = workspace.allan.plot.getAxis(name)
+        low, high = axis.range
+        horizontal = name == "bottom"
+        length = axis.geometry().width() if horizontal else axis.geometry().height()
+        metrics = axis.fontMetrics() if hasattr(axis, "fontMetrics") else \
+            workspace.fontMetrics()
+        spans = []
+        for spacing, values in axis.tickValues(low, high, length):
+            for value, text in zip(values, axis.tickStrings(values, axis.scale, spacing)):
+                if not text:
+                    continue
+                centre = (value - low) / (high - low) * length
+                half = (metrics.horizontalAdvance(text) if horizontal else metrics.height()) / 2
+                spans.append((centre - half, centre + half, text))
+        spans.sort()
+        assert len(spans) >= 2, name
+        overlaps = [(a[2], b[2]) for a, b in zip(spans, spans[1:]) if b[0] < a[1] + 2]
+        assert overlaps == [], name
