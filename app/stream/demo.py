@@ -2,7 +2,7 @@
 
 `write_demo_session` turns `ekf.simulate.simulate` into phone lines (PROTOCOL.md, values as the
 phone's float32 Java text, ORI = the true orientation) and gzips them reproducibly. The committed
-file `resources/demo_session.txt.gz` is its output with the defaults; a test keeps the two equal.
+file `app/resources/demo_session.txt.gz` is its output with the defaults; a test keeps the two equal.
 Regenerate it with ``python -m app.stream.demo``.
 """
 
@@ -19,8 +19,8 @@ import numpy as np
 from app.stream.protocol import Sample, format_line
 from ekf.simulate import SENSOR_TAGS, SimulatedSession, simulate
 
-DEMO_SESSION_PATH = Path(__file__).resolve().parents[2] / "resources" / "demo_session.txt.gz"
-"""Where the committed demo session lives (repository's resources/)."""
+DEMO_SESSION_PATH = Path(__file__).resolve().parents[1] / "resources" / "demo_session.txt.gz"
+"""Where the committed demo session lives (app/resources/, inside the package: a wheel has it)."""
 
 DEMO_RATES_HZ: dict[str, float] = {"gyr": 100.0, "acc": 100.0, "mag": 50.0, "ori": 100.0}
 DEMO_GYRO_BIAS = (0.003, -0.002, 0.004)
@@ -79,7 +79,7 @@ def write_demo_session(path: str | Path, seed: int = 7, duration_s: float = 90.0
                        rates_hz: Mapping[str, float] | None = None,
                        gyro_bias: Sequence[float] = DEMO_GYRO_BIAS) -> Path:
     """Write the demo session as phone text to `path` (gzipped, reproducibly, when it ends in
-    ``.gz``, as resources/demo_session.txt.gz does). Returns the path written."""
+    ``.gz``, as app/resources/demo_session.txt.gz does). Returns the path written."""
     return write_session(demo_session(seed, duration_s, rates_hz, gyro_bias), path)
 
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from ekf.simulate import simulate
 
+from app.stream.demo import DEMO_SESSION_PATH as DEMO_SESSION
 from app.stream.events import CONNECTION_COMMANDS, Chunk, SourceEvent
 from app.stream.lines import LogError, line_starts, pacing_array, read_log_bytes
 from app.stream.netinfo import lan_ipv4_addresses
@@ -29,7 +30,6 @@ _MAX_LINES_PER_CHUNK = 4096
 # wake the engine for every few lines, and the per-chunk Python work would crowd out the GUI.
 # Well under one display frame, so the window still sees every frame's samples in time.
 REPLAY_MIN_INTERVAL_S = 0.01
-DEMO_SESSION = Path(__file__).resolve().parents[2] / "resources" / "demo_session.txt.gz"
 
 
 class Source:
@@ -332,7 +332,7 @@ class SimulatorSource(LineReplaySource):
 
 
 def demo_source(speed: float = 1.0) -> LogFileSource:
-    """The bundled demo session (resources/demo_session.txt.gz), looping at real speed."""
+    """The bundled demo session (app/resources/demo_session.txt.gz), looping at real speed."""
     if not DEMO_SESSION.exists():
         raise LogError(f"{DEMO_SESSION}: demo session missing")
     return LogFileSource(DEMO_SESSION, speed=speed, loop=True)

@@ -18,7 +18,7 @@ def _text(path) -> str:
 
 def test_committed_demo_equals_the_generator_output(tmp_path):
     assert DEMO_SESSION_PATH.is_file(), \
-        "resources/demo_session.txt.gz missing: run python -m app.stream.demo"
+        "app/resources/demo_session.txt.gz missing: run python -m app.stream.demo"
     fresh = write_demo_session(tmp_path / "demo.txt.gz")
     committed, generated = _text(DEMO_SESSION_PATH), _text(fresh)
     if committed != generated:
