@@ -36,6 +36,7 @@ from app.engine.pipeline import Pipeline, Setup
 from app.engine.runner import SENSORS, EstimatorRunner
 from app.engine.session import Marker, SessionInfo, read_session, session_json_for
 from app.stream.sources import LogFileSource
+from app.stream.tags import WIDTHS
 
 FORMATS = ("csv", "log", "mat")
 SEPARATORS = {"comma": ",", "semicolon": ";", "tab": "\t", ",": ",", ";": ";", "\t": "\t"}
@@ -132,7 +133,7 @@ def _session_data(path: Path, source: LogFileSource, session: SessionInfo | None
     group = np.concatenate(([0], np.cumsum(t[1:] != t[:-1])))
     count = int(group[-1]) + 1
     columns = []
-    for code, width in ((0, 3), (1, 3), (2, 3), (3, 4)):
+    for code, width in enumerate(WIDTHS):
         column = np.full((count, width), np.nan)
         chosen = tag == code
         column[group[chosen]] = values[chosen, :width]      # the last of a time wins

@@ -14,87 +14,24 @@ sensor -> ENU, w >= 0. Angles in degrees.
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 
 import ekf
 from ekf import SENSORS, magcal
 from app.engine.compare import ErrorRows, ErrorSums, SameInstant
 from app.engine.innovations import YOURS, InnovationBuffer, InnovationProbe
+from app.engine.runner_rows import (COMBINATIONS, TAG_NAMES, ChunkLayout, Rows, RowsResult,
+                                    combination_name, run_rows, step_rows)
 from app.engine.userfilter.filter import make_estimator
 from app.engine.userfilter.lane import UserLane
 from app.stream.fastparse import samples_to_arrays
-from app.stream.protocol import FILTER_TAGS, Sample
+from app.stream.protocol import Sample
 from app.stream.repeats import Last, repeats
-
-#: The tag codes' names (GYR 0, ACC 1, MAG 2, ORI 3), as the sensors are named elsewhere.
-TAG_NAMES: tuple[str, ...] = tuple(tag.lower() for tag in FILTER_TAGS)
-
-#: The 7 non-empty sensor combinations of the EKF, "gyr+acc+mag" first.
-COMBINATIONS: tuple[tuple[str, ...], ...] = tuple(
-    combo for size in (3, 2, 1) for combo in itertools.combinations(SENSORS, size))
-
-
-def combination_name(sensors: Iterable[str]) -> str:
-    """("gyr", "acc") -> "gyr+acc"."""
-    return "+".join(sensors)
-
-
-@dataclass
-class Rows:
-    """Per distinct phone time (rows in time order).
-
-    t_ms (N,) int64; quat (N, 4) the main estimate after every sample at that time; phone_quat
-    (N, 4) the latest ORI at or before that time (NaN before the first); acc_rejected,
-    mag_rejected, at_rest (N,) bool: the main estimator's lights;
-    has_sample (N,) bool: a GYR, ACC or MAG sample has this time (False: ORI only);
-    user_quat (N, 4): your filter's quaternion (YOURS; NaN where it has none), None when no
-    user filter runs beside the main estimator.
-    """
-
-    t_ms: np.ndarray
-    quat: np.ndarray
-    phone_quat: np.ndarray
-    acc_rejected: np.ndarray
-    mag_rejected: np.ndarray
-    at_rest: np.ndarray
-    has_sample: np.ndarray
-    user_quat: np.ndarray | None = None
-
-    def __len__(self) -> int:
-        return len(self.t_ms)
-
-    @property
-    def t_s(self) -> np.ndarray:
-        return self.t_ms.astype(np.float64) / 1000.0
-
-    @staticmethod
-    def empty() -> Rows:
-        return Rows(np.empty(0, np.int64), np.empty((0, 4)), np.empty((0, 4)),
-                    np.empty(0, bool), np.empty(0, bool), np.empty(0, bool), np.empty(0, bool))
-
-    def select(self, mask: np.ndarray) -> Rows:
-        """The rows where `mask` is true."""
-        return Rows(*(None if getattr(self, name) is None else getattr(self, name)[mask]
-                      for name in self.__dataclass_fields__))
-
-    @staticmethod
-    def concatenate(parts: list[Rows]) -> Rows:
-        """Rows of several pieces, in order (user_quat NaN for pieces without one)."""
-        if not parts:
-            return Rows.empty()
-        user = None
-        if any(part.user_quat is not None for part in parts):
-            user = np.concatenate([np.full((len(part), 4), np.nan) if part.user_quat is None
-                                   else part.user_quat for part in parts])
-        return Rows(*(np.concatenate([getattr(part, name) for part in parts])
-                      for name in Rows.__dataclass_fields__ if name != "user_quat"),
-                    user_quat=user)
+from app.stream.tags import REFERENCE_CODE
 
 
 @dataclass
@@ -110,94 +47,6 @@ class ComparisonState:
 
 
 _NAN4 = (math.nan, math.nan, math.nan, math.nan)
-_jit = njit(cache=True, nogil=True)
-
-
-@_jit
-def _layout(t_ms, tag, row_of, row_t, group_last, group_row, group_ori):
-    """Ordered samples -> estimator rows and distinct-time groups.
-
-    Rows: consecutive sensor samples (GYR 0, ACC 1, MAG 2) of one time with strictly increasing
-    tags, so feeding a row gyr, acc, mag is feeding its samples in their order. row_of[k]: the
-    row of sample k (-1 for ORI, 3). Groups: runs of equal time; group_last its last sample,
-    group_row the latest row at or before it (-1: none in this chunk), group_ori the latest ORI
-    sample at or before it (-1: none). Returns (rows, groups)."""
-    rows = 0
-    groups = 0
-    current = -1
-    current_tag = 0
-    last_ori = -1
-    n = t_ms.shape[0]
-    for k in range(n):
-        t = t_ms[k]
-        if k > 0 and t != t_ms[k - 1]:
-            group_last[groups] = k - 1
-            group_row[groups] = current
-            group_ori[groups] = last_ori
-            groups += 1
-        code = tag[k]
-        if code == 3:
-            last_ori = k
-            row_of[k] = -1
-            continue
-        if current < 0 or t != row_t[current] or code <= current_tag:
-            current = rows
-            row_t[current] = t
-            rows += 1
-        current_tag = code
-        row_of[k] = current
-    if n > 0:
-        group_last[groups] = n - 1
-        group_row[groups] = current
-        group_ori[groups] = last_ori
-        groups += 1
-    return rows, groups
-
-
-class _RowsResult:
-    """Per estimator row: quat (R, 4), flags (R, 3) after the row (acc_rejected, mag_rejected,
-    at_rest), and the acc/mag rejected flag right after the row's ACC/MAG sample."""
-
-    __slots__ = ("quat", "flags", "acc_rejected", "mag_rejected", "cov")
-
-    def __init__(self, quat, flags, acc_rejected, mag_rejected, cov=None) -> None:
-        self.quat = quat
-        self.flags = flags
-        self.acc_rejected = acc_rejected
-        self.mag_rejected = mag_rejected
-        self.cov = cov          # (R, 4, 4) covariance of q after each row (collect_cov only)
-
-
-def _run_rows(estimator: ekf.Estimator, t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
-              mag: np.ndarray) -> _RowsResult:
-    """Feed rows (NaN rows: no such sample) gyr, acc, mag through the estimator's run_batch
-    (one compiled nogil call for the EKFs). A flag is only written by its sensor's update, so
-    the flags after a row are those right after the row's sample."""
-    result = estimator.run_batch(t_s, gyr, acc, mag)
-    flags = np.stack([result.acc_rejected, result.mag_rejected, result.at_rest], axis=1)
-    return _RowsResult(result.quat, flags, result.acc_rejected, result.mag_rejected)
-
-
-def _step_rows(estimator: ekf.Estimator, t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
-               mag: np.ndarray) -> _RowsResult:
-    """What _run_rows gives (step is the filter run_batch runs), plus the covariance of q
-    after each row: one Python step per row, for exports that need P (xhat.P)."""
-    n = len(t_s)
-    quat = np.empty((n, 4))
-    flags = np.zeros((n, 3), bool)
-    cov = np.full((n, 4, 4), np.nan)
-    present = [~np.isnan(column).any(axis=1) for column in (gyr, acc, mag)]
-    for k in range(n):
-        estimator.step(float(t_s[k]), *(column[k] if has[k] else None
-                                         for column, has in zip((gyr, acc, mag), present)))
-        quat[k] = estimator.quat
-        status = estimator.flags
-        flags[k] = (status.acc_rejected, status.mag_rejected, status.at_rest)
-        covariance = estimator.cov
-        if covariance is not None:
-            cov[k] = np.asarray(covariance)[:4, :4]
-    return _RowsResult(quat, flags, flags[:, 0].copy(), flags[:, 1].copy(), cov)
-
 
 
 def _restored(current: ekf.Estimator, snapshot: dict, name: str, settings: ekf.EKFSettings,
@@ -211,39 +60,6 @@ def _restored(current: ekf.Estimator, snapshot: dict, name: str, settings: ekf.E
         estimator = ekf.make_estimator(name, settings, sensors)
         estimator.restore(snapshot)
         return estimator
-
-
-class _ChunkLayout:
-    """A chunk of ordered samples cut into estimator rows and distinct-time groups (_layout).
-
-    row_of (n,): the row of each sample (-1 for ORI); row_t (R,): each row's time; columns: the
-    (R, 3) gyr, acc, mag arrays of the rows (NaN: no such sample); group_last, group_row,
-    group_ori (G,): per distinct time its last sample, the latest row and the latest ORI sample
-    at or before it (-1: none in this chunk); own_sample (G,): a sensor sample has that time."""
-
-    def __init__(self, t_ms: np.ndarray, tag: np.ndarray, values: np.ndarray) -> None:
-        n = len(t_ms)
-        self.t_ms, self.tag, self.values = t_ms, tag, values
-        self.row_of = np.empty(n, np.int64)
-        row_t = np.empty(n, np.int64)
-        group_last = np.empty(n, np.int64)
-        group_row = np.empty(n, np.int64)
-        group_ori = np.empty(n, np.int64)
-        self.n_rows, groups = _layout(t_ms, tag, self.row_of, row_t, group_last, group_row,
-                                      group_ori)
-        self.row_t = row_t[:self.n_rows]
-        self.group_last = group_last[:groups]
-        self.group_row = group_row[:groups]
-        self.group_ori = group_ori[:groups]
-        group_first = np.concatenate(([0], self.group_last[:-1] + 1))
-        self.own_sample = np.maximum.reduceat((tag < 3).astype(np.int8), group_first) > 0
-        self.columns = []
-        for code in range(3):
-            column = np.full((self.n_rows, 3), np.nan)
-            chosen = tag == code
-            if chosen.any():
-                column[self.row_of[chosen]] = values[chosen, :3]
-            self.columns.append(column)
 
 
 class EstimatorRunner:
@@ -495,7 +311,7 @@ class EstimatorRunner:
         continuing = self._row_t is not None and int(t_ms[0]) == self._row_t
         if self._row_t is not None and not continuing:
             self._commit_row()
-        layout = _ChunkLayout(t_ms, tag, values)
+        layout = ChunkLayout(t_ms, tag, values)
         if continuing:
             layout.own_sample[0] |= self._row_has_sample
         # the state before this chunk: what times without a row of their own show
@@ -508,7 +324,7 @@ class EstimatorRunner:
             # here, once, for every estimator; the plot samples stay as the phone sent them.
             mag = magcal.correct(mag, *self._mag_correction)
         probed = self.probe.capture(self.main) if self.probe is not None else None
-        result = (_step_rows if self.collect_cov else _run_rows)(self.main, t_s, gyr, acc, mag)
+        result = (step_rows if self.collect_cov else run_rows)(self.main, t_s, gyr, acc, mag)
         if probed is not None and layout.n_rows:
             self.probe.replay(probed, t_s, gyr, acc, mag)
         # (k, R, 4): the comparisons' estimates after every row
@@ -516,7 +332,7 @@ class EstimatorRunner:
                              else np.empty((0, 4)) for c in self.comparisons]) \
             if self.comparisons else None
         users = None if self.user is None else self.user.run_rows(t_s, gyr, acc, mag)
-        ori = np.flatnonzero(tag == 3)
+        ori = np.flatnonzero(tag == REFERENCE_CODE)
         if len(ori):
             self._add_phone(t_ms[ori], values[ori])
             self.phone_quat = tuple(values[ori[-1]].tolist())
@@ -550,7 +366,7 @@ class EstimatorRunner:
         user = None if self.user is None else self.user.latest.copy()
         return self.main.quat, flags, compare, phone, user
 
-    def _commit_groups(self, layout: _ChunkLayout, result: _RowsResult,
+    def _commit_groups(self, layout: ChunkLayout, result: RowsResult,
                        compared: np.ndarray | None, before: tuple,
                        users: np.ndarray | None = None) -> None:
         """Rows of the distinct times completed in this chunk (the last one stays open until a
@@ -589,7 +405,7 @@ class EstimatorRunner:
         cov = self.main.cov
         return np.full((4, 4), np.nan) if cov is None else np.array(cov, float)[:4, :4]
 
-    def _commit_covariances(self, layout: _ChunkLayout, result: _RowsResult,
+    def _commit_covariances(self, layout: ChunkLayout, result: RowsResult,
                             before: np.ndarray) -> None:
         """collect_cov: the covariance of q at each row committed by _commit_groups."""
         done = len(layout.group_last) - 1
@@ -628,7 +444,7 @@ class EstimatorRunner:
             if len(user_errors):
                 self._user_errors.append(user_errors)
 
-    def _collect_plot(self, layout: _ChunkLayout, result: _RowsResult) -> None:
+    def _collect_plot(self, layout: ChunkLayout, result: RowsResult) -> None:
         rejected = {1: result.acc_rejected, 2: result.mag_rejected}
         for code, name in ((0, "gyr"), (1, "acc"), (2, "mag")):
             chosen = layout.tag == code
@@ -749,3 +565,7 @@ class EstimatorRunner:
                                            else np.empty(0, bool))
         self._reset_plot()
         return out
+
+
+__all__ = ["COMBINATIONS", "SENSORS", "TAG_NAMES", "ComparisonState", "EstimatorRunner", "Rows",
+           "combination_name"]

@@ -26,14 +26,18 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 
+from app.stream.kernels import check_cache, jit
 from app.stream.protocol import (DEFAULT_LIMITS, FILTER_TAGS, MAX_LINE_BYTES, Limits,
                                  LineParser, Sample, parse_line, ParseError)
+from app.stream.tags import (CODES, KERNEL_BOUND_SLOTS, KERNEL_FLOORS, KERNEL_NAMES,
+                             KERNEL_WIDTHS, MAX_WIDTH, N_FILTER_TAGS, REFERENCE_CODE, TABLE_KEY,
+                             WIDTHS)
 
-#: Tag codes of the array form (equal to their priority at equal times: GYR < ACC < MAG < ORI).
-TAG_CODES: dict[str, int] = {tag: code for code, tag in enumerate(FILTER_TAGS)}
-TAG_WIDTHS = (3, 3, 3, 4)
+#: Tag codes of the array form (equal to their priority at equal times: GYR < ACC < MAG < ORI),
+#: and the values each carries (app.stream.tags).
+TAG_CODES: dict[str, int] = CODES
+TAG_WIDTHS = WIDTHS
 
 _POW10 = np.array([float(10 ** k) for k in range(23)])   # exact doubles
 _TWO_POW_53 = 2 ** 53
@@ -43,13 +47,12 @@ _MAX_BAD_EXAMPLES = 20           # LineParser keeps this many example messages
 # Python converts / empty / damaged (reason code below)
 _PYTHON, _FAST, _FAST_SLOW, _EMPTY, _DAMAGED = 0, 1, 2, 3, 4
 #: Reason codes of the lines the kernel finds damaged.
-KERNEL_REASONS = {1: "binary data", 2: "no tag", 3: "bad time", 4: "GYR out of range",
-                  5: "ACC out of range", 6: "MAG out of range", 7: "ORI out of range"}
-
-_jit = njit(cache=True, nogil=True)
+KERNEL_REASONS = {1: "binary data", 2: "no tag", 3: "bad time",
+                  **{4 + code: f"{name} out of range" for code, name in enumerate(FILTER_TAGS)}}
 
 
-@_jit
+
+@jit
 def _number(buf, p, e, pow10):
     """Parse one Java float at buf[p:...] ending at a TAB or at e.
 
@@ -131,13 +134,14 @@ def _number(buf, p, e, pow10):
     return result, p, True
 
 
-@_jit
+@jit
 def _in_bounds(v, tag, bounds):
     """The physical bounds of protocol.check_limits, with the same arithmetic (squared norms
     added left to right against the same squared bounds)."""
-    if tag < 3:
+    slot = KERNEL_BOUND_SLOTS[tag]
+    if slot >= 0:
         norm2 = (v[0] * v[0] + v[1] * v[1]) + v[2] * v[2]
-        return norm2 <= bounds[tag] and (tag == 0 or norm2 >= bounds[5])
+        return norm2 <= bounds[slot] and (not KERNEL_FLOORS[tag] or norm2 >= bounds[5])
     for j in range(4):
         if not -1.0 <= v[j] <= 1.0:
             return False
@@ -145,7 +149,7 @@ def _in_bounds(v, tag, bounds):
     return bounds[3] <= norm2 <= bounds[4]
 
 
-@_jit
+@jit
 def _parse_line(buf, a, b, max_line_bytes, pow10, bounds, out_t, out_tag, out_v, k, slow,
                 n_slow):
     """Line buf[a:b] (b = index of its LF). Fills row k; returns (kind, n_slow, reason): kind
@@ -169,17 +173,16 @@ def _parse_line(buf, a, b, max_line_bytes, pow10, bounds, out_t, out_tag, out_v,
     c0 = buf[p + 1]
     c1 = buf[p + 2]
     c2 = buf[p + 3]
-    if c0 == 71 and c1 == 89 and c2 == 82:        # GYR
-        tag = 0
-    elif c0 == 65 and c1 == 67 and c2 == 67:      # ACC
-        tag = 1
-    elif c0 == 77 and c1 == 65 and c2 == 71:      # MAG
-        tag = 2
-    elif c0 == 79 and c1 == 82 and c2 == 73:      # ORI
-        tag = 3
-    else:
+    tag = -1
+    for code in range(KERNEL_NAMES.shape[0]):
+        if c0 == KERNEL_NAMES[code, 0] and c1 == KERNEL_NAMES[code, 1] \
+                and c2 == KERNEL_NAMES[code, 2]:
+            tag = code
+            break
+    if tag < 0:
         return _PYTHON, n_slow, 0
-    count = 4 if tag == 3 else 3
+    count = KERNEL_WIDTHS[tag]
+    quaternion = KERNEL_BOUND_SLOTS[tag] < 0
     p += 5
     first_slow = n_slow
     for j in range(count):
@@ -202,12 +205,12 @@ def _parse_line(buf, a, b, max_line_bytes, pow10, bounds, out_t, out_tag, out_v,
             n_slow += 1
     if p != e:
         return _PYTHON, first_slow, 0
-    if count == 3:
-        out_v[k, 3] = np.nan
+    for j in range(count, out_v.shape[1]):
+        out_v[k, j] = np.nan
     if n_slow == first_slow:
         if not _in_bounds(out_v[k], tag, bounds):
             return _DAMAGED, first_slow, 4 + tag
-        if count == 4 and out_v[k, 0] < 0.0:   # q and -q: keep w >= 0 (parse_line)
+        if quaternion and out_v[k, 0] < 0.0:   # q and -q: keep w >= 0 (parse_line)
             for j in range(4):
                 out_v[k, j] = -out_v[k, j]
     out_t[k] = t
@@ -215,7 +218,7 @@ def _parse_line(buf, a, b, max_line_bytes, pow10, bounds, out_t, out_tag, out_v,
     return (_FAST if n_slow == first_slow else _FAST_SLOW), n_slow, 0
 
 
-@_jit
+@jit
 def _classify(buf, a, b, max_line_bytes):
     """A line the sample path did not take: (kind, reason) as parse_line would judge it, for
     the cases decided by ASCII bytes alone -- _EMPTY (whitespace only), _DAMAGED for a control
@@ -254,7 +257,7 @@ def _classify(buf, a, b, max_line_bytes):
     return _PYTHON, 0
 
 
-@_jit
+@jit
 def _scan(buf, max_line_bytes, pow10, bounds, out_t, out_tag, out_v, out_kind, out_reason,
           out_start, out_end, out_line, slow):
     """Every LF-terminated line of buf. Empty lines are only counted; every other line gets a
@@ -290,14 +293,14 @@ def _scan(buf, max_line_bytes, pow10, bounds, out_t, out_tag, out_v, out_kind, o
     return n, n_slow, n_empty, ordinal
 
 
-@_jit
+@jit
 def _first_good(buf, max_line_bytes, pow10, bounds, candidates):
     """True when buf holds a complete line the sample path parses within bounds; else False,
     with the spans of up to len(candidates) lines only Python can judge in candidates."""
     out_t = np.empty(1, np.int64)
     out_tag = np.empty(1, np.int64)
-    out_v = np.empty((1, 4))
-    slow = np.empty((4, 4), np.int64)
+    out_v = np.empty((1, MAX_WIDTH))
+    slow = np.empty((MAX_WIDTH, 4), np.int64)
     n_candidates = 0
     line_start = 0
     for p in range(buf.shape[0]):
@@ -349,7 +352,7 @@ class ParsedArrays:
 
     t_ms: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
     tag: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
-    values: np.ndarray = field(default_factory=lambda: np.empty((0, 4)))
+    values: np.ndarray = field(default_factory=lambda: np.empty((0, MAX_WIDTH)))
     line: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
     other: list[tuple[int, Sample]] = field(default_factory=list)
 
@@ -376,7 +379,7 @@ def samples_to_arrays(samples: list[Sample]) -> ParsedArrays:
     rows = [(index, s) for index, s in enumerate(samples) if s.tag in TAG_CODES]
     other = [(index, s) for index, s in enumerate(samples) if s.tag not in TAG_CODES]
     n = len(rows)
-    values = np.full((n, 4), np.nan)
+    values = np.full((n, MAX_WIDTH), np.nan)
     for k, (_, s) in enumerate(rows):
         values[k, :len(s.values)] = s.values
     return ParsedArrays(np.fromiter((s.t_ms for _, s in rows), np.int64, n),
@@ -442,14 +445,14 @@ class FastLineParser(LineParser):
         it leaves (see the module docstring) and bulk counts for the rest."""
         t_ms = np.empty(count, np.int64)
         tag = np.empty(count, np.int64)
-        values = np.empty((count, 4))
+        values = np.empty((count, MAX_WIDTH))
         kind = np.empty(count, np.int8)
         reason = np.empty(count, np.int8)
         starts = np.empty(count, np.int64)
         ends = np.empty(count, np.int64)
         line = np.empty(count, np.int64)
         # a sample line has at least 12 bytes for its at most 4 numbers
-        slow_numbers = np.empty((min(4 * count, len(buffer) // 3 + 4), 4), np.int64)
+        slow_numbers = np.empty((min(MAX_WIDTH * count, len(buffer) // 3 + 4), 4), np.int64)
         n, n_slow, n_empty, lines = _scan(np.frombuffer(buffer, dtype=np.uint8),
                                           self.max_line_bytes, _POW10, self._bounds, t_ms, tag,
                                           values, kind, reason, starts, ends, line,
@@ -462,7 +465,7 @@ class FastLineParser(LineParser):
         keep = (kind[:n] == _FAST) | (kind[:n] == _FAST_SLOW)
         fast = np.flatnonzero(keep)
         good = keep.copy()          # every line that gave a sample: the recorded ones
-        fast_ori = np.flatnonzero(keep & (tag[:n] == 3))
+        fast_ori = np.flatnonzero(keep & (tag[:n] == REFERENCE_CODE))
         first_ori = int(fast_ori[0]) if len(fast_ori) else n
         other = self._python_lines(buffer, kind[:n], reason[:n], starts, ends, line, keep,
                                    good, t_ms, tag, values, base, first_ori)
@@ -488,17 +491,20 @@ class FastLineParser(LineParser):
         rows = np.unique(np.asarray(rows))
         v = values[rows]
         codes = tag[rows]
-        gyr2, acc2, mag2, low2, high2, floor2 = self.limits.squared
+        squared = np.asarray(self.limits.squared)
+        _, _, _, low2, high2, floor2 = self.limits.squared
         with np.errstate(invalid="ignore", over="ignore"):    # inf is out of range: fine
             norm3 = (v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]) + v[:, 2] * v[:, 2]
             norm4 = norm3 + v[:, 3] * v[:, 3]
             ori_ok = (np.abs(v) <= 1.0).all(axis=1) & (low2 <= norm4) & (norm4 <= high2)
-        vector_ok = (norm3 <= np.array([gyr2, acc2, mag2, 0.0])[codes]) \
-            & ((codes == 0) | (norm3 >= floor2))
-        ok = np.where(codes == 3, ori_ok, vector_ok)
+        slots = KERNEL_BOUND_SLOTS[codes]
+        quaternion = slots < 0
+        vector_ok = (norm3 <= squared[np.maximum(slots, 0)]) \
+            & (~KERNEL_FLOORS[codes] | (norm3 >= floor2))
+        ok = np.where(quaternion, ori_ok, vector_ok)
         kind[rows[~ok]] = _DAMAGED
         reason[rows[~ok]] = 4 + codes[~ok]
-        ori = rows[ok & (codes == 3)]
+        ori = rows[ok & quaternion]
         flip = ori[values[ori, 0] < 0.0]
         values[flip] = -values[flip]          # q and -q: keep w >= 0 (parse_line)
 
@@ -552,8 +558,8 @@ class FastLineParser(LineParser):
         stats = self.stats
         stats.good += len(tags)
         per_tag = stats.per_tag
-        counts = np.bincount(tags, minlength=4).tolist()
-        present = [code for code in range(4) if counts[code]]
+        counts = np.bincount(tags, minlength=N_FILTER_TAGS).tolist()
+        present = [code for code in range(N_FILTER_TAGS) if counts[code]]
         if any(FILTER_TAGS[code] not in per_tag for code in present):
             # A tag seen for the first time: keep per_tag in first-seen order, like LineParser.
             present.sort(key=lambda code: int(np.argmax(tags == code)))
@@ -579,6 +585,14 @@ class FastLineParser(LineParser):
             last = stops[np.concatenate((breaks - 1, [len(stops) - 1]))].tolist()
             data = b"".join(buffer[a:b] for a, b in zip(first, last))
         self.raw_block_sink(data, len(starts))
+
+
+@jit
+def _table_key():
+    return TABLE_KEY
+
+
+check_cache(_table_key, globals())
 
 
 def warm_up() -> None:

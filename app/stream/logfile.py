@@ -152,10 +152,10 @@ def samples_to_arrays(samples: list[Sample]) -> LogArrays:
         values = np.array([s.values for s in chosen], dtype=np.float64).reshape(-1, width)
         rows = np.searchsorted(t_ms, tag_times)
         columns[tag][rows] = values   # fancy assignment: the last of duplicate rows wins
-    return LogArrays(t_ms, columns["GYR"], columns["ACC"], columns["MAG"], columns["ORI"])
+    return LogArrays(t_ms, **{tag.lower(): column for tag, column in columns.items()})
 
 
-_WIDTH = {"GYR": 3, "ACC": 3, "MAG": 3, "ORI": 4}
+_WIDTH = dict(zip(FILTER_TAGS, TAG_WIDTHS))
 
 
 class _Collector:

@@ -1,18 +1,51 @@
 """The executable specification of :class:`app.stream.ordering.TimeOrderer`, in plain Python
 (the algorithm is described in :mod:`app.stream.ordering`; tests compare the two), and what
-both share: :class:`OrderStats` and the window rule.
+both share: their parameters (:class:`OrderOptions`), :class:`OrderStats` and the window rule.
 """
 
 from __future__ import annotations
 
 import heapq
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 
 from app.stream.protocol import FILTER_TAGS, TAG_PRIORITY, Sample
 
 _MAX_QUIRKS = 20
 LAG_BUCKET_MS = 5000     # lags are the largest of the current and the previous 5 s of phone time
+
+
+@dataclass(frozen=True)
+class OrderOptions:
+    """The orderers' parameters, in phone ms (their meaning: :mod:`app.stream.ordering`).
+
+    window_ms: the least reorder window; gap_ms: a tag's own clock jumping this far starts a
+    new segment; align_threshold_ms: a tag starting this far from the reference clock is on
+    another clock; max_pending: samples held at most; restart_gap_ms: the pause a looping
+    replay gets; startup_hold_ms: the start-up hold; max_window_ms: the largest window (at
+    least window_ms); late_horizon_ms: how far back a late block may lie; session_gap_ms: a
+    segment starting this much later than the last release starts a new session."""
+
+    window_ms: int = 100
+    gap_ms: int = 2000
+    align_threshold_ms: int = 250
+    max_pending: int = 20_000
+    restart_gap_ms: int = 1500
+    startup_hold_ms: int = 250
+    max_window_ms: int = 500
+    late_horizon_ms: int = 10_000
+    session_gap_ms: int = 600_000
+
+    def __post_init__(self) -> None:
+        for item in fields(self):
+            object.__setattr__(self, item.name, int(getattr(self, item.name)))
+        object.__setattr__(self, "max_window_ms", max(self.max_window_ms, self.window_ms))
+
+    @staticmethod
+    def of(options: OrderOptions | None = None, **overrides: int) -> OrderOptions:
+        """`options` (default: the defaults) with `overrides` by field name (TypeError for a
+        name that is none)."""
+        return replace(options or OrderOptions(), **overrides)
 
 
 @dataclass
@@ -58,20 +91,10 @@ class ReferenceTimeOrderer:
     push(sample) -> the samples released by it (aligned t_ms), flush() at end of stream.
     """
 
-    def __init__(self, window_ms: int = 100, gap_ms: int = 2000,
-                 align_threshold_ms: int = 250, max_pending: int = 20_000,
-                 restart_gap_ms: int = 1500, startup_hold_ms: int = 250,
-                 max_window_ms: int = 500, late_horizon_ms: int = 10_000,
-                 session_gap_ms: int = 600_000) -> None:
-        self.window_ms = int(window_ms)
-        self.gap_ms = int(gap_ms)
-        self.align_threshold_ms = int(align_threshold_ms)
-        self.max_pending = int(max_pending)
-        self.restart_gap_ms = int(restart_gap_ms)
-        self.startup_hold_ms = int(startup_hold_ms)
-        self.max_window_ms = max(int(max_window_ms), self.window_ms)
-        self.late_horizon_ms = int(late_horizon_ms)
-        self.session_gap_ms = int(session_gap_ms)
+    def __init__(self, options: OrderOptions | None = None, **overrides: int) -> None:
+        self.options = OrderOptions.of(options, **overrides)
+        for item in fields(self.options):
+            setattr(self, item.name, getattr(self.options, item.name))
         self.stats = OrderStats(window_ms=self.window_ms)
         self._heap: list[tuple[int, int, int, Sample]] = []
         self._sequence = 0

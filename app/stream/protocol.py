@@ -26,17 +26,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-#: Number of values per numeric tag. ORI also accepts 3 (w reconstructed); see ``_ORI_COUNTS``.
-NUMERIC_TAG_COUNTS: dict[str, int] = {
-    "ACC": 3, "GYR": 3, "MAG": 3, "ORI": 4, "GPS": 3, "PRS": 1, "LGT": 1, "PRX": 1,
-    "TMP": 1, "BAT": 3, "RAWGYR": 6, "RAWMAG": 6,
-}
+from app.stream.tags import BY_NAME, CODES, FILTER_TAGS, OUT_OF_RANGE, TAGS
+
+#: Number of values per numeric tag (app.stream.tags). ORI also accepts 3 (w reconstructed).
+NUMERIC_TAG_COUNTS: dict[str, int] = {tag.name: tag.width for tag in TAGS if not tag.text}
 #: Number of text fields per text tag (kept as strings).
-TEXT_TAG_COUNTS: dict[str, int] = {"RSSWIFI": 4, "RSSCELL": 6, "RSSBLE": 3}
-KNOWN_TAGS: frozenset[str] = frozenset(NUMERIC_TAG_COUNTS) | frozenset(TEXT_TAG_COUNTS)
+TEXT_TAG_COUNTS: dict[str, int] = {tag.name: tag.width for tag in TAGS if tag.text}
+KNOWN_TAGS: frozenset[str] = frozenset(BY_NAME)
 #: The tags the orientation filters use, in the order they are fed at equal times.
-FILTER_TAGS: tuple[str, ...] = ("GYR", "ACC", "MAG", "ORI")
-TAG_PRIORITY: dict[str, int] = {tag: index for index, tag in enumerate(FILTER_TAGS)}
+TAG_PRIORITY: dict[str, int] = CODES
 
 MAX_LINE_BYTES = 4096          # longer lines are discarded (bounded memory whatever a client sends)
 PARSE_ERROR_KINDS = ("damaged", "unknown_tag", "empty", "too_long")
@@ -45,8 +43,7 @@ MAX_TIME_DIGITS = 18   # a time stamp with more digits is damaged (it would not 
 #: Why a line is damaged (ParseStats.damaged_reasons counts each). "binary data": a control byte
 #: (NUL, ...) in the line; "cut off": the connection ended in the middle of the line.
 DAMAGE_REASONS = ("binary data", "no tag", "bad time", "bad tag", "value count", "bad number",
-                  "GYR out of range", "ACC out of range", "MAG out of range", "ORI out of range",
-                  "RAWGYR out of range", "RAWMAG out of range", "cut off")
+                  *OUT_OF_RANGE, "cut off")
 # Control characters that never occur in a text line (TAB, CR, LF and the other whitespace
 # are not among them): one of them makes the line "binary data".
 _CONTROL = re.compile("[\x00-\x08\x0e-\x1b\x7f]")
@@ -145,27 +142,29 @@ def check_limits(tag: str, values: tuple[float, ...], limits: Limits = DEFAULT_L
     """ParseError("damaged", reason "<TAG> out of range") when a value is outside the physical
     bounds (values as written on the line, before the ORI w >= 0 flip)."""
     gyr2, acc2, mag2, ori_low2, ori_high2, floor2 = limits.squared
-    bound = {"GYR": gyr2, "ACC": acc2, "MAG": mag2, "RAWGYR": gyr2, "RAWMAG": mag2}.get(tag)
-    if bound is not None:
-        vectors = (values,) if len(values) == 3 else (values[:3], values[3:])
-        unit = {"GYR": "rad/s", "ACC": "m/s^2", "MAG": "uT"}.get(tag[-3:], "")
+    declared = BY_NAME.get(tag)
+    if declared is None or declared.bound is None:
+        return
+    if declared.bound != "ori":
+        bound = {"gyr": gyr2, "acc": acc2, "mag": mag2}[declared.bound]
+        unit = declared.unit
+        vectors = [values[k:k + 3] for k in range(0, len(values), 3)]
         if not all(_squared_norm(vector) <= bound for vector in vectors):
             raise _damaged(f"{tag} out of range",
                            f"{tag} beyond the physical bound |v| <= {math.sqrt(bound):g} {unit}")
-        if tag in ("ACC", "MAG") and not _squared_norm(values) >= floor2:
+        if declared.floor and not _squared_norm(values) >= floor2:
             raise _damaged(f"{tag} out of range", f"{tag} is a zero vector (|v| < "
                            f"{math.sqrt(floor2):g} {unit}): no reading of a real sensor")
         return
-    if tag == "ORI":
-        norm2 = _squared_norm(values)
-        if len(values) == 3:
-            if norm2 <= ORI3_MAX_NORM * ORI3_MAX_NORM:
-                return
-            raise _damaged("ORI out of range", "ORI with 3 values is not a vector part "
-                           "(norm > 1)")
-        if all(-1.0 <= value <= 1.0 for value in values) and ori_low2 <= norm2 <= ori_high2:
+    norm2 = _squared_norm(values)
+    if len(values) == 3:
+        if norm2 <= ORI3_MAX_NORM * ORI3_MAX_NORM:
             return
-        raise _damaged("ORI out of range", "ORI is not a unit quaternion")
+        raise _damaged(f"{tag} out of range", f"{tag} with 3 values is not a vector part "
+                       "(norm > 1)")
+    if all(-1.0 <= value <= 1.0 for value in values) and ori_low2 <= norm2 <= ori_high2:
+        return
+    raise _damaged(f"{tag} out of range", f"{tag} is not a unit quaternion")
 
 
 def _preview(line: str, limit: int = 80) -> str:

@@ -13,6 +13,7 @@ import time
 from PySide6 import QtCore, QtWidgets
 
 from app.engine.snapshot import Snapshot
+from app.stream.tags import FILTER_TAGS
 from app.ui.connection import connection_text
 from app.ui.status_bar import ElidingStatusBar
 
@@ -57,7 +58,7 @@ class WindowStatus:
                                         f"{snapshot.t_ms / 1000.0:.3f} s")
         _set_text(self.rates_status, "  ".join(f"{tag} {rate:.0f} Hz"
                                                for tag, rate in sorted(health.rates_hz.items())
-                                               if tag in ("ACC", "GYR", "MAG", "ORI") and rate > 0))
+                                               if tag in FILTER_TAGS and rate > 0))
         if health.warnings and health.warnings[-1] != self._last_warning:
             self._last_warning = health.warnings[-1]
             self.statusBar().showMessage(self._last_warning, 8000)
