@@ -88,8 +88,10 @@ ekf.fast                                    ekf.reference
                                             ``ekf.smooth_batch`` (no reference twin)
 ==========================================  ===============================================
 
-(The reference's magnetic-field methods live in ``ekf.reference_field``, a mixin of
-``OrientationEKF``.)
+(The reference's methods live in ``ekf.reference`` and in its mixins of ``OrientationEKF``:
+``ekf.reference_time_update`` (the time update), ``ekf.reference_updates`` (the measurement
+updates, the Joseph update and the normalisation) and ``ekf.reference_field`` (the magnetic
+field reference).)
 
 ``reset``, ``set_enabled``, ``set_settings`` and ``align_heading`` are not per-sample and run in
 Python on the packed array (``ekf.fast.filter``), line by line as in the reference.
