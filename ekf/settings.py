@@ -41,7 +41,7 @@ class EKFSettings:
 
     # --- sensor models --------------------------------------------------------------------
     g: float = _setting(9.81, unit="m/s²", doc="expected ‖a‖ at rest; g⁰ = (0, 0, g)",
-                        above=True)
+                        low=1.0, high=100.0)
     m0: tuple[float, float, float] | None = _setting(
         None, unit="µT (ENU)", shape=(3,),
         doc="Earth field (0, horizontal, vertical); none: from the first magnetometer reading, "

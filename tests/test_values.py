@@ -85,9 +85,9 @@ def test_a_one_key_settings_file_scores_as_the_default_with_that_key(tmp_path, l
 
 
 @pytest.mark.parametrize("key,value,allowed", [
-    ("g", "abc", "a finite number > 0"), ("g", [9.8], "a finite number > 0"),
-    ("g", {"a": 1}, "a finite number > 0"), ("g", True, "a finite number > 0"),
-    ("g", 0, "> 0"), ("g", -9.81, "> 0"), ("acc_gate", -1, '≥ 0 or "inf"'),
+    ("g", "abc", "a finite number 1..100"), ("g", [9.8], "a finite number 1..100"),
+    ("g", {"a": 1}, "a finite number 1..100"), ("g", True, "a finite number 1..100"),
+    ("g", 0, "1..100"), ("g", -9.81, "1..100"), ("g", 3.5e-187, "1..100"), ("acc_gate", -1, '≥ 0 or "inf"'),
     ("exact_discretisation", "yes", "true or false"), ("mag_alpha", 1.5, "0..1"),
     ("mag_strength_update", "sometimes", "'always' or 'accepted'"),
     ("gyr_noise_cov", [[-1e-4, 0, 0], [0, 1e-4, 0], [0, 0, 1e-4]], "positive-definite"),

@@ -56,7 +56,7 @@ def test_a_bad_value_is_refused_and_the_cell_goes_back(panel):
 
 
 @pytest.mark.parametrize("name,text,allowed", [
-    ("acc_gate", "-1", 'a number ≥ 0 or "inf"'), ("g", "0", "a finite number > 0"),
+    ("acc_gate", "-1", 'a number ≥ 0 or "inf"'), ("g", "0", "a finite number 1..100"),
     ("acc_noise_cov", "[1 2 0; 2 1 0; 0 0 1]", "positive-definite"),
     ("acc_lowpass_s", "inf", "a finite number ≥ 0")])
 def test_a_value_outside_its_declaration_is_refused_with_what_is_allowed(panel, name, text,
