@@ -9,6 +9,8 @@ until the window is up. Prints figures; not a test.
   NUMBA_CACHE_DIR points to an empty folder, so every kernel is compiled (a first start after
   `pip install`); warm: the cache `make run` fills. The engine compiles (or loads) its kernels
   before the demo's clock starts, so the demo then begins at 0:00.
+  The cold start is also timed with every kernel compiled in the one process, for comparison
+  with the second process that compiles the stream's kernels meanwhile.
 - window: a fresh interpreter opens the window offscreen on the demo and exits as soon as it
   has been shown (`--exit-after 0`); timed from the interpreter's start to its exit.
 """
@@ -26,8 +28,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 _MOVING = r"""
-import time
+import sys, time
 started = time.perf_counter()
+if "--one-process" in sys.argv:
+    import app.engine.warmup
+    app.engine.warmup._start_stream_helper = lambda: None
 from app.engine.worker import Engine
 from app.stream.sources import demo_source
 engine = Engine(demo_source(), comparisons=True)
@@ -47,13 +52,16 @@ print(f"{prepared - started:.2f} {moving - started:.2f} {position:.2f}")
 """
 
 
-def demo_moving(cache_dir: str | None) -> tuple[float, float, float]:
-    """(kernels ready s, demo moving s, the demo's position then s), from interpreter start."""
+def demo_moving(cache_dir: str | None, one_process: bool = False) -> tuple[float, float, float]:
+    """(kernels ready s, demo moving s, the demo's position then s), from interpreter start;
+    one_process: the warm-up compiles everything itself (no second process for the stream's
+    kernels), for comparison."""
     env = dict(os.environ)
     if cache_dir is not None:
         env["NUMBA_CACHE_DIR"] = cache_dir
     started = time.perf_counter()
-    result = subprocess.run([sys.executable, "-c", _MOVING], cwd=ROOT, env=env,
+    result = subprocess.run([sys.executable, "-c", _MOVING, *(["--one-process"] if one_process
+                                                             else [])], cwd=ROOT, env=env,
                             capture_output=True, text=True, timeout=900)
     spawn = time.perf_counter() - started
     if result.returncode != 0:
@@ -87,6 +95,10 @@ def main() -> int:
             ready, moving, position = demo_moving(empty)
         print(f"cold (empty kernel cache): kernels ready {ready:.1f} s, demo moving {moving:.1f} s "
               f"(at {position:.1f} s into the demo; target <= 30 s)")
+        with tempfile.TemporaryDirectory() as empty:
+            ready, moving, position = demo_moving(empty, one_process=True)
+        print(f"cold, the stream's kernels compiled in the same process (for comparison): "
+              f"demo moving {moving:.1f} s")
     demo_moving(None)                      # fills the cache if anything was missing
     ready, moving, position = demo_moving(None)
     print(f"warm: kernels ready {ready:.1f} s, demo moving {moving:.1f} s "
