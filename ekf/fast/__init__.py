@@ -6,7 +6,9 @@ the declarations (``ekf.fast.layout``: ``S`` and ``C``), so a sample costs one c
 that array, and :meth:`FastEKF.run_batch` is a single compiled loop over ``_step``.
 
 Modules: ``layout`` (generated offsets, packing), ``algebra`` (quaternion helpers, normalisation,
-Joseph update), ``time_update``, ``measurements``, ``steps`` (entry points, ``_step``, batch loop),
+Joseph update), ``time_update``, ``measurements`` (the accelerometer and magnetometer updates and
+their gates), ``field`` (the field reference m0 and its re-learning), ``hard_iron`` (the online
+hard-iron fit), ``steps`` (entry points, ``_step``, batch loop),
 ``filter`` (:class:`FastEKF`), ``_jit`` (decorators and the on-disk cache guard).
 
 The arithmetic is the reference's; only the order of floating-point operations differs where
@@ -42,30 +44,30 @@ ekf.fast                                    ekf.reference
 ``measurements._heading_gain_cap``          ``_heading_gain_cap``
 ``measurements._count_disturbance``         ``_count_disturbance``
 ``measurements._count_passing``             ``_count_passing`` (with ``_count_confirmed``)
-``measurements._learn_reference``           ``_learn_reference``
-``measurements._finish_reference``          ``_finish_reference``
-``measurements._fit_hard_iron``             ``_fit_hard_iron``
-``measurements._open_pair``                 ``_open_pair``
-``measurements._explaining_offset``         ``_explaining_offset`` and ``_choose_offset``
-``measurements._turned_to_stamp``           ``_turned_to_stamp``
-``measurements._acquisition_progress``      ``_acquisition_progress``
-``measurements._known_everywhere``          its smallest-eigenvalue test (the principal
+``field._learn_reference``                  ``_learn_reference``
+``field._finish_reference``                 ``_finish_reference``
+``hard_iron._fit_hard_iron``                ``_fit_hard_iron``
+``hard_iron._open_pair``                    ``_open_pair``
+``hard_iron._explaining_offset``            ``_explaining_offset`` and ``_choose_offset``
+``hard_iron._turned_to_stamp``              ``_turned_to_stamp``
+``hard_iron._acquisition_progress``         ``_acquisition_progress``
+``hard_iron._known_everywhere``             its smallest-eigenvalue test (the principal
                                             minors of M − ACQUIRED_INFO·I, not eigvalsh)
-``measurements._inverse_plus``              (M + d·I)⁻¹ of ``_fit_hard_iron`` and
+``hard_iron._inverse_plus``                 (M + d·I)⁻¹ of ``_fit_hard_iron`` and
                                             ``_acquisition_progress`` (by the adjugate)
-``measurements._check_uncalibrated``        ``_check_uncalibrated``
-``measurements._offset_acquired``           ``_offset_acquired``
-``measurements._turn_rate``                 ``_turn_rate``
-``measurements._unbiased_rate``             ``_unbiased_rate``
-``measurements._track_new_field``           ``_track_new_field``
-``measurements._track_new_field_world``     ``_track_new_field_world``
+``hard_iron._check_uncalibrated``           ``_check_uncalibrated``
+``hard_iron._offset_acquired``              ``_offset_acquired``
+``field._turn_rate``                        ``_turn_rate``
+``field._unbiased_rate``                    ``_unbiased_rate``
+``field._track_new_field``                  ``_track_new_field``
+``field._track_new_field_world``            ``_track_new_field_world``
 ``measurements._mag_heading_update``        ``_mag_heading_update``
 ``measurements._heading_error``             ``_heading_error``
-``measurements._set_m0_from``               ``_set_m0_from``
-``measurements._relearn_field``             ``_relearn_field``
-``measurements._dip_deg``                   ``_dip_deg``
-``measurements._reference_dip_deg``         ``_reference_dip_deg``
-``measurements._elevation_deg``             ``ekf.reference_field._elevation_deg``
+``field._set_m0_from``                      ``_set_m0_from``
+``field._relearn_field``                    ``_relearn_field``
+``field._dip_deg``                          ``_dip_deg``
+``field._reference_dip_deg``                ``_reference_dip_deg``
+``field._elevation_deg``                    ``ekf.reference_field._elevation_deg``
 ``algebra._joseph_update``                  ``_update`` (B = P H^T and S given by the caller)
 ``algebra._measurement_update_q``           ``_update`` with H non-zero in the q columns only
 ``algebra._tilt_only_update_n``             ``_update`` with keep = ``_tilt_only``(q)

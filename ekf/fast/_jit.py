@@ -35,7 +35,7 @@ _OPTIONS = dict(cache=True, fastmath=False, nogil=True, _nrt=False)
 # so that the fixed loops unroll (docs/decisions/compile-time.md).
 jit = njit(**_OPTIONS)
 
-KERNEL_MODULES = ("algebra", "time_update", "measurements", "steps")
+KERNEL_MODULES = ("algebra", "time_update", "field", "hard_iron", "measurements", "steps")
 """The modules of ekf.fast that hold compiled functions (file stems)."""
 
 

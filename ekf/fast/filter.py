@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike
 import ekf.quaternion as quat
 from ekf.estimator import SENSORS, BatchResult, EstimatorBase, batch_rows, ekf_name
 from ekf.fast.layout import S, pack_settings, pack_state, unpack_record, unpack_state
-from ekf.fast.measurements import _reference_dip_deg
+from ekf.fast.field import _reference_dip_deg
 from ekf.fast.steps import ACC, GYR, MAG, _run_batch, _step
 from ekf.outputs import Diagnostics, Flags
 from ekf.settings import EKFSettings

@@ -11,9 +11,10 @@ from ekf.fast.algebra import (_acc_mag_quaternion, _add_attitude_cov, _cross, _q
                               _rotate_world_about_up, _set_attitude_cov, _tilt_quaternion,
                               _to_matrix, _zero_rate_update)
 from ekf.fast.layout import C, S
-from ekf.fast.measurements import (_acc_lowpass_update, _acc_update, _check_uncalibrated,
-                                   _explaining_offset, _fit_hard_iron, _heading_error,
-                                   _mag_update, _set_m0_from, _shaking)
+from ekf.fast.field import _set_m0_from
+from ekf.fast.hard_iron import _check_uncalibrated, _explaining_offset, _fit_hard_iron
+from ekf.fast.measurements import (_acc_lowpass_update, _acc_update, _heading_error, _mag_update,
+                                   _shaking)
 from ekf.fast.time_update import _advance
 from ekf.outputs import ACC_CLIPPED, MAG_UNCALIBRATED
 
