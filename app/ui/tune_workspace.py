@@ -31,6 +31,7 @@ from app.engine import config
 from app.engine.profiles import ProfileStore
 from app.engine.refilter import (PreparedLog, Refilterer, RefilterResult,
                                  angle_between_runs_deg, prepare_path)
+from app.ui.no_data import NoDataText
 from app.ui.settings_panel import SettingsPanel
 from app.ui.tuning import ABCompareView, TuningPanel
 
@@ -50,7 +51,7 @@ class ABPlots(QtWidgets.QWidget):
         self.legend = QtWidgets.QLabel(
             f"<span style='color: rgb{CURRENT_COLOR}'>━ current run</span>&nbsp;&nbsp; "
             f"<span style='color: rgb{GHOST_COLOR}'>╍ ghost (kept run)</span>&nbsp;&nbsp; "
-            f"<span style='color: rgb{DIFFERENCE_COLOR}'>━ current vs ghost</span>")
+            f"<span style='color: rgb{DIFFERENCE_COLOR}'>━ Δ: current vs ghost</span>")
         self.legend.setTextFormat(QtCore.Qt.TextFormat.RichText)
         self.legend.setWordWrap(True)
         self.message = QtWidgets.QLabel(NO_SESSION_TEXT)
@@ -60,11 +61,11 @@ class ABPlots(QtWidgets.QWidget):
         self.graphics.setBackground((250, 250, 252))
         self.plots: dict[str, pg.PlotItem] = {}
         self.curves: dict[tuple[str, str], pg.PlotDataItem] = {}
-        titles = (("total", "total error", "°"), ("heading", "heading error", "°"),
-                  ("difference", "current vs ghost", "°"))
+        titles = (("total", "total", "°"), ("heading", "heading", "°"),
+                  ("difference", "Δ", "°"))
         for row, (key, title, units) in enumerate(titles):
             plot = self.graphics.addPlot(row=row, col=0)
-            plot.setLabel("left", title, units=units)
+            plot.setLabel("left", title, units=units, **{"font-size": "8pt"})
             plot.getAxis("left").enableAutoSIPrefix(False)
             plot.getAxis("left").setWidth(64)
             plot.setClipToView(True)
@@ -82,6 +83,7 @@ class ABPlots(QtWidgets.QWidget):
                 pen=pg.mkPen(CURRENT_COLOR, width=1))
         self.curves[("difference", "current")] = self.plots["difference"].plot(
             pen=pg.mkPen(DIFFERENCE_COLOR, width=1))
+        self.no_data = {key: NoDataText(plot.getViewBox()) for key, plot in self.plots.items()}
         layout = QtWidgets.QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         layout.addWidget(self.legend)
@@ -114,6 +116,14 @@ class ABPlots(QtWidgets.QWidget):
             difference.setData(t, angle_between_runs_deg(current, ghost), connect="finite")
         else:
             difference.setData([], [])
+        has_errors = current is not None and current.errors is not None
+        for key in ("total", "heading"):
+            self.no_data[key].set_text("" if has_errors else
+                                       "no ORI in this session" if current is not None
+                                       else "no data")
+        self.no_data["difference"].set_text(
+            "" if current is not None and ghost is not None else "no ghost: Keep as ghost first"
+            if current is not None else "no data")
         if current is None:
             text = "re-filtering…" if loaded else NO_SESSION_TEXT
         elif current.errors is None:
@@ -125,7 +135,6 @@ class ABPlots(QtWidgets.QWidget):
             text = ""
         self.message.setText(text)
         self.message.setVisible(bool(text))
-
 
     def _fit_errors(self, plot: str, errors: list) -> None:
         """y from 0 to a little above the 99th percentile of both runs: the start, before the

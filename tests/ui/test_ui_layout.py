@@ -151,3 +151,33 @@ def test_the_transport_bar_and_rec_stay_in_every_workspace(make_window, fake_eng
         bar = _rect_in_window(window, window.transport)
         assert window.rect().contains(bar)
         assert not bar.intersects(_rect_in_window(window, window.workspaces.currentWidget()))
+
+
+@pytest.fixture(scope="module")
+def sim_log(tmp_path_factory):
+    from app.stream.demo import write_session
+    from ekf.simulate import simulate
+    path = tmp_path_factory.mktemp("layout") / "sim.txt"
+    write_session(simulate(duration_s=20.0, seed=3), path)
+    return path
+
+
+@pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
+def test_the_tune_plots_axis_titles_stay_apart(qtbot, make_window, fake_engine, sim_log, size):
+    window = _shown(make_window(fake_engine), size)
+    tune = window.tune
+    assert tune.set_log(sim_log)
+    window.workspaces.setCurrentWidget(tune)
+    qtbot.waitUntil(lambda: tune.refilterer.current is not None, timeout=20_000)
+    for _ in range(3):
+        QtWidgets.QApplication.processEvents()
+    plots = tune.ab_plots.plots
+    titles = {key: plot.getAxis("left").label.sceneBoundingRect() for key, plot in plots.items()}
+    for key, plot in plots.items():
+        assert titles[key].height() <= plot.getViewBox().sceneBoundingRect().height() + 1, \
+            (size, key)
+    for (a, first), (b, second) in itertools.combinations(titles.items(), 2):
+        assert not first.intersects(second), (size, a, b)
+    no_data = tune.ab_plots.no_data           # no ghost yet: its plot says so, the errors do not
+    assert no_data["difference"].isVisible() and "ghost" in no_data["difference"].text()
+    assert not no_data["total"].isVisible() and not no_data["heading"].isVisible()
