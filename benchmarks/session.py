@@ -93,7 +93,7 @@ def open_and_seek(folder: Path, seeks: int) -> dict:
     replay = wait(lambda: (r := engine.snapshot_now().replay) and r.get("indexed") and r,
                   600, "the index")
     indexed = time.perf_counter() - started
-    index = engine._replay.index
+    index = engine.replay_lane.manager.index
     rng = np.random.default_rng(7)
     times, replayed = [], []
     try:

@@ -182,7 +182,7 @@ def test_seek_in_a_session_applies_its_recorded_timeline(lines, tmp_path):
     with Engine(source, comparisons=True) as engine:
         replay = wait_indexed(engine)
         assert replay["following_timeline"] and replay["has_timeline"]
-        setup = engine._replay.setup
+        setup = engine.replay_lane.manager.setup
         assert [e["kind"] for e in setup.timeline] == ["sensor", "estimator"]
         for position in (25.0, 8.0, 2.0):            # after both events, between, before
             engine.send(ReplayControl(seek_s=position))
@@ -207,7 +207,7 @@ def test_a_user_change_while_replaying_applies_from_the_start_once_indexed(lines
         engine.send(SetSensorEnabled("acc", False))          # the user's own set-up now
         assert engine.wait_idle()                            # applied: indexing again
         deadline = time.monotonic() + 30
-        while engine._replay.resync or not engine.snapshot_now().replay["indexed"]:
+        while engine.replay_lane.manager.resync or not engine.snapshot_now().replay["indexed"]:
             assert time.monotonic() < deadline
             time.sleep(0.02)
         assert engine.wait_idle()

@@ -1,0 +1,181 @@
+"""The engine's recording lane: recordings started and stopped by command at any time.
+
+:class:`RecordingLane` holds the recording in progress (a
+:class:`~app.engine.recording.SessionRecording`, or None) and the status of the last one. While
+it records, the parser's raw sinks write every line that parses into its raw.txt (except the
+lines a seek replays up to its target, which were not watched), the estimate rows go into its
+estimates.csv and the timeline entries into its session.json. A recording that fails (disk
+full, folder removed, size or free-space limit) stops with a one-line warning while the stream
+and the estimates go on.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from app.engine.commands import StartRecording
+from app.engine.config import ConfigError, megabytes
+from app.engine.health import HealthTracker, stats_dict
+from app.engine.pipeline import Pipeline
+from app.engine.recording import SessionRecording
+from app.engine.session import default_session_folder
+from app.engine.snapshot import StreamHealth
+from app.stream.recorder import DEFAULT_MAX_BYTES, DEFAULT_MIN_FREE_BYTES, new_session_folder
+
+log = logging.getLogger("orientation_lab.engine")
+
+
+class RecordingLane:
+    """The recording in progress (:attr:`current`) and the last one's folder and status.
+    health: where the lane's one-line messages go."""
+
+    def __init__(self, pipeline: Pipeline, health: HealthTracker) -> None:
+        self.pipeline = pipeline
+        self._health = health
+        self.current: SessionRecording | None = None
+        self.last_folder: Path | None = None
+        self.last_status: dict[str, Any] | None = None
+        self._reported = False           # the current recording's error was reported
+
+    @property
+    def active(self) -> bool:
+        return self.current is not None and self.current.active
+
+    def _say(self, text: str) -> None:
+        self._health.warn("recording", text, force=True)
+
+    # -- start and stop --------------------------------------------------------------------------
+
+    def attach(self, recording: SessionRecording) -> None:
+        """Record into `recording` from now on."""
+        self.current = recording
+        self._reported = False
+        self.last_folder = recording.folder
+        self.watch()
+
+    def start(self, command: StartRecording, source_kind: str, peer: str | None,
+              flush: Callable[[], None]) -> None:
+        """StartRecording: a new session folder; flush() first hands the rows so far to their
+        consumers (they belong to before the recording)."""
+        if self.active:
+            self._say(f"already recording into {self.current.folder}")
+            return
+        folder = Path(command.folder) if command.folder else None
+        try:
+            folder = new_session_folder(folder or default_session_folder())
+            max_bytes = DEFAULT_MAX_BYTES if command.max_mb is None else megabytes(command.max_mb)
+            min_free = DEFAULT_MIN_FREE_BYTES if command.min_free_mb is None \
+                else megabytes(command.min_free_mb)
+            pipeline = self.pipeline
+            running = pipeline.fed_total > 0 or pipeline.orderer.pending > 0
+            flush()
+            recording = SessionRecording(
+                folder, pipeline.runner, fed_at_start=pipeline.fed_total,
+                start_state=pipeline.start_state() if running else None,
+                source=source_kind, peer=peer if source_kind == "tcp" else None,
+                max_bytes=max_bytes, min_free_bytes=min_free)
+        except (ConfigError, OSError) as error:
+            self._say(f"cannot record: {error}")
+            self.last_status = {"folder": str(folder or ""), "elapsed_s": 0.0, "bytes": 0,
+                                "lines": 0, "error": f"cannot record: {error}",
+                                "active": False, "at": time.time()}
+            return
+        self.attach(recording)
+        self.event("recording", folder=str(folder))
+        self._say(f"recording into {folder}")
+
+    def stop(self, flush: Callable[[], None], health: StreamHealth) -> bool:
+        """StopRecording: flush() hands the rows up to now to estimates.csv, then the recording
+        closes with the stream's `health`. False when nothing was recording."""
+        if not self.active:
+            self._say("not recording")
+            return False
+        folder = self.current.folder
+        flush()
+        self.close(health)
+        self._say(f"recording saved in {folder}")
+        return True
+
+    def close(self, health: StreamHealth) -> None:
+        """Close the recording (if any) with the stream's `health`; its status stays."""
+        recording, self.current = self.current, None
+        self.pipeline.set_raw_sinks(None, None)
+        if recording is not None:
+            self.last_status = {**recording.status(), "active": False}
+            recording.close(stats_dict(health))
+
+    # -- while recording -----------------------------------------------------------------------
+
+    def watch(self) -> None:
+        """The lines the parser takes go into raw.txt (when recording)."""
+        if self.active:
+            recorder = self.current.recorder
+            self.pipeline.set_raw_sinks(recorder.write_line, recorder.write_block)
+
+    def unwatch(self) -> None:
+        """The lines the parser takes now are not watched (a seek's re-run): not recorded."""
+        self.pipeline.set_raw_sinks(None, None)
+
+    def event(self, kind: str, **data: Any) -> None:
+        """A timeline entry at the latest sample (when recording)."""
+        if self.active:
+            pipeline = self.pipeline
+            self.current.add_event(kind, pipeline.runner.latest_t_ms, pipeline.fed_total, **data)
+
+    def output_starts(self, first_ms: int | None) -> None:
+        """The first output of a recording sets its time origin, as a replay of it counts."""
+        if self.active and self.current.t0_ms is None:
+            self.current.t0_ms = first_ms
+
+    def write_rows(self, rows: Any) -> None:
+        if self.current is not None:
+            warning = self.current.write_rows(rows)
+            if warning:
+                self._health.warn("estimates", warning, force=True)
+
+    def set_peer(self, peer: str | None) -> None:
+        if self.current is not None:
+            self.current.set_peer(peer)
+
+    def set_stats(self, health: StreamHealth) -> None:
+        if self.active:
+            self.current.recorder.set_stats(stats_dict(health))
+
+    def tick(self) -> None:
+        """Once a pass: flush what is due; a recording that stopped (write error, size or
+        free-space limit) is reported once and its estimates.csv stops with it (the session
+        ends there)."""
+        recording = self.current
+        if recording is None:
+            return
+        recording.tick()
+        if recording.error is None or self._reported:
+            return
+        self._reported = True
+        log.error("recording stopped: %s", recording.error)
+        self._say(f"recording stopped: {recording.error} (the stream and the estimates go on)")
+        if recording.estimates is not None:
+            recording.estimates.close()
+            recording.estimates = None
+
+    # -- what the window shows -------------------------------------------------------------------
+
+    def status(self) -> dict[str, Any] | None:
+        """Snapshot.recording: the recording in progress, else the last one's status."""
+        return self.current.status() if self.current is not None else self.last_status
+
+    def text(self) -> str | None:
+        """StreamHealth.recording: "recording into DIR (1.2 MB)" or why it stopped."""
+        recording = self.current
+        if recording is None:
+            if self.last_status and self.last_status.get("error"):
+                return f"recording stopped: {self.last_status['error']}"
+            return None
+        if recording.error is not None:
+            return f"recording stopped: {recording.error}"
+        return (f"recording into {recording.folder} "
+                f"({recording.recorder.bytes_written / 2**20:.1f} MB)")
