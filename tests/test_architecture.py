@@ -5,7 +5,7 @@
 * No import cycle anywhere in app/ or ekf/, function-level imports included (an import hidden in
   a function is still an arrow).
 * Headless modules and commands run with Qt made unimportable, in a fresh interpreter.
-* Sizes: no file in app/ or ekf/ of 900 lines or more, no function over 80 lines.
+* Sizes: no file in app/ or ekf/ over 620 lines (about 600), no function over 80 lines.
 """
 
 from __future__ import annotations
@@ -199,10 +199,10 @@ def _source_files() -> list[Path]:
     return sorted(path for package in PACKAGES for path in (REPO / package).rglob("*.py"))
 
 
-def test_no_file_of_900_lines_or_more():
+def test_no_file_over_about_600_lines():
     sizes = {path.relative_to(REPO).as_posix(): len(path.read_text().splitlines())
              for path in _source_files()}
-    too_long = {name: lines for name, lines in sizes.items() if lines >= 900}
+    too_long = {name: lines for name, lines in sizes.items() if lines > 620}
     assert not too_long
 
 
