@@ -11,6 +11,7 @@ import pytest
 
 import ekf
 from ekf.simulate import simulate
+from fixed_settings import FIXED
 from app.engine import config, tuning
 from app.engine.commands import SetSettings
 from app.engine.offline import evaluate_log, filter_log
@@ -211,7 +212,7 @@ def test_auto_tune_improves_its_recording_and_reports_the_other(noisy_prepared, 
     # fixed, explicit settings with noise covariances far from the simulated phone's (the
     # simulated magnetometer is not late: mag_delay_s 0), so that tuning has something to find
     diag = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
-    base = ekf.PRESETS["default"].with_changes(
+    base = FIXED.with_changes(
         mag_delay_s=0.0, gyr_noise_cov=[[1e-2 * x for x in row] for row in diag],
         acc_noise_cov=[[3.0 * x for x in row] for row in diag],
         mag_noise_cov=[[30.0 * x for x in row] for row in diag])
