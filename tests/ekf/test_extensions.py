@@ -81,13 +81,15 @@ def test_lowpass_cancels_back_and_forth_translation():
         return float(np.sqrt(np.mean(np.sum(np.square(carried), axis=1))))
 
     shaking = float(np.sqrt(np.mean(np.sum(force[t > 2, :2] ** 2, axis=1))))
+
     def kept(amplitude, f_hz):
         return amplitude / math.hypot(1.0, 2 * math.pi * f_hz * 0.75)
 
     expected = math.hypot(kept(6.0, 1.0), kept(3.0, 0.7)) / math.hypot(6.0, 3.0)
     ratio = carried_horizontal_rms(0.75) / shaking
     assert ratio == pytest.approx(expected, abs=0.03)
-    assert carried_horizontal_rms(0.0) / shaking == pytest.approx(1.0)   # switched off: the readings
+    # switched off: the filter sees the readings themselves
+    assert carried_horizontal_rms(0.0) / shaking == pytest.approx(1.0)
 
 
 def test_norm_gate_only_flags_when_lowpass_is_on():
@@ -150,7 +152,7 @@ def _magnet_on_phone(settings, seconds=30.0, hz=100.0):
 def test_settling_keeps_a_magnet_on_the_phone_out_and_is_never_learned():
     """Without the hard-iron fit, a magnet on the phone stays out."""
     s = FIXED.with_changes(mag_relearn_s=5.0, update_period_s=0.0,
-                                        mag_hard_iron_tau_s=0.0)
+                           mag_hard_iron_tau_s=0.0)
     used, m0 = _magnet_on_phone(s)
     # now and then the disturbed reading looks right; settling keeps those out
     assert used.mean() < 0.02
@@ -228,7 +230,7 @@ def test_a_late_magnetometer_reading_is_turned_on_to_its_stamp_for_the_fit():
     offset = np.array([12.0, -5.0, 3.0])
     for d, expect_turned in ((delay, True), (0.0, False)):
         f = OrientationEKF(FIXED.with_changes(mag_delay_s=d,
-                                                           initial_gyro_bias_std=1e-9))
+                                              initial_gyro_bias_std=1e-9))
         for k in range(t.size):
             f.step(t[k], gyr=rate, acc=Q.to_matrix(q[k]).T @ G0)
         f._state.mag_offset_fit[:] = offset
@@ -296,7 +298,7 @@ def test_a_changed_field_is_relearned_in_the_world_frame_while_turning():
     """A new place (another field, fixed in the world) while the phone turns faster than
     mag_relearn_min_rate: after mag_relearn_s of agreeing readings it is the new normal."""
     s = FIXED.with_changes(mag_relearn_s=3.0, update_period_s=0.0,
-                                        mag_hard_iron_tau_s=0.0)
+                           mag_hard_iron_tau_s=0.0)
     rate = np.array([0.0, 0.0, 0.8])          # 46 deg/s about up
     t, q = _turning(rate, 10.0, 100.0)
     f = OrientationEKF(s)
@@ -318,7 +320,7 @@ def test_a_still_phone_learns_no_new_field_and_keeps_its_heading():
     disturbance lasts (the field learned 2 s before is an established one here: a young
     field is the next tests')."""
     s = FIXED.with_changes(mag_relearn_s=3.0, update_period_s=0.0,
-                                        mag_first_relearn_s=0.0)
+                           mag_first_relearn_s=0.0)
     f = OrientationEKF(s)
     turned = Q.to_matrix(Q.from_axis_angle([0, 0, 1], math.radians(30))) @ M0
     headings = []
@@ -580,7 +582,7 @@ def _silent_magnetometer_step(after: float) -> tuple[float, float, float]:
     Returns that update's turn about world up [rad], its change of the bias about up [rad/s]
     and its tilt correction [rad]."""
     s = FIXED.with_changes(update_period_s=0.0, acc_lowpass_s=0.0,
-                                        acc_tilt_only_after_s=after)
+                           acc_tilt_only_after_s=after)
     f = OrientationEKF(s)
     rate = np.array([0.4, -0.3, 0.8])
     t, q = _turning(rate, 7.0, hz=100.0, q0=Q.from_euler(0.3, 0.4, -0.2))
