@@ -4,10 +4,11 @@ path, instant re-filter (A/B, ghost), auto-tune, and the session record."""
 from __future__ import annotations
 
 import json
-import time
 
 import numpy as np
 import pytest
+
+from waiting import wait_until
 
 import ekf
 from ekf.simulate import simulate
@@ -306,10 +307,9 @@ def test_applied_profile_is_recorded_in_the_session(tmp_path, sim_log):
     engine.send(SetSettings(profile.to_settings(), calibration=profile.to_dict(),
                             source="calibration"))
     with engine:
-        deadline = time.monotonic() + 30
-        while engine.poll() is None or engine.snapshot_now().health.connection_state != "finished":
-            assert time.monotonic() < deadline
-            time.sleep(0.05)
+        wait_until(lambda: engine.poll() is not None
+                   and engine.snapshot_now().health.connection_state == "finished", 30,
+                   what="the replay to finish")
     session = json.loads((tmp_path / "session" / "session.json").read_text())
     assert session["calibration"]["profile"]["name"] == "Pixel 7 (desk)"
     assert session["calibration"]["mag_hard_iron"] == OFFSET.tolist()

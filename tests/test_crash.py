@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from waiting import wait_for_snapshot
+
 from ekf.simulate import simulate
 from app.engine.config import open_replay
 from app.engine.worker import Engine
@@ -46,7 +48,7 @@ def test_sigkill_while_recording_loses_at_most_half_a_second(tmp_path):
                 phone.send(block)
                 sent += len(block)
                 marks.append((time.monotonic(), sent))
-                time.sleep(0.01)
+                time.sleep(0.01)                     # the phone's pace: the behaviour under test
                 if time.monotonic() - started > 3.0:
                     break
             killed_at = time.monotonic()
@@ -67,11 +69,8 @@ def test_sigkill_while_recording_loses_at_most_half_a_second(tmp_path):
     source = open_replay(folder, speed=0)
     assert source.torn_lines == torn and source.line_count == raw.count(b"\n")
     with Engine(source, comparisons=False, index=False) as engine:
-        deadline = time.monotonic() + 20
-        while engine.snapshot_now().health.connection_state != "finished" \
-                and time.monotonic() < deadline:
-            time.sleep(0.02)
-        health = engine.snapshot_now().health
+        health = wait_for_snapshot(engine, lambda s: s.health.connection_state == "finished",
+                                   20, "the replay to finish").health
     assert health.connection_state == "finished" and health.damaged == torn
     assert health.lines_total == raw.count(b"\n") + torn
 

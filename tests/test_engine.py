@@ -103,12 +103,8 @@ def test_commands_apply_in_the_engine_thread(tmp_path):
         engine.send(SetEstimator("complementary"))
         engine.send(SetComparisonsEnabled(True))
         engine.send(ReplayControl(step=40))
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline:
-            snapshot = engine.snapshot_now()
-            if snapshot.health.lines_total == 40:
-                break
-            time.sleep(0.02)
+        snapshot = wait_for_snapshot(engine, lambda s: s.health.lines_total == 40, 10,
+                                     "the 40 stepped lines")
         assert snapshot.status.sensors_enabled["mag"] is False
         assert snapshot.status.estimator == "complementary" and len(snapshot.comparisons) == 7
         engine.send(AlignHeading())
@@ -140,10 +136,8 @@ def test_simulated_session_through_tcp_equals_run_offline_and_is_recorded(tmp_pa
                 phone.send(b"".join(lines[start:start + 777])[:-3])
                 phone.send(lines[min(len(lines), start + 777) - 1][-3:])
         _wait_state(engine, "disconnected")
-        deadline = time.monotonic() + 20
-        while engine.snapshot_now().health.lines_total < len(lines) \
-                and time.monotonic() < deadline:
-            time.sleep(0.02)
+        wait_for_snapshot(engine, lambda s: s.health.lines_total >= len(lines), 20,
+                          "every line counted")
     offline = run_offline(read_log(path).samples)
     t_ms = np.concatenate([r.t_ms for r in engine.rows_log])
     quat = np.concatenate([r.quat for r in engine.rows_log])
@@ -159,6 +153,7 @@ def test_a_paced_replay_starts_at_its_beginning_once_the_kernels_are_ready(tmp_p
     import app.engine.worker as worker
 
     released = []
+    # a warm-up that takes 1.5 s: the replay's clock must not start before it is over
     monkeypatch.setattr(worker, "warm_up", lambda: (time.sleep(1.5), released.append(1)))
     path = tmp_path / "log.txt"
     path.write_bytes(b"".join(_log_lines(20.0)))

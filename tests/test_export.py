@@ -4,11 +4,12 @@ command's bad arguments are one line and exit status 2."""
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+from waiting import wait_for_snapshot
 
 import ekf
 from ekf.simulate import simulate
@@ -60,10 +61,8 @@ def _replayed(folder: Path) -> Rows:
     engine = Engine(LogFileSource(folder / "raw.txt", speed=0), record_rows=True, index=False,
                     comparisons=False)
     with engine:
-        deadline = time.monotonic() + 30
-        while engine.snapshot_now().health.connection_state != "finished":
-            assert time.monotonic() < deadline
-            time.sleep(0.02)
+        wait_for_snapshot(engine, lambda s: s.health.connection_state == "finished", 30,
+                          "the replay to finish")
     rows = Rows.concatenate(engine.rows_log)
     return rows.select(rows.has_sample)
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from waiting import wait_for_port, wait_for_snapshot
+from waiting import wait_for_port, wait_for_snapshot, wait_until
 
 import ekf
 from app.cli import main
@@ -251,10 +251,7 @@ def test_repeated_failures_stop_the_engine_cleanly(monkeypatch):
     monkeypatch.setattr(engine._runner, "feed_arrays", always)
     with engine:
         final = _wait(engine, lambda s: s.failures and s.failures[-1].fatal, timeout=30)
-        deadline = time.monotonic() + 5
-        while engine.running and time.monotonic() < deadline:
-            time.sleep(0.02)
-        assert not engine.running
+        wait_until(lambda: not engine.running, 5, what="the engine to stop")
     assert engine.stopped_by_failure
     assert final.health.connection_state == "stopped"
     assert len(final.failures) == 5
@@ -286,7 +283,7 @@ sys.exit(main(["serve", "--host", "127.0.0.1", "--port", "{_free_port()}", "--qu
         with socket.create_connection(("127.0.0.1", port)) as phone:
             for start in range(0, len(payload), 4096):   # several chunks: several batches
                 phone.sendall(payload[start:start + 4096])
-                time.sleep(0.01)
+                time.sleep(0.01)                         # apart, so they arrive apart
         out, err = server.communicate(timeout=60)
     finally:
         if server.poll() is None:

@@ -3,12 +3,11 @@
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pytest
 
-from waiting import wait_for_snapshot
+from waiting import wait_for_snapshot, wait_until
 
 from ekf.simulate import simulate
 from app.engine.checkpoints import comparison_vectors
@@ -119,14 +118,16 @@ def test_seek_then_loop_goes_on_and_each_pass_starts_afresh(lines):
         assert replay["position_s"] == pytest.approx(source.pace[500])   # time into the log
         # and at full speed it keeps looping (no freeze)
         engine.send(ReplayControl(paused=False, speed=0.0))
-        deadline = time.monotonic() + 30
         into: list[int] = []
-        while source.loops < 4 and time.monotonic() < deadline:
+
+        def looped_four_times() -> bool:
+            if source.loops >= 4:
+                return True
             snapshot = engine.snapshot_now()
             if snapshot.t_ms is not None and snapshot.t0_ms is not None:
                 into.append(snapshot.t_ms - snapshot.t0_ms)
-            time.sleep(0.01)
-        assert source.loops >= 4
+            return False
+        wait_until(looped_four_times, 30, what="four loops", poll_s=0.01)
         assert into and max(into) <= 30_100          # time into the session, never beyond
 
 
@@ -206,10 +207,8 @@ def test_a_user_change_while_replaying_applies_from_the_start_once_indexed(lines
         assert engine.wait_idle()
         engine.send(SetSensorEnabled("acc", False))          # the user's own set-up now
         assert engine.wait_idle()                            # applied: indexing again
-        deadline = time.monotonic() + 30
-        while engine.replay_lane.manager.resync or not engine.snapshot_now().replay["indexed"]:
-            assert time.monotonic() < deadline
-            time.sleep(0.02)
+        wait_until(lambda: not engine.replay_lane.manager.resync
+                   and engine.snapshot_now().replay["indexed"], 30, what="indexed again")
         assert engine.wait_idle()
         replay = engine.snapshot_now().replay
         assert not replay["following_timeline"]

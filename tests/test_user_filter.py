@@ -168,7 +168,8 @@ def test_an_endless_loop_is_stopped_at_its_line_and_nothing_else_is_hit(tmp_path
                                       "step() ran for more than 0.2 s and was stopped")
     assert problem.t_s == pytest.approx(1.51) and len(rows) == 300
     assert times_fired() == fired + 1
-    # the watchdog does not fire again into this thread once the call is over
+    # the watchdog does not fire again into this thread once the call is over: a negative wait,
+    # three limits' time of Python code running where a late UserCodeTimeout would land
     deadline = time.monotonic() + 0.6
     while time.monotonic() < deadline:
         sum(range(1000))

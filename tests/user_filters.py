@@ -62,7 +62,7 @@ FILTERS = {
         import time
         class Filter:
             def step(self, t, gyr, acc, mag):
-                time.sleep(0.003)
+                time.sleep(0.003)          # slow on purpose: 3 ms a step
                 return [1.0, 0.0, 0.0, 0.0]
     """,
 }

@@ -25,7 +25,8 @@ def _wait(predicate, timeout: float = 15.0):
 
 class Receiver:
     """A TCP server like the MATLAB kit's reader: accepts connections one after another and
-    keeps what each sent (or, with read=False, reads nothing)."""
+    keeps what each sent (or, with read=False, reads nothing); `ended` counts the connections
+    the sender closed."""
 
     def __init__(self, read: bool = True) -> None:
         self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -36,6 +37,7 @@ class Receiver:
         self.read = read
         self.received: list[bytearray] = []
         self.client: socket.socket | None = None
+        self.ended = 0
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
@@ -53,7 +55,7 @@ class Receiver:
             client.settimeout(0.1)
             while not self._stop.is_set() and self.client is client:
                 if not self.read:
-                    time.sleep(0.05)
+                    time.sleep(0.05)                # reads nothing: the behaviour under test
                     continue
                 try:
                     chunk = client.recv(65536)
@@ -62,6 +64,7 @@ class Receiver:
                 except OSError:
                     break
                 if not chunk:
+                    self.ended += 1
                     break
                 data.extend(chunk)
 
@@ -118,10 +121,15 @@ def test_it_survives_the_receiver_closing_and_reconnects(receiver):
         receiver.hang_up()
         # lines fed while it notices and reconnects are dropped and counted, never queued up
         sent = 0
-        while forwarder.status().connections < 2:
+
+        def reconnected() -> bool:
+            nonlocal sent
+            if forwarder.status().connections >= 2:
+                return True
             forwarder.feed(_lines(1, 100 + sent)[0], 1)
             sent += 1
-            time.sleep(0.002)
+            return False
+        wait_until(reconnected, 15.0, what="the second connection", poll_s=0.002)
         _wait(lambda: len(receiver.received) == 2)
         later = b"".join(_lines(50, 10_000))
         forwarder.feed(later, 1)
@@ -170,7 +178,7 @@ def test_without_a_receiver_lines_are_dropped_and_counted():
     probe.close()                                            # nothing listens there
     with LineForwarder("127.0.0.1", port, reconnect_s=0.05) as forwarder:
         forwarder.feed(b"".join(_lines(10)), 1)
-        time.sleep(0.1)
+        _wait(lambda: forwarder.status().last_error)           # an attempt to connect failed
         status = forwarder.status()
     assert status.dropped_no_receiver == 10 and status.lines_forwarded == 0
     assert status.state == "connecting" and forwarder.status().state == "stopped"
@@ -226,8 +234,9 @@ def test_a_forward_started_and_stopped_by_command_while_the_phone_streams(receiv
             _wait(lambda: engine.snapshot_now().health.forward is None)
             phone.send(b"".join(_lines(500, 9000)))
             _wait(lambda: engine.snapshot_now().health.lines_total >= 2500)
-        time.sleep(0.2)
+            _wait(lambda: receiver.ended == 1)        # the forward's connection is closed
         assert bytes(receiver.received[0]) == data            # nothing after the stop
+        assert len(receiver.received) == 1
         engine.send(SetForward("nonsense:port"))
         note = _wait(lambda: [w for w in engine.snapshot_now().health.warnings
                               if "nonsense" in w or "'port'" in w])

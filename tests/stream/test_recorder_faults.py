@@ -6,7 +6,6 @@ from __future__ import annotations
 import errno
 import os
 import shutil
-import time
 from pathlib import Path
 
 import numpy as np
@@ -107,11 +106,12 @@ def test_a_removed_folder_stops_the_recording(tmp_path):
     recorder = Recorder(folder)
     recorder.write_block(_lines(10), 20)
     shutil.rmtree(folder)
-    deadline = time.monotonic() + 10
-    while recorder.error is None and time.monotonic() < deadline:
+
+    def stopped() -> bool:
         recorder.write_block(_lines(10), 20)
         recorder.tick()
-        time.sleep(0.05)
+        return recorder.error is not None
+    _wait(stopped, 10, what="the recording to stop", poll_s=0.05)
     assert recorder.closed and ("No such file or directory" in recorder.error
                               or "was removed" in recorder.error)
     recorder.close()

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import time
 
+from waiting import wait_until
+
 from app.stream.netinfo import lan_ipv4_addresses, parse_ip_addr_output
 from app.stream.recorder import Recorder
 from app.stream.lines import pacing_times
@@ -15,12 +17,12 @@ from app.stream.events import ReplayControl
 
 def _drain(source, seconds: float = 5.0):
     chunks, events = [], []
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline:
+
+    def finished() -> bool:
         for item in source.read(0.01):
             (chunks if isinstance(item, Chunk) else events).append(item)
-        if events and events[-1].kind == "finished":
-            break
+        return bool(events) and events[-1].kind == "finished"
+    wait_until(finished, seconds, what="the replay's finished event", poll_s=0.0)
     return chunks, events
 
 
@@ -73,11 +75,13 @@ def test_real_speed_replay_takes_log_time():
 
 
 def test_recorder_writes_raw_and_session_json(tmp_path):
-    recorder = Recorder(tmp_path / "session", settings={"g": 9.81}, info={"source": "tcp"})
+    now = [100.0]
+    recorder = Recorder(tmp_path / "session", settings={"g": 9.81}, info={"source": "tcp"},
+                        clock=lambda: now[0])
     recorder.write_line(b"1\tACC\t1\t2\t3\r\n")
     recorder.add_event("sensor", 1, sensor="mag", enabled=False)
     recorder.set_stats({"lines": 1})
-    time.sleep(0.45)
+    now[0] += 0.45
     recorder.tick()                                    # flushed within half a second
     assert (tmp_path / "session" / "raw.txt").read_bytes() == b"1\tACC\t1\t2\t3\r\n"
     recorder.close()

@@ -61,7 +61,7 @@ def test_split_lines_crlf_and_garbage(engine):
         for index in range(0, len(data), 7):          # 7-byte pieces split every line
             phone.send(data[index:index + 7])
             if index % 700 == 0:
-                time.sleep(0.001)
+                time.sleep(0.001)                 # now and then apart, so pieces arrive apart
     health = _wait(lambda: (h := _health(engine)).connection_state == "disconnected" and h)
     assert health.lines_total == 152 and health.damaged == 1 and health.unknown == 1
     rows = sum(len(r) for r in engine.rows_log)

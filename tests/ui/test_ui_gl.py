@@ -8,6 +8,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +42,19 @@ def _screen_pixels(pixels: np.ndarray) -> np.ndarray:
     return (blue > 100) & (blue > red + 60) & (blue > green + 40) & (red < 90) & (green < 125)
 
 
+@contextmanager
+def _painted(qtbot, gl_view):
+    """After the block, wait until Qt has painted gl_view (with what the block changed)."""
+    before = gl_view.frames_painted
+    yield
+    qtbot.waitUntil(lambda: gl_view.frames_painted > before, timeout=5000)
+
+
+def _painted_once(qtbot, *views) -> None:
+    """Until Qt has painted each view's 3D scene at least once."""
+    qtbot.waitUntil(lambda: all(view.gl_view.frames_painted > 0 for view in views), timeout=5000)
+
+
 def _render(qtbot, window, quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     snapshot = make_snapshot(1, 0.0)
     snapshot.own_quat = quat
@@ -50,8 +64,8 @@ def _render(qtbot, window, quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     window.tick()
     images = []
     for view in (window.own_view, window.phone_view):
-        view.gl_view.update()
-        qtbot.wait(50)
+        with _painted(qtbot, view.gl_view):
+            view.gl_view.update()
         images.append(_pixels(view.grab_image()))
     if os.environ.get("ORIENTATION_LAB_DUMP"):
         QtGui.QImage(images[0].data, images[0].shape[1], images[0].shape[0], 3 * images[0].shape[1],
@@ -66,7 +80,7 @@ def test_both_views_draw_a_phone_that_turns_with_the_quaternion(make_window, qtb
     window.resize(1400, 900)
     window.show()
     qtbot.waitExposed(window)
-    qtbot.wait(100)
+    _painted_once(qtbot, window.own_view, window.phone_view)
     flat = np.array([1.0, 0.0, 0.0, 0.0])
     # Screen towards the camera (south): 90° about x tips the top of the phone up.
     upright = np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0])
@@ -96,20 +110,15 @@ def test_uncertainty_rings_appear_and_hide(make_window, qtbot):
     quat = np.array([1.0, 0.0, 0.0, 0.0])
     view.set_orientation(quat, np.eye(4) * 4e-3)
     assert all(ring.visible() for ring in view._scene.rings)
-    view.gl_view.update()
-    qtbot.wait(50)
+    with _painted(qtbot, view.gl_view):
+        view.gl_view.update()
     with_rings = _pixels(view.grab_image())
-    window.controls.uncertainty_checkbox.setChecked(False)
-    assert not any(ring.visible() for ring in view._scene.rings)
-    view.gl_view.update()
-    qtbot.wait(50)
+    with _painted(qtbot, view.gl_view):
+        window.controls.uncertainty_checkbox.setChecked(False)
+        assert not any(ring.visible() for ring in view._scene.rings)
+        view.gl_view.update()
     without_rings = _pixels(view.grab_image())
     assert (np.abs(with_rings.astype(int) - without_rings.astype(int)).sum(axis=2) > 60).sum() > 50
-
-
-def _settle(qtbot) -> None:
-    """Let Qt paint what is pending."""
-    qtbot.wait(60)
 
 
 def test_a_view_renders_again_only_when_its_picture_changes(make_window, qtbot):
@@ -118,21 +127,21 @@ def test_a_view_renders_again_only_when_its_picture_changes(make_window, qtbot):
     window.show()
     qtbot.waitExposed(window)
     view = window.phone_view
-    qtbot.wait(100)
-    view.set_orientation(quat_about_z(30.0))
-    _settle(qtbot)
+    _painted_once(qtbot, view)
+    with _painted(qtbot, view.gl_view):
+        view.set_orientation(quat_about_z(30.0))
     rendered, painted = view.gl_view.frames_rendered, view.gl_view.frames_painted
     first = _pixels(view.grab_image())
     # The same pose (and noise far below a pixel) repaints from the stored image.
-    view.set_orientation(quat_about_z(30.0 + 1e-4))
-    QtWidgets.QWidget.update(view.gl_view)      # a repaint Qt asks for (e.g. an expose)
-    _settle(qtbot)
+    with _painted(qtbot, view.gl_view):
+        view.set_orientation(quat_about_z(30.0 + 1e-4))
+        QtWidgets.QWidget.update(view.gl_view)      # a repaint Qt asks for (e.g. an expose)
     assert view.gl_view.frames_rendered == rendered + 0
     assert view.gl_view.frames_painted > painted
     np.testing.assert_array_equal(_pixels(view.grab_image()), first)
     # A visible turn renders once more, and the picture changes.
-    view.set_orientation(quat_about_z(60.0))
-    _settle(qtbot)
+    with _painted(qtbot, view.gl_view):
+        view.set_orientation(quat_about_z(60.0))
     assert view.gl_view.frames_rendered == rendered + 1
     turned = _pixels(view.grab_image())
     assert (np.abs(turned.astype(int) - first.astype(int)).sum(axis=2) > 60).mean() > 0.005
@@ -144,17 +153,17 @@ def test_the_camera_orbits_and_resets(make_window, qtbot):
     window.show()
     qtbot.waitExposed(window)
     view = window.own_view
-    view.set_orientation(quat_about_z(0.0))
-    _settle(qtbot)
+    with _painted(qtbot, view.gl_view):
+        view.set_orientation(quat_about_z(0.0))
     home = _pixels(view.grab_image())
     rendered = view.gl_view.frames_rendered
-    view.gl_view.orbit(60.0, 20.0)                 # what dragging with the mouse does
-    _settle(qtbot)
+    with _painted(qtbot, view.gl_view):
+        view.gl_view.orbit(60.0, 20.0)             # what dragging with the mouse does
     assert view.gl_view.frames_rendered > rendered
     orbited = _pixels(view.grab_image())
     assert (np.abs(orbited.astype(int) - home.astype(int)).sum(axis=2) > 60).mean() > 0.01
-    view.reset_camera_button.click()
-    _settle(qtbot)
+    with _painted(qtbot, view.gl_view):
+        view.reset_camera_button.click()
     np.testing.assert_array_equal(_pixels(view.grab_image()), home)
 
 
@@ -170,16 +179,16 @@ def test_linked_cameras_turn_together_and_no_data_greys_the_view_out(make_window
     assert phone.camera()["azimuth"] == pytest.approx(own.camera()["azimuth"])
     assert phone.camera()["elevation"] == pytest.approx(own.camera()["elevation"])
     window.set_cameras_linked(False)
-    own.gl_view.orbit(40.0, 0.0)
-    own.gl_view.camera_changed.emit()
+    with _painted(qtbot, own.gl_view):
+        own.gl_view.orbit(40.0, 0.0)
+        own.gl_view.camera_changed.emit()
     assert phone.camera()["azimuth"] != pytest.approx(own.camera()["azimuth"])
     # before any data the view is greyed out and says so; a phone appears with the first pose
     assert own.gl_view.overlay_text == "waiting for data"
-    _settle(qtbot)
     waiting = _pixels(own.grab_image())
-    own.set_orientation(quat_about_z(0.0))
+    with _painted(qtbot, own.gl_view):
+        own.set_orientation(quat_about_z(0.0))
     assert own.gl_view.overlay_text == ""
-    _settle(qtbot)
     shown = _pixels(own.grab_image())
     assert shown.std() > waiting.std()
 
@@ -229,8 +238,8 @@ def test_yours_draws_a_third_phone_turned_by_your_filter(make_window, qtbot):
     assert window.user_view.isVisible() and window.user_view.gl_view is not None
     images = []
     for view in (window.own_view, window.user_view):
-        view.gl_view.update()
-        qtbot.wait(50)
+        with _painted(qtbot, view.gl_view):
+            view.gl_view.update()
         images.append(_screen_pixels(_pixels(view.grab_image())))
     own, yours = images
     assert own.sum() > 200 and yours.sum() > 200            # both draw the phone's screen

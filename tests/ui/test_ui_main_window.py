@@ -48,9 +48,10 @@ def test_snapshot_stream_drives_views_lights_plots_and_counters(make_window, fak
     snapshot.health.warnings = ["ACC rate dropped to 20 Hz"]
     fake_engine.snapshots.append(snapshot)
     window.tick()
-    # Text panels follow at their own pace, even when no new snapshot comes.
-    qtbot.wait(int(1000 * PANEL_INTERVAL_S) + 30)
-    window.tick()
+    # Text panels follow at their own pace, even when no new snapshot comes (the window's timer
+    # ticks on).
+    qtbot.waitUntil(lambda: "17 damaged" in window.connection.problems_label.text(),
+                    timeout=int(1000 * PANEL_INTERVAL_S) + 2000)
     assert window.snapshots_received == 5
     np.testing.assert_allclose(window.own_view.quat, snapshot.own_quat)
     np.testing.assert_allclose(window.phone_view.quat, snapshot.phone_quat)
@@ -87,20 +88,23 @@ def test_text_panels_follow_at_a_lower_rate_and_only_change_when_the_text_does(
         np.testing.assert_allclose(window.own_view.quat, snapshot.own_quat)
     assert window.plots.buffers["acc"].size == 5 * 50
     assert "3 out of order" in window.connection.problems_label.text()
-    qtbot.wait(int(1000 * PANEL_INTERVAL_S) + 30)
-    window.tick()
-    assert "105 out of order" in window.connection.problems_label.text()
+    qtbot.waitUntil(lambda: "105 out of order" in window.connection.problems_label.text(),
+                    timeout=int(1000 * PANEL_INTERVAL_S) + 2000)
     # The same text again does not touch the labels.
     calls = []
     original = QtWidgets.QLabel.setText
     monkeypatch.setattr(QtWidgets.QLabel, "setText",
                         lambda label, text: (calls.append(text), original(label, text)))
+    refreshed = []
+    refresh_panels = window.refresh_panels
+    monkeypatch.setattr(window, "refresh_panels",
+                        lambda: (refresh_panels(), refreshed.append(window.ticks)))
     repeat = make_snapshot(5, 2.0)
     repeat.health.out_of_order = 105
     fake_engine.snapshots.append(repeat)
     window.tick()
-    qtbot.wait(int(1000 * PANEL_INTERVAL_S) + 30)
-    window.tick()
+    qtbot.waitUntil(lambda: bool(refreshed), timeout=int(1000 * PANEL_INTERVAL_S) + 2000)
+    assert window.snapshots_received == 6                   # the panels have shown the repeat
     assert not [text for text in calls if "out of order" in text or text.startswith("t = ")]
 
 
@@ -109,9 +113,13 @@ def test_frame_rate_counts_painted_frames_not_timer_ticks(make_window, fake_engi
     window.timer.stop()                         # ticks by hand only
     window.show()
     qtbot.waitExposed(window)
-    for _ in range(2):                          # the empty plots, then after the layout settled
+
+    def settled() -> bool:                      # the empty plots painted, the layout settled:
+        before = window.frames_painted          # a tick with nothing new paints nothing
         window.tick()
-        qtbot.wait(200)
+        QtWidgets.QApplication.processEvents()
+        return before > 0 and window.frames_painted == before
+    qtbot.waitUntil(settled, timeout=5000)
     painted, ticks = window.frames_painted, window.ticks
     for _ in range(5):                          # ticks with nothing new draw nothing
         window.tick()
@@ -119,7 +127,7 @@ def test_frame_rate_counts_painted_frames_not_timer_ticks(make_window, fake_engi
     assert window.frames_painted == painted and window.ticks == ticks + 5
     _feed(window, fake_engine, 1)               # new samples: one frame, however many paints
     qtbot.waitUntil(lambda: window.frames_painted == painted + 1, timeout=2000)
-    qtbot.wait(50)
+    qtbot.wait(50)          # a negative wait: the other widgets' paints are not more frames
     assert window.frames_painted == painted + 1
     assert window.frames_per_second() >= 1
 

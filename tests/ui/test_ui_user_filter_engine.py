@@ -3,7 +3,6 @@ consistency view (OWN and YOURS innovations) and a third PhoneView fed snapshot.
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -41,22 +40,22 @@ def test_the_widgets_draw_a_real_engine_s_snapshots(qtbot, tmp_path):
     for widget in (panel, view, yours):
         qtbot.addWidget(widget)
     view.show()                                   # asks the engine for our innovations
+    shown = []
+
+    def show_the_latest_until_finished() -> bool:
+        snapshot = engine.poll()
+        if snapshot is None:
+            return False
+        shown.append(snapshot)
+        view.apply_snapshot(snapshot)
+        panel.update_status(snapshot.user)
+        if snapshot.user is not None:
+            yours.set_orientation(snapshot.user.quat, snapshot.user.cov)
+        return snapshot.health.connection_state == "finished"
     with engine:
-        deadline = time.monotonic() + 30
-        snapshot = None
-        while time.monotonic() < deadline:
-            qtbot.wait(20)
-            polled = engine.poll()
-            if polled is None:
-                continue
-            snapshot = polled
-            view.apply_snapshot(snapshot)
-            panel.update_status(snapshot.user)
-            if snapshot.user is not None:
-                yours.set_orientation(snapshot.user.quat, snapshot.user.cov)
-            if snapshot.health.connection_state == "finished":
-                break
-    assert snapshot is not None and snapshot.user.state == "running"
+        qtbot.waitUntil(show_the_latest_until_finished, timeout=30_000)
+    snapshot = shown[-1]
+    assert snapshot.user.state == "running"
     assert "course_ekf.py" in panel.file_label.text() and "running" in panel.state_label.text()
     assert view.series[(0, 0)].size > 200 and view.series[(1, 0)].size > 200   # OWN, YOURS acc
     view.source_combo.setCurrentIndex(1)
