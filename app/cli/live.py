@@ -7,6 +7,7 @@ exit status 2, without a traceback.
 from __future__ import annotations
 
 import argparse
+import itertools
 import logging
 import signal
 import sys
@@ -21,7 +22,7 @@ from app.engine.snapshot import Snapshot, lag_text
 from app.engine.worker import Engine
 from app.stream.emulator import PhoneEmulator
 from app.stream.forwarder import LineForwarder
-from app.stream.lines import LogError, read_lines
+from app.stream.lines import LogError, line_blocks
 from app.stream.protocol import reasons_text
 from app.stream.recorder import Recorder
 
@@ -29,16 +30,22 @@ from app.stream.recorder import Recorder
 # ---- send ---------------------------------------------------------------------------------------
 
 def cmd_send(args: argparse.Namespace) -> int:
+    path = config.resolve_log_path(args.log)
+    first_pass = line_blocks(path)
     try:
-        lines = read_lines(config.resolve_log_path(args.log))
+        # a file that cannot be sent (missing, binary, empty) is one line before connecting
+        passes = [itertools.chain([next(first_pass)], first_pass)]
     except LogError as error:
         raise config.ConfigError(str(error)) from None
     stop = threading.Event()
     try:
         with PhoneEmulator(args.host, args.port) as phone:
-            sent = phone.stream_lines(lines, args.speed, args.loop, stop)
+            sent = phone.stream_blocks(lambda: passes.pop() if passes else line_blocks(path),
+                                       args.speed, args.loop, stop)
     except KeyboardInterrupt:
         return 130
+    except LogError as error:           # the file broke off while it was being sent
+        raise config.ConfigError(str(error)) from None
     except OSError as error:
         raise config.ConfigError(f"cannot send to {args.host}:{args.port}: "
                                  f"{error.strerror or error}") from None

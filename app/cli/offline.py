@@ -15,7 +15,9 @@ import contextlib
 import dataclasses
 import math
 import os
+import shutil
 import sys
+import tempfile
 import traceback
 from collections.abc import Callable
 from pathlib import Path
@@ -26,32 +28,57 @@ import ekf
 from ekf.simulate import simulate
 from app.cli import options
 from app.engine import config, estimates
-from app.engine.offline import evaluate_log, evaluate_phone, filter_log, sibling_truth
+from app.engine.offline import (LogScan, evaluate_log, evaluate_phone, filter_rows, scan_log,
+                                sibling_truth)
 from app.engine.outputs import atomic_output, check_output
 from app.engine.session import read_session, session_json_for
 from app.engine.userfilter.filter import UserFilterEstimator
 from app.engine.userfilter.template import write_template
 from app.stream.demo import write_session
-from app.stream.logfile import LogData
+from app.stream.lines import LogError
+from app.stream.logfile import LogData, LogFile, LogStats
 
 
 def read_log(path: str, limits=None) -> LogData:
-    """The log, with its one-line summary (damage by reason, clock quirks) on stderr."""
+    """The whole log in memory (calibrate, tune), with its one-line summary (damage by reason,
+    clock quirks) on stderr."""
     log = config.open_log(path, limits or config.sensor_limits(""))
-    summary = log.stats.summary()
-    if summary:
-        print(summary if summary.startswith(Path(path).name) else f"{path}: {summary}",
-              file=sys.stderr)
+    _print_summary(path, log.stats)
     return log
 
 
-def check_estimable(log: LogData, sensors: tuple[str, ...]) -> None:
+def _print_summary(path: str, stats: LogStats | None) -> None:
+    summary = stats.summary() if stats is not None else ""
+    if summary:
+        print(summary if summary.startswith(Path(path).name) else f"{path}: {summary}",
+              file=sys.stderr)
+
+
+def scan(path: str, limits=None, ori: bool = False) -> tuple[LogFile, LogScan]:
+    """The log to read chunk by chunk (filter, evaluate: memory does not grow with it) and
+    what a first pass over it found, its summary on stderr."""
+    log = config.log_file(path, limits or config.sensor_limits(""))
+    with _log_errors():
+        found = scan_log(log, ori=ori)
+    _print_summary(path, found.stats)
+    return log, found
+
+
+@contextlib.contextmanager
+def _log_errors():
+    """A log that turns out unreadable while it is read (a damaged gzip stream, binary data, no
+    line of the phone's format) is one line."""
+    try:
+        yield
+    except LogError as error:
+        raise config.ConfigError(str(error)) from None
+
+
+def check_estimable(log: LogScan, sensors: tuple[str, ...]) -> None:
     """ConfigError (one line) when no estimate can be made from the log with these sensors:
     none of them in it, or no accelerometer (nothing gives down; the estimate would be the
     identity, or a turn from it)."""
-    arrays = log.to_arrays()
-    present = [name for name in ("gyr", "acc", "mag")
-               if bool(np.isfinite(getattr(arrays, name)[:, 0]).any())]
+    present = [name for name in ("gyr", "acc", "mag") if log.present[name]]
     used = [name for name in present if name in sensors]
     tags = ", ".join(name.upper() for name in present) or "no GYR, ACC or MAG"
     if not used:
@@ -62,20 +89,34 @@ def check_estimable(log: LogData, sensors: tuple[str, ...]) -> None:
                                  f"samples (nothing gives down); the log holds {tags} only")
 
 
-def check_finite(name: str, quat: np.ndarray, t_ms: np.ndarray, settings: object) -> None:
+class FiniteCheck:
     """ConfigError (one line) when a built-in estimator's estimate stops being finite: its
-    settings are within their declared ranges but beyond what the filter can compute."""
-    bad = ~np.isfinite(quat).all(axis=1)
-    if not bad.any():
-        return
-    base = ekf.PRESETS["default"]
-    changed = [f.name for f in dataclasses.fields(base) if settings is not None
-               and getattr(settings, f.name) != getattr(base, f.name)]
-    which = (f"; changed from the default preset: {', '.join(changed[:4])}"
-             f"{' ...' if len(changed) > 4 else ''}" if changed else "")
-    first = (int(t_ms[np.argmax(bad)]) - int(t_ms[0])) / 1000.0
-    raise config.ConfigError(f"the {name} estimate is not finite from {first:.2f} s on: the "
-                             f"settings are beyond what the filter can compute{which}")
+    settings are within their declared ranges but beyond what the filter can compute. Fed the
+    rows piece by piece (:meth:`check`); times count from the first row."""
+
+    def __init__(self, name: str, settings: object) -> None:
+        self.name = name
+        self.settings = settings
+        self.first_ms: int | None = None
+
+    def check(self, quat: np.ndarray, t_ms: np.ndarray) -> None:
+        if not len(t_ms):
+            return
+        if self.first_ms is None:
+            self.first_ms = int(t_ms[0])
+        bad = ~np.isfinite(quat).all(axis=1)
+        if not bad.any():
+            return
+        base = ekf.PRESETS["default"]
+        settings = self.settings
+        changed = [f.name for f in dataclasses.fields(base) if settings is not None
+                   and getattr(settings, f.name) != getattr(base, f.name)]
+        which = (f"; changed from the default preset: {', '.join(changed[:4])}"
+                 f"{' ...' if len(changed) > 4 else ''}" if changed else "")
+        first = (int(t_ms[np.argmax(bad)]) - self.first_ms) / 1000.0
+        raise config.ConfigError(f"the {self.name} estimate is not finite from {first:.2f} s "
+                                 f"on: the settings are beyond what the filter can compute"
+                                 f"{which}")
 
 
 def settings_of(args: argparse.Namespace, names: list[str]) -> tuple[object, str]:
@@ -209,35 +250,48 @@ def _filter(args: argparse.Namespace) -> int:
     if args.output:
         check_output(args.output, args.log, args.settings if args.settings
                      and args.settings.endswith(".json") else None)
-    log = read_log(args.log, args.limits)
-    check_estimable(log, sensors)
+    log, found = scan(args.log, args.limits)
+    check_estimable(found, sensors)
     print(f"{args.log}: settings: {which}", file=sys.stderr)
+    finite = None if isinstance(estimator, UserFilterEstimator) else FiniteCheck(
+        names[0], settings or ekf.PRESETS["default"])
+    # The rows are written as they come, to the output's temporary file (or, for stdout, a
+    # spooled one): nothing is written when the run fails on the way.
     try:
-        with contextlib.redirect_stdout(sys.stderr):   # what the user's code prints: not the CSV
-            rows = filter_log(log, names[0] if args.smooth else estimator, settings, sensors,
-                              smooth=args.smooth)
-    except ValueError as error:
-        raise config.ConfigError(f"filter: {error}") from None
-    if not report_user_filter(estimator, args.traceback):
+        with (atomic_output(args.output, "w", encoding="ascii", newline="\n") if args.output
+              else tempfile.SpooledTemporaryFile(1 << 23, "w+", encoding="ascii",
+                                                 newline="\n")) as stream:
+            stream.write(estimates.HEADER + "\n")
+            with contextlib.redirect_stdout(sys.stderr), _log_errors():
+                # what the user's code prints goes to stderr: not the CSV
+                for rows in filter_rows(log, names[0] if args.smooth else estimator, settings,
+                                        sensors, smooth=args.smooth):
+                    if finite is not None:
+                        finite.check(rows.quat, rows.t_ms)
+                    estimates.write_rows(rows, stream)
+            if not report_user_filter(estimator, args.traceback):
+                raise _NothingWritten
+            if not args.output:
+                stream.seek(0)
+                shutil.copyfileobj(stream, sys.stdout, 1 << 20)
+    except _NothingWritten:
         print("orientation-lab: no estimates written", file=sys.stderr)
         return 1
-    if not isinstance(estimator, UserFilterEstimator) and len(rows.t_ms):
-        check_finite(names[0], rows.quat, rows.t_ms, settings or ekf.PRESETS["default"])
-    try:
-        if args.output:
-            with atomic_output(args.output, "w", encoding="ascii", newline="\n") as stream:
-                estimates.write_csv(rows, stream)
-        else:
-            estimates.write_csv(rows, sys.stdout)
+    except ValueError as error:
+        raise config.ConfigError(f"filter: {error}") from None
     except BrokenPipeError:
         # `filter LOG | head`: the reader had enough; say nothing, and keep Python's flush at
         # exit from failing on the closed pipe
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except OSError as error:
-        raise config.ConfigError(f"cannot write {args.output}: {error.strerror or error}") \
-            from None
+        raise config.ConfigError(f"cannot write {args.output or 'the estimates'}: "
+                                 f"{error.strerror or error}") from None
     return 0
+
+
+class _NothingWritten(Exception):
+    """Your filter stopped: the estimates are not written."""
 
 
 # ---- evaluate -----------------------------------------------------------------------------------
@@ -253,11 +307,11 @@ def intervals_of(args: argparse.Namespace) -> tuple[list | None, str]:
     return config.read_intervals(path), f"score intervals from {path}"
 
 
-def _truth(args: argparse.Namespace) -> tuple[LogData | None, str]:
+def _truth(args: argparse.Namespace) -> tuple[LogScan | None, str]:
     path = args.truth or sibling_truth(args.log)
     if path is None:
         return None, "the log's ORI"
-    return read_log(str(path)), f"the truth in {path}"
+    return scan(str(path), ori=True)[1], f"the truth in {path}"
 
 
 def _row(name: str, s, width: int = 16) -> str:
@@ -276,8 +330,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     _check_smooth(args, names)
     intervals, where = intervals_of(args)
     estimators = [config.make_estimator(name, settings, sensors) for name in names]
-    log = read_log(args.log, args.limits)
-    check_estimable(log, sensors)
+    log, found = scan(args.log, args.limits, ori=True)
+    check_estimable(found, sensors)
     truth, against = _truth(args)
     skip = f", after the first {args.skip:g} s" if args.skip else ""
     smooth = ", smoothed (forward EKF + backward RTS pass)" if args.smooth else ""
@@ -290,9 +344,9 @@ def _evaluate(args: argparse.Namespace) -> int:
     status = 0
     try:
         for name, estimator, label in zip(names, estimators, labels):
-            with contextlib.redirect_stdout(sys.stderr):
+            with contextlib.redirect_stdout(sys.stderr), _log_errors():
                 s = evaluate_log(log, name if args.smooth else estimator, settings, sensors,
-                                 intervals, args.skip, truth, smooth=args.smooth)
+                                 intervals, args.skip, truth, smooth=args.smooth, scan=found)
             if not report_user_filter(estimator, args.traceback):
                 print(f"{label:<{width}}{'stopped: see above':>20}", flush=True)
                 status = 1
@@ -303,7 +357,7 @@ def _evaluate(args: argparse.Namespace) -> int:
                                          "are beyond what the filter can compute")
             print(_row(label, s, width), flush=True)
         if truth is not None:
-            print(_row("phone (ORI)", evaluate_phone(log, truth, intervals, args.skip), width))
+            print(_row("phone (ORI)", evaluate_phone(found, truth, intervals, args.skip), width))
     except ValueError as error:
         raise config.ConfigError(f"evaluate: {error}") from None
     return status
