@@ -6,7 +6,8 @@
 Each log is a simulated phone (ACC, GYR, ORI 100 Hz, MAG 50 Hz: 350 lines/s, the hour 1.26
 million lines, 61 MB) written as `orientation-lab simulate` writes it. Every command runs in its
 own interpreter (``python -m app``); its peak resident set size is the kernel's (``os.wait4``'s
-``ru_maxrss``). `send` streams to a local socket that discards what it gets (and checks every
+``ru_maxrss``, which counts the pages a child starts with: this script imports no numpy and writes
+its logs in a child, so it stays at a few MB). `send` streams to a local socket that discards what it gets (and checks every
 byte arrived). Every command runs once on a 15-second log first, unmeasured (numba compiles
 its kernels into the cache on a first run). ``startup`` is an interpreter that imports the offline commands and exits: the
 floor under every figure.
@@ -64,10 +65,11 @@ class Result:
 
 
 def write_log(path: Path, minutes: float, seed: int = 3) -> Path:
-    from app.stream.demo import write_session
-    from ekf.simulate import simulate
-    session = simulate(duration_s=minutes * 60.0, rates_hz=RATES, seed=seed)
-    write_session(session, path)
+    """A simulated log, written by `orientation-lab simulate` in its own process (this one stays
+    small: a child's peak RSS counts the pages it starts with, those of this process)."""
+    subprocess.run([sys.executable, "-m", "app", "simulate", "--duration", str(minutes * 60.0),
+                    "--seed", str(seed), "--rate", str(RATES["acc"]), "--mag-rate",
+                    str(RATES["mag"]), "--force", "-o", str(path)], cwd=ROOT, check=True)
     return path
 
 
