@@ -436,7 +436,7 @@ def add_commands(sub) -> None:
     x.add_argument("--format", required=True, choices=("csv", "log", "mat"),
                    help="csv: measurements and estimates with a header of units; log: the "
                         "phone's text format (the course's MATLAB reader, `send`); mat: the "
-                        "course kit's meas and xhat structs (needs scipy)")
+                        "course kit's meas and xhat structs")
     x.add_argument("-o", "--output", required=True, metavar="OUT", help="the file to write")
     x.add_argument("--from-marker", metavar="A", help="start at marker A (number or label)")
     x.add_argument("--to-marker", metavar="B", help="end at marker B (number or label)")

@@ -21,8 +21,8 @@ is written, :mod:`app.engine.matfile`).
 * **mat**: the course kit's structs as ``filterTemplate`` returns them, ``meas`` (t 1×N, acc,
   gyr, mag 3×N, orient 4×N; NaN where a sensor has no sample) and ``xhat`` (t 1×N, x 4×N our
   quaternion, P 4×4×N its covariance), a MATLAB 5 file (``load`` in MATLAB and Octave,
-  ``scipy.io.loadmat``); it needs scipy (the optional extra ``orientation-lab[mat]``) as the
-  window's other MATLAB features do. A variable holds at most 2 GiB (about ten hours of 100 Hz).
+  ``scipy.io.loadmat``) written by :mod:`app.engine.matfile`. A variable holds at most 2 GiB
+  (xhat: about 12 million rows, ten hours of a phone's four sensors).
 
 A range: the whole session, between two markers (by number or label), or from/to times in
 seconds (the window's visible range). The log export keeps the lines whose own time (by the
@@ -50,8 +50,6 @@ from app.stream.tags import WIDTHS
 
 FORMATS = ("csv", "log", "mat")
 SEPARATORS = {"comma": ",", "semicolon": ";", "tab": "\t", ",": ",", ";": ";", "\t": "\t"}
-MAT_HINT = ("the MATLAB export needs scipy: pip install scipy (or pip install "
-            "'orientation-lab[mat]'; make run and make test install it)")
 MAT_STRUCTS = {"meas": {"t": (1,), "acc": (3,), "gyr": (3,), "mag": (3,), "orient": (4,)},
                "xhat": {"t": (1,), "x": (4,), "P": (4, 4)}}
 _CSV_COLUMNS = (
@@ -435,11 +433,6 @@ def export_session(path: str | Path, fmt: str, out: str | Path,
     arguments (a one-line message)."""
     if fmt not in FORMATS:
         raise ConfigError(f"--format: expected one of {', '.join(FORMATS)}, got {fmt!r}")
-    if fmt == "mat":
-        try:
-            import scipy.io  # noqa: F401
-        except ImportError:
-            raise ConfigError(MAT_HINT) from None
     sep = SEPARATORS.get(separator)
     if sep is None:
         raise ConfigError(f"--separator: expected comma, semicolon or tab, got {separator!r}")

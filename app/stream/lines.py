@@ -100,7 +100,7 @@ def read_lines(path: str | Path) -> list[bytes]:
     return split_lines(read_log_bytes(path))
 
 
-CHUNK_BYTES = 1 << 22
+CHUNK_BYTES = 1 << 18          # the offline commands' reading: 256 KiB at a time (~5,000 lines)
 _MAX_CARRY_BYTES = 1 << 24     # a "line" longer than this is passed on in pieces (bounded)
 
 
