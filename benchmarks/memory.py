@@ -1,26 +1,27 @@
 """Memory of the offline commands and `send` on long logs: peak RSS against the log's size.
 
-    .venv/bin/python benchmarks/memory.py            # logs of 10, 30 and 60 minutes (~6 min)
-    .venv/bin/python benchmarks/memory.py --quick    # 2 and 4 minutes (smoke test)
+    .venv/bin/python benchmarks/memory.py            # logs of 10, 30 and 60 minutes (~10 min)
+    .venv/bin/python benchmarks/memory.py --quick    # 2 and 8 minutes (smoke test)
 
 Each log is a simulated phone (ACC, GYR, ORI 100 Hz, MAG 50 Hz: 350 lines/s, the hour 1.26
-million lines, 61 MB) written as `orientation-lab simulate` writes it. Every command runs in its
-own interpreter (``python -m app``); its peak resident set size is the kernel's (``os.wait4``'s
-``ru_maxrss``, which counts the pages a child starts with: this script imports no numpy and writes
-its logs in a child, so it stays at a few MB). `send` streams to a local socket that discards what it gets (and checks every
-byte arrived). Every command runs once on a 15-second log first, unmeasured (numba compiles
-its kernels into the cache on a first run). ``startup`` is an interpreter that imports the offline commands and exits: the
-floor under every figure.
+million lines, 61 MB) written by `orientation-lab simulate`. Every command runs in its own
+interpreter (``python -m app``); its peak resident set size is the kernel's (``os.wait4``'s
+``ru_maxrss``, which counts the pages a child starts with: this script imports no numpy and
+writes its logs in a child, so it stays at a few MB). `send` streams to a local socket that
+discards what it gets (and checks every byte arrived). Every command runs once on a 15-second
+log first, unmeasured (numba compiles its kernels into the cache on a first run).
+``startup`` is an interpreter that imports the offline commands and exits: the floor under
+every figure.
 
 The goals (issue 46 item 3), checked on the longest log and between the shortest and the
 longest:
 
 * filter, evaluate, export (csv, log, mat): at most 300 MB on the hour, --smooth 600 MB;
 * every command: memory grows at most linearly with the log, by at most 5 bytes per byte of log
-  (the slope between the shortest and the longest log);
+  (between the shortest and the longest log, give or take 16 MiB of the allocator's noise);
 * send: memory independent of the log's size (grows by at most 16 MiB).
 
-With --quick the logs are too short for the hour's limits; the slopes are checked. Exit status 1
+With --quick the logs are too short for the hour's limits; the growth is checked. Exit status 1
 when a goal is missed. Not a test: the figures go to docs/benchmarks.md.
 """
 
@@ -47,6 +48,7 @@ LIMIT_MB = 300.0              # filter, evaluate, export on the hour
 SMOOTH_LIMIT_MB = 600.0       # filter --smooth on the hour
 SLOPE = 5.0                   # bytes of memory per byte of log, at most
 SEND_GROWTH_MIB = 16.0        # send: memory independent of the log's size
+NOISE_MIB = 16.0              # the allocator's give and take between two runs
 
 
 @dataclass
@@ -172,15 +174,20 @@ def judge(results: list[Result], quick: bool) -> list[str]:
         if len(runs) < 2:
             continue
         growth = long.peak_bytes - short.peak_bytes
-        slope = growth / (long.log_bytes - short.log_bytes)
+        slope = _slope(short, long)
         if command == "send":
             if growth > SEND_GROWTH_MIB * MIB:
                 missed.append(f"send: {growth / MIB:.0f} MiB more for the longer log "
                               f"(at most {SEND_GROWTH_MIB:.0f} MiB)")
-        elif slope > SLOPE:
+        elif growth > SLOPE * (long.log_bytes - short.log_bytes) + NOISE_MIB * MIB:
             missed.append(f"{command}: grows by {slope:.1f} bytes per byte of log "
                           f"(at most {SLOPE:g})")
     return missed
+
+
+def _slope(short: Result, long: Result) -> float:
+    """Extra bytes of memory per extra byte of log."""
+    return (long.peak_bytes - short.peak_bytes) / (long.log_bytes - short.log_bytes)
 
 
 def table(results: list[Result], floor: int) -> str:
@@ -200,7 +207,7 @@ def table(results: list[Result], floor: int) -> str:
         ordered = sorted(runs.values(), key=lambda r: r.log_bytes)
         slope = ""
         if len(ordered) > 1:
-            slope = (f"{(ordered[-1].peak_bytes - ordered[0].peak_bytes) / (ordered[-1].log_bytes - ordered[0].log_bytes):6.2f}")
+            slope = f"{_slope(ordered[0], ordered[-1]):6.2f}"
         lines.append(name.ljust(18) + "".join(c.rjust(26) for c in cells) + "  " + slope)
     lines.append(f"startup (imports only): {floor / MB:.0f} MB; a cell: peak RSS, peak / log "
                  "size, wall time; slope: extra bytes of memory per extra byte of log")
@@ -209,7 +216,7 @@ def table(results: list[Result], floor: int) -> str:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="2- and 4-minute logs")
+    parser.add_argument("--quick", action="store_true", help="2- and 8-minute logs")
     parser.add_argument("--minutes", type=float, nargs="+", metavar="M",
                         help="log lengths (default 10 30 60)")
     parser.add_argument("--only", nargs="+", metavar="COMMAND",
@@ -217,7 +224,7 @@ def main() -> int:
     parser.add_argument("--logs", type=Path, metavar="DIR",
                         help="keep the generated logs here (reused when present)")
     args = parser.parse_args()
-    minutes = args.minutes or ([2.0, 4.0] if args.quick else [10.0, 30.0, 60.0])
+    minutes = args.minutes or ([2.0, 8.0] if args.quick else [10.0, 30.0, 60.0])
     with tempfile.TemporaryDirectory(prefix="memory-bench-") as tmp:
         logs = args.logs or Path(tmp)
         logs.mkdir(parents=True, exist_ok=True)

@@ -94,7 +94,8 @@ def test_same_time_samples_are_all_used_offline(tmp_path):
     assert len(np.unique(rows.t_ms)) == len(rows.t_ms)       # one row per distinct time
     data = read_log(log)
     acc_at = {}
-    for t, values in zip(data.t_ms[data.tag == 1].tolist(), data.values[data.tag == 1, :3].tolist()):
+    acc = data.tag == 1
+    for t, values in zip(data.t_ms[acc].tolist(), data.values[acc, :3].tolist()):
         acc_at.setdefault(t, []).append(values)
     assert any(len(v) == 2 and v[0] != v[1] for v in acc_at.values())
 

@@ -319,8 +319,9 @@ def find_marker(markers: list[Marker], name: str) -> Marker:
     raise ConfigError(f"no marker {name!r} in the session (markers: {choices})")
 
 
-def time_range(data: SessionData | SessionSpan, from_marker: str | None = None, to_marker: str | None = None,
-               from_s: float | None = None, to_s: float | None = None) -> tuple[float, float]:
+def time_range(data: SessionData | SessionSpan, from_marker: str | None = None,
+               to_marker: str | None = None, from_s: float | None = None,
+               to_s: float | None = None) -> tuple[float, float]:
     """The range [start, end] in seconds since the start (the whole session by default)."""
     start = 0.0 if len(data) == 0 else float(data.t_s[0])
     end = float(data.t_s[-1]) if len(data) else 0.0

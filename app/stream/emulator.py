@@ -1,8 +1,9 @@
 """A phone emulator: connects to the server like the Sensor Fusion app and streams a log.
 
-Lines go out verbatim, in file order, with the log's own timing (:func:`~app.stream.lines.pacing_times`) scaled
-by ``speed`` (0: as fast as possible); a file is read and sent block by block, so memory does not
-grow with its size. Used by `orientation-lab send`, tests and benchmarks.
+Lines go out verbatim, in file order, with the log's own timing
+(:func:`~app.stream.lines.pacing_times`) scaled by ``speed`` (0: as fast as possible); a file is
+read and sent block by block, so memory does not grow with its size. Used by `orientation-lab
+send`, tests and benchmarks.
 """
 
 from __future__ import annotations
