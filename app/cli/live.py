@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
 import threading
 import time
@@ -17,6 +16,7 @@ import ekf
 from app.cli import options
 from app.engine import config
 from app.engine.estimates import EstimatesWriter
+from app.engine.shutdown import on_finishing_signals
 from app.engine.snapshot import Snapshot, lag_text
 from app.engine.worker import Engine
 from app.stream.emulator import PhoneEmulator
@@ -197,11 +197,14 @@ class _Watch:
 
 def cmd_serve(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
-    engine = _start_engine(args)
     stop = threading.Event()
-    previous_handler = None
-    if threading.current_thread() is threading.main_thread():
-        previous_handler = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    # SIGTERM and SIGHUP (the terminal closed) finish the recording as Ctrl-C does
+    restore_signals = on_finishing_signals(stop.set)
+    try:
+        engine = _start_engine(args)
+    except BaseException:
+        restore_signals()
+        raise
     source = engine.source
     addresses = ", ".join(source.info()["listen_addresses"] or [args.host])
     print(f"listening on port {source.port}; type one of these into the phone app: {addresses}",
@@ -222,8 +225,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         pass
     finally:
         engine.stop()
-        if previous_handler is not None:
-            signal.signal(signal.SIGTERM, previous_handler)
+        restore_signals()
     final = engine.snapshot_now()
     watch.done(engine, final)
     print("final: " + health_line(final), flush=True)
