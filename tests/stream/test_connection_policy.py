@@ -15,6 +15,8 @@ import time
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from waiting import wait_until as _wait
 
@@ -22,7 +24,9 @@ from app.engine.commands import AcceptConnection, IgnoreConnection, SetAllowedNe
 from app.engine.offline import filter_log
 from app.engine.worker import Engine
 from app.stream.emulator import PhoneEmulator
+from app.stream.fastparse import count_good_lines
 from app.stream.logfile import read_log
+from app.stream.protocol import LineParser, Limits, java_float_text
 from app.stream.recorder import Recorder
 from app.stream.sources import TcpSource
 
@@ -394,3 +398,29 @@ def test_slow_loris_candidates_make_room_for_the_phone(make_engine):
     assert _closed_by_server(silent[0].sock)
     for client in silent:
         client.close()
+
+
+_PIECES = st.one_of(
+    st.sampled_from([b"\n", b"\r\n", b"\t", b"1000\tACC\t0.0\t0.0\t9.81\n",
+                     b"5\tORI\t0.5\t0.5\t0.5\t0.5\n", b"6\tORI\t0.9\t0.9\t0.9\n",
+                     b"7\tACC\t1e160\t0\t0\n", b"8\tGPS\t58.4\t15.6\t80\n",
+                     b"9\tFOO\t1\n", b"\xff\n", b"NaN", b"12345678901234567", b"\x00"]),
+    st.builds(lambda t, tag, values: (f"{t}\t{tag}\t" + "\t".join(values) + "\n").encode(),
+              st.integers(0, 10**13), st.sampled_from(["GYR", "ACC", "MAG", "ORI", "PRX"]),
+              st.lists(st.floats(allow_nan=True, allow_infinity=True).map(java_float_text),
+                       min_size=1, max_size=5)),
+    st.binary(max_size=5))
+
+
+@settings(max_examples=200, deadline=None)
+@given(parts=st.lists(_PIECES, max_size=40), at_most=st.integers(1, 12),
+       tight=st.booleans())
+def test_the_rate_measure_counts_the_lines_the_parser_takes(parts, at_most, tight):
+    """count_good_lines (what a connection's rate is made of) counts exactly the complete
+    lines LineParser turns into samples, up to at_most."""
+    data = b"".join(parts)
+    limits = Limits(acc=10.0, gyr=1.0, mag=12.0, ori_tolerance=1e-7, floor=0.5) if tight \
+        else Limits()
+    samples = len(LineParser(limits=limits).feed(data))
+    assert count_good_lines(data, limits, at_most, max_candidates=data.count(b"\n") + 1) \
+        == min(at_most, samples)
