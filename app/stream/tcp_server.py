@@ -91,6 +91,7 @@ class _Connection:
     held: list[bytes] = field(default_factory=list)   # a waiting connection's first bytes
     held_bytes: int = 0
     reading: bool = True              # registered with the selector
+    reading_since: float = 0.0        # monotonic: read since then (set when reading resumes)
     # (monotonic time, valid lines) of its chunks within the latest RATE_WINDOW_S, and their sum
     good: collections.deque = field(default_factory=collections.deque)
     good_in_window: int = 0
@@ -313,8 +314,9 @@ class TcpServer:
             except OSError:
                 pass
             self.connections += 1
-            connection = _Connection(self.connections, sock, peer, str(address[0]),
-                                     time.monotonic())
+            now = time.monotonic()
+            connection = _Connection(self.connections, sock, peer, str(address[0]), now,
+                                     reading_since=now)
             self._selector.register(sock, selectors.EVENT_READ, connection)
             self._waiting.append(connection)
             self._publish_waiting()
@@ -392,6 +394,7 @@ class TcpServer:
         if not connection.reading:
             self._selector.register(connection.sock, selectors.EVENT_READ, connection)
             connection.reading = True
+            connection.reading_since = time.monotonic()
 
     def _rate_lines(self, connection: _Connection, now: float) -> int:
         """Valid lines the connection sent within the latest RATE_WINDOW_S (up to when it was
@@ -485,6 +488,7 @@ class TcpServer:
         elif active.valid and now - active.last_valid >= self.takeover_after_s:
             why = f"it sent nothing valid for {self.takeover_after_s:g} s"
         elif not active.accepted and active.reading \
+                and now - active.reading_since >= RATE_WINDOW_S \
                 and (lines := self._rate_lines(active, now)) < PHONE_LINES \
                 and (phone := self._at_phone_rate(now)) is not None:
             # a stranger's trickle: a phone streams at its rate beside it
