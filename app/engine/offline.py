@@ -356,7 +356,7 @@ class ReferenceScorer:
     def __init__(self, ori_times: np.ndarray, intervals_ms: list | None = None,
                  skip_s: float = 0.0,
                  reference: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-        self.ori_times = np.asarray(ori_times, np.int64)
+        self.ori_times = np.unique(np.asarray(ori_times, np.int64))     # sorted
         self.intervals_ms = intervals_ms
         self.skip_s = skip_s
         self.reference = reference
@@ -374,7 +374,11 @@ class ReferenceScorer:
     def add(self, rows: Rows) -> None:
         """The next rows of the current session."""
         if self.reference is None:
-            at_ori = np.isin(rows.t_ms, self.ori_times)
+            # the rows at ORI times (np.isin would sort the ORI times again for every piece)
+            where = np.minimum(np.searchsorted(self.ori_times, rows.t_ms),
+                               max(len(self.ori_times) - 1, 0))
+            at_ori = (self.ori_times[where] == rows.t_ms) if len(self.ori_times) \
+                else np.zeros(len(rows), bool)
             if at_ori.any():
                 self._pending_t = np.concatenate([self._pending_t, rows.t_ms[at_ori]])
                 self._pending_q = np.concatenate([self._pending_q, rows.phone_quat[at_ori]])
