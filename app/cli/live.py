@@ -151,12 +151,24 @@ class _Watch:
         self.failures_shown = 0
         self.recording_shown = False
         self.user_said = ""
+        self.user_printed = (0, 0)         # (generation, lines) of what your filter printed
 
     def _user_news(self, snapshot: Snapshot) -> None:
-        """The user's filter's problems and reloads, each once, on stderr."""
+        """The user's filter's problems and reloads, each once, and what it printed, on
+        stderr."""
         user = snapshot.user
         if user is None:
             return
+        generation, shown = self.user_printed
+        if user.generation != generation:
+            shown = 0
+        new = user.printed_total - shown
+        if new > len(user.printed):
+            print(f"orientation-lab: your filter printed {new - len(user.printed)} lines more",
+                  file=sys.stderr)
+        for line in user.printed[len(user.printed) - min(new, len(user.printed)):]:
+            print(f"{user.name}: {line}", file=sys.stderr, flush=True)
+        self.user_printed = (user.generation, user.printed_total)
         news = user.problem.message if user.problem is not None else user.message
         if news and news != self.user_said:
             self.user_said = news
