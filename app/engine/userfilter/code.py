@@ -215,11 +215,6 @@ def load_code(path: str | Path, source: bytes | None = None) -> FilterCode:
     return code
 
 
-def unload_code(code: FilterCode) -> None:
-    """Forget the module (the next load of the same file is a fresh one)."""
-    sys.modules.pop(code.module.__name__, None)
-
-
 def instantiate(code: FilterCode, settings: dict[str, Any]) -> Any:
     """A new Filter (with settings when its constructor takes them); UserFilterError if it
     raises."""

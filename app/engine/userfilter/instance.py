@@ -17,6 +17,7 @@ of the engine, so the process starts quickly.
 
 from __future__ import annotations
 
+import os
 import time
 from typing import Any
 
@@ -46,6 +47,7 @@ class FilterInstance:
         self.seconds = 0.0
         self.step_limit_s = step_limit_s
         self._guard = guard(step_limit_s, "step()")
+        self._pid = os.getpid()
         self.start()
 
     def start(self) -> None:
@@ -83,7 +85,11 @@ class FilterInstance:
         start = time.perf_counter()
         try:
             with self._guard:
-                result = self.filter.step(t, gyr, acc, mag)
+                try:
+                    result = self.filter.step(t, gyr, acc, mag)
+                finally:
+                    if os.getpid() != self._pid:   # a copy os.fork() made in step: not ours
+                        os._exit(0)
         except UserCodeTimeout as error:
             self._guard.disarm()
             self._timed(start)

@@ -42,7 +42,8 @@ POSIX = os.name == "posix"
 MAX_OUTPUT_LINES = 200           # kept for the window's dock
 MAX_LINE_CHARS = 1000
 ENDED_GRACE_S = 0.5              # after the exit: replies still in the pipe are read first
-_DUMP_START = re.compile(r"^(Current thread|Thread) 0x[0-9a-fA-F]+ .*\(most recent call first\):")
+_DUMP_START = re.compile(r"^(Stack|(Current thread|Thread) 0x[0-9a-fA-F]+)\s*"
+                         r"\(most recent call first\):")
 _DUMP_FRAME = re.compile(r'^  File "(.*)", line (\d+) in (.*)$')
 
 

@@ -45,6 +45,7 @@ MAX_HEADER = 1 << 24
 INNOVATION_SENSORS = ("acc", "mag", "gyr")
 DTYPES = ("<f8", "<i4", "|i1", "|u1")
 SETTINGS_ARRAYS = ("g0", "m0", "Rw", "Ra", "Rm", "gyr_bias")
+PROBLEM_FIELDS = ("kind", "message", "details", "file", "line", "function", "t_s")
 
 Arrays = dict[str, np.ndarray]
 
@@ -158,9 +159,7 @@ def settings_from_wire(wire: dict[str, Any]) -> dict[str, Any]:
 
 
 def problem_to_wire(problem: Any) -> dict[str, Any] | None:
+    """A UserProblem as a JSON object (None: none)."""
     if problem is None:
         return None
     return {key: getattr(problem, key) for key in PROBLEM_FIELDS}
-
-
-PROBLEM_FIELDS = ("kind", "message", "details", "file", "line", "function", "t_s")

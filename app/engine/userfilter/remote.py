@@ -34,6 +34,7 @@ import numpy as np
 
 from ekf.settings import EKFSettings
 from app.engine.user_problem import UserProblem
+from app.engine.userfilter import code as user_code
 from app.engine.userfilter.code import MAX_MESSAGE, UserFilterError
 from app.engine.userfilter.process import FilterProcess, python_command
 from app.engine.userfilter.protocol import (INNOVATION_SENSORS, PROBLEM_FIELDS,
@@ -41,8 +42,7 @@ from app.engine.userfilter.protocol import (INNOVATION_SENSORS, PROBLEM_FIELDS,
 from app.engine.userfilter.watchdog import DEFAULT_LIMIT_S
 
 DEADLINE_S = 5.0             # a call of your code that has not returned for this long: paused
-LOAD_DEADLINE_S = 15.0       # loading the file or Filter() (the file's own limit: 10 s of Python)
-LOAD_LIMIT_S = 10.0          # Python code running while the file loads (app.engine.userfilter.code)
+LOAD_DEADLINE_S = 12.0       # loading the file or Filter() (its own limit: 10 s of Python code)
 RECENT_WEIGHT = 0.02         # of the latest call in the running time per call
 _WHAT = {"rows": "returned from step", "start": "finished loading",
          "reset": "returned from Filter()", "snapshot": "let its state be copied",
@@ -156,7 +156,8 @@ class RemoteFilter:
         self.process = FilterProcess(argv, env, on_output)
         self.process.request({"op": "start", "path": str(self.path), "name": self.name,
                               "settings": settings_to_wire(filter_settings(settings)),
-                              "step_limit_s": step_limit_s, "load_limit_s": LOAD_LIMIT_S},
+                              "step_limit_s": step_limit_s,
+                              "load_limit_s": user_code.LOAD_LIMIT_S},
                              {"source": np.frombuffer(source, np.uint8)})
 
     @classmethod
