@@ -333,10 +333,12 @@ def test_serve_records_every_line_whatever_your_filter_does(tmp_path, name):
     folder = tmp_path / "rec"
     lines = log_lines(21.0)[:7200]
     env = dict(os.environ, ORIENTATION_LAB_DATA=str(tmp_path / "data"))
+    # stdin: a pipe that stays open and silent, as a terminal nobody types into
     process = subprocess.Popen(
         [sys.executable, "-m", "app", "serve", "--host", "127.0.0.1", "--port", "0",
          "--record", str(folder), "--filter", str(path), "--no-comparisons"],
-        cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        cwd=REPO, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True)
     health: list[str] = []
     try:
         port = int(re.search(r"port (\d+)", process.stdout.readline()).group(1))

@@ -158,11 +158,17 @@ class CatchUp:
         if self.thread.is_alive() and self.thread is not threading.current_thread():
             self.thread.join(timeout)
 
+    def _hand_over(self) -> None:
+        """The process takes over as it is (it does not load, it is stuck or gone, or the
+        catch-up failed): the rows buffered meanwhile are dropped. Nothing when superseded."""
+        while self.lane.take_buffered(self.remote, self.token) is not None:
+            pass
+
     def _run(self) -> None:
         try:
             self.estimator.wait_started()
             if self.remote.load_problem is not None or not self.remote.usable:
-                self.lane.replace(self.remote)
+                self._hand_over()
                 return
             if self.samples and self.log is not None:
                 self._rerun_log()
@@ -170,7 +176,7 @@ class CatchUp:
                 self._drain()
         except Exception as error:   # noqa: BLE001 (the user's errors are caught deeper; ours)
             self.error = f"catch-up failed: {type(error).__name__}: {error}"
-            self.lane.replace(self.remote)
+            self._hand_over()
         finally:
             self.seconds = time.perf_counter() - self.started
             self.done.set()
@@ -317,13 +323,18 @@ class UserFilterHost:
 
     def stop(self) -> None:
         """The engine ends: the catch-up stops and the filter's process ends."""
+        job = self.job
         self._cancel_job()
         self._close_remote()
+        if job is not None:
+            job.stop()
 
     def _cancel_job(self) -> None:
+        """Cancel the catch-up (never waits: its thread ends by itself once its process is
+        closed or it sees the cancel)."""
         if self.job is not None:
             job, self.job = self.job, None
-            job.stop()
+            job.cancel.set()
 
     # -- the engine's events ---------------------------------------------------------------------
 
@@ -355,11 +366,12 @@ class UserFilterHost:
         (buffered meanwhile), as after a reload."""
         if self.lane is None or self.remote is None:
             return
+        running = self.job is not None and not self.job.done.is_set()
         self._cancel_job()
         settings = self.runner.settings
-        if self.remote.usable:
+        if self.remote.usable and not running:
             self.remote.reset(settings, fresh=True, new_epoch=True)
-        else:                            # stuck or ended: a new process for the same code
+        else:       # stuck, ended, or a catch-up still using it: a new process for the same code
             remote = self.remote.again(settings)
             self._close_remote()
             self.remote = remote
@@ -470,7 +482,7 @@ class UserFilterHost:
             status.acc_disturbed, status.mag_disturbed, status.standstill = lane.lights
         if lane is not None:
             status.used_fraction = lane.used_fraction()
-            status.slow = status.used_fraction < SLOW_BELOW
+            status.slow = remote.started and status.used_fraction < SLOW_BELOW
             status.lag_s = lane.lag_s
             status.backlog_rows = lane.backlog_rows
             status.angle_to_phone_deg = lane.angle_to_phone_deg

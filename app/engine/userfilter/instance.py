@@ -128,19 +128,26 @@ class FilterInstance:
         is called after each row (the child's heartbeat). Returns the reply's header values and
         arrays."""
         n = len(t)
-        q = np.full((n, 4), np.nan)
-        flags = np.full((n, 3), -1, np.int8)
+        columns = [values[:, 3 * i:3 * i + 3] for i in range(3)]
+        gives = np.asarray(given, bool).tolist()
+        times = np.asarray(t, float).tolist()
+        outs: list[Output] = []              # the outputs in the block, in order
+        which = np.full(n, -1, np.int64)     # the latest output after each row (-1: none yet)
+        if self.out is not None:
+            outs.append(self.out)
         inn_row, inn_sensor, inn_nu, inn_S, inn_accepted = [], [], [], [], []
         paused_at = 0 if self.paused else -1
         last_out = -1
         calls, seconds = self.calls, self.seconds
         for k in range(n):
             if paused_at < 0:
-                row = values[k]
-                args = [row[3 * i:3 * i + 3].copy() if given[k, i] else None for i in range(3)]
-                out = self.step(float(t[k]), *args)
+                g, a, m = gives[k]
+                out = self.step(times[k], columns[0][k].copy() if g else None,
+                                columns[1][k].copy() if a else None,
+                                columns[2][k].copy() if m else None)
                 if out is not None:
                     last_out = k
+                    outs.append(out)
                     for sensor, (nu, S, accepted) in out.innovations.items():
                         if accepted is None:
                             disturbed = (out.acc_disturbed if sensor == "acc" else
@@ -157,13 +164,17 @@ class FilterInstance:
                         inn_accepted.append(bool(accepted))
                 elif self.paused:
                     paused_at = k
-            latest = self.out
-            if latest is not None:
-                q[k] = latest.q
-                flags[k] = [-1 if value is None else int(value) for value in
-                            (latest.acc_disturbed, latest.mag_disturbed, latest.standstill)]
+            which[k] = len(outs) - 1
             if after_row is not None:
                 after_row(k)
+        q = np.full((n, 4), np.nan)
+        flags = np.full((n, 3), -1, np.int8)
+        if outs:
+            has = which >= 0
+            q[has] = np.array([o.q for o in outs])[which[has]]
+            flags[has] = np.array([[-1 if v is None else int(v) for v in
+                                    (o.acc_disturbed, o.mag_disturbed, o.standstill)]
+                                   for o in outs], np.int8)[which[has]]
         m = len(inn_row)
         arrays = {"q": q, "flags": flags,
                   "inn_row": np.array(inn_row, "<i4"), "inn_sensor": np.array(inn_sensor, "|i1"),
