@@ -127,6 +127,7 @@ class FilterInstance:
         """Step the rows of a block (see app.engine.userfilter.protocol, ``rows``); after_row(k)
         is called after each row (the child's heartbeat). Returns the reply's header values and
         arrays."""
+        started = time.perf_counter()
         n = len(t)
         columns = [values[:, 3 * i:3 * i + 3] for i in range(3)]
         gives = np.asarray(given, bool).tolist()
@@ -184,7 +185,8 @@ class FilterInstance:
         if self.out is not None and self.out.P is not None:
             arrays["P"] = np.ascontiguousarray(self.out.P[:4, :4], dtype=float)
         header = {"run": self.calls - calls, "seconds": self.seconds - seconds,
-                  "paused_at": paused_at, "last_out": last_out}
+                  "elapsed": time.perf_counter() - started, "paused_at": paused_at,
+                  "last_out": last_out}
         return {"header": header, "arrays": arrays}
 
     def state(self) -> dict[str, Any]:

@@ -11,9 +11,9 @@ Rows are sent with which sensors each row gives your filter (``given``: a sample
 sensor switched in), so a switch takes effect at exactly its row.
 
 Never holding up the engine: with ``realtime`` (the live engine) at most LAG_BUDGET_S of your
-filter's work (its time per call times the rows) is handed over and not yet answered; a filter
-slower than the stream gets only some rows, evenly spread (decimated), the rows not run show the
-latest row that was, and the lane reports it (:meth:`UserLane.used_fraction`). Offline every row
+filter's work (its process's time per row times the rows) is handed over and not yet answered;
+a filter slower than the stream gets only some rows, evenly spread (decimated), the rows not run
+show the latest row that was, and the lane reports it (:meth:`UserLane.used_fraction`). Offline every row
 is run.
 
 Catching up (after a reload or a seek): the engine thread keeps handing rows over, the lane
@@ -73,7 +73,7 @@ class UserLane:
 
     def __init__(self, remote: RemoteFilter | None = None, realtime: bool = False,
                  clock: Callable[[], float] = time.monotonic) -> None:
-        self.lock = threading.Lock()
+        self.lock = threading.RLock()     # the engine's thread and a catch-up's
         self.remote = remote
         self.realtime = realtime
         self._clock = clock
@@ -147,23 +147,26 @@ class UserLane:
 
     def reset(self) -> None:
         """Start your filter afresh from the next rows (ResetFilter, a new stream)."""
-        if self.remote is not None:
-            self.remote.reset()
-        self._queue.append(_Mark("reset"))
-        self._work()
+        with self.lock:
+            if self.remote is not None:
+                self.remote.reset()
+            self._queue.append(_Mark("reset"))
+            self._work()
 
     def set_settings(self, settings) -> None:
         """New settings: your filter restarts with them from the next rows (its constructor is
         where it reads them)."""
-        if self.remote is not None:
-            self.remote.reset(settings)
-        self._queue.append(_Mark("reset"))
-        self._work()
+        with self.lock:
+            if self.remote is not None:
+                self.remote.reset(settings)
+            self._queue.append(_Mark("reset"))
+            self._work()
 
     def finish(self) -> None:
         """A stream ended: its last row shows once its result is there."""
-        self._queue.append(_Mark("finish"))
-        self._work()
+        with self.lock:
+            self._queue.append(_Mark("finish"))
+            self._work()
 
     def replace(self, remote: RemoteFilter | None) -> None:
         """Run `remote` from the next row on (None: nothing); ends a catch-up. What was handed
@@ -224,19 +227,22 @@ class UserLane:
              mag: np.ndarray) -> None:
         """Rows to your filter (t_ms (R,) their phone times, t_s in seconds, the sensors (R, 3),
         NaN: no such sample). Never waits."""
+        with self.lock:
+            self._give(np.array(t_ms, np.int64), t_s, gyr, acc, mag)
+
+    def _give(self, t_ms: np.ndarray, t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
+              mag: np.ndarray) -> None:
         self.collect()
         n = len(t_ms)
         if n == 0:
             return
-        t_ms = np.array(t_ms, np.int64)
-        with self.lock:
-            if self._buffer is not None:
-                self._buffer.append((t_s.copy(), gyr.copy(), acc.copy(), mag.copy()))
-                self.buffered_rows += n
-                self._queue.append(_Rows(t_ms, np.empty(0, np.int64), None, True))
-                self._work()
-                return
-            remote = self.remote
+        if self._buffer is not None:
+            self._buffer.append((t_s.copy(), gyr.copy(), acc.copy(), mag.copy()))
+            self.buffered_rows += n
+            self._queue.append(_Rows(t_ms, np.empty(0, np.int64), None, True))
+            self._work()
+            return
+        remote = self.remote
         if remote is None or not remote.usable or remote.paused:
             self._queue.append(_Rows(t_ms, np.empty(0, np.int64), None, True))
             self._work()
@@ -258,16 +264,17 @@ class UserLane:
 
     def add_phone(self, t_ms: np.ndarray, quat: np.ndarray) -> None:
         """PHONE's samples, for YOURS' errors at their times."""
-        self._queue.append(_Phone(np.array(t_ms, np.int64), np.array(quat, float)))
-        self._work()
+        with self.lock:
+            self._queue.append(_Phone(np.array(t_ms, np.int64), np.array(quat, float)))
+            self._work()
 
     def _choose(self, n: int, remote: RemoteFilter) -> np.ndarray:
-        """All rows offline; live, as many as LAG_BUDGET_S of the filter's work allows beside
-        what it has not answered yet, evenly spread, the last row always among them when any
-        is sent."""
+        """All rows offline; live, as many as LAG_BUDGET_S of the filter's work (its process's
+        time per row) allows beside what it has not answered yet, evenly spread, the last row
+        always among them when any is sent."""
         if not self.realtime:
             return np.arange(n)
-        cost = remote.time_per_call_s
+        cost = remote.cost_per_row_s
         allowed = FIRST_ROWS if not cost > 0.0 else max(1, int(LAG_BUDGET_S / cost))
         k = min(n, allowed - remote.in_flight_rows)
         if k >= n:
@@ -278,6 +285,10 @@ class UserLane:
 
     def collect(self) -> bool:
         """Take the results that came back (never waits); True when there were any."""
+        with self.lock:
+            return self._collect()
+
+    def _collect(self) -> bool:
         remote = self.remote
         if remote is None:
             return False
@@ -370,7 +381,8 @@ class UserLane:
     def take_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """YOURS' rows worked through since the previous call: t_ms (N,), quat (N, 4) (NaN
         where it has none)."""
-        results, self._results = self._results, []
+        with self.lock:
+            results, self._results = self._results, []
         if not results:
             return np.empty(0, np.int64), np.empty((0, 4))
         return (np.concatenate([t for t, _ in results]),
@@ -378,7 +390,8 @@ class UserLane:
 
     def take_errors(self) -> ErrorRows:
         """YOURS' errors against PHONE resolved since the previous call."""
-        errors, self._errors = self._errors, []
+        with self.lock:
+            errors, self._errors = self._errors, []
         if not errors:
             return ErrorRows.empty()
         return ErrorRows(np.concatenate([e.t_ms for e in errors]),
@@ -386,8 +399,9 @@ class UserLane:
 
     def take_innovations(self) -> list[tuple]:
         """(t, sensor, nu, S, accepted) returned by your filter since the previous call."""
-        records = list(self.innovations)
-        self.innovations.clear()
+        with self.lock:
+            records = list(self.innovations)
+            self.innovations.clear()
         return records
 
 

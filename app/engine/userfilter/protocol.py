@@ -14,8 +14,9 @@ Requests (engine -> child), each answered by exactly one reply with the same ``o
 ``rows``     header: id, epoch; arrays ``t`` (n,) seconds, ``given`` (n, 3) which of gyr, acc,
              mag each row gives your filter (1) or passes as None (0), ``values`` (n, 9) the
              three sensors' values. Reply: id, epoch, run (rows stepped), seconds (time in your
-             step), paused_at (the row where it paused, -1: not paused), last_out (the row whose
-             output is the latest, -1: none in this block), problem, missing, notes; arrays
+             step), elapsed (the block's time in the child), paused_at (the row where it paused,
+             -1: not paused), last_out (the row whose output is the latest, -1: none in this
+             block), problem, missing, notes; arrays
              ``q`` (n, 4) the latest output after each row (NaN: none yet), ``flags`` (n, 3) the
              latest output's acc_disturbed, mag_disturbed, standstill (-1: not reported), ``P``
              (4, 4) the latest output's covariance of q (absent: none), and the innovations

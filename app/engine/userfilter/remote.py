@@ -25,7 +25,9 @@ import hashlib
 import itertools
 import math
 import signal
+import statistics
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -44,6 +46,7 @@ from app.engine.userfilter.watchdog import DEFAULT_LIMIT_S
 DEADLINE_S = 5.0             # a call of your code that has not returned for this long: paused
 LOAD_DEADLINE_S = 12.0       # loading the file or Filter() (its own limit: 10 s of Python code)
 RECENT_WEIGHT = 0.02         # of the latest call in the running time per call
+COST_BLOCKS = 16             # the process's time per row: the median of this many blocks
 _WHAT = {"rows": "returned from step", "start": "finished loading",
          "reset": "returned from Filter()", "snapshot": "let its state be copied",
          "restore": "let its state be restored"}
@@ -151,6 +154,7 @@ class RemoteFilter:
         self.time_per_call_s = math.nan
         self._sent: dict[int, _Sent] = {}
         self.answers: dict[str, dict] = {}       # snapshot and restore replies, by request
+        self._row_costs: deque[float] = deque(maxlen=COST_BLOCKS)
         self._stuck_op: str | None = None
         argv, env = command()
         self.process = FilterProcess(argv, env, on_output)
@@ -198,6 +202,13 @@ class RemoteFilter:
         """Whether the result of `block` can still come (sent in this epoch, process usable)."""
         sent = self._sent.get(block)
         return sent is not None and sent.epoch == self.epoch and self.usable
+
+    @property
+    def cost_per_row_s(self) -> float:
+        """The process's time per row (your step and what the process does around it): the
+        median of the latest blocks, so one block slowed by the machine moves it little (NaN:
+        none yet)."""
+        return statistics.median(self._row_costs) if self._row_costs else math.nan
 
     @property
     def in_flight_rows(self) -> int:
@@ -286,6 +297,8 @@ class RemoteFilter:
             recent = self.time_per_call_s
             self.time_per_call_s = mean if math.isnan(recent) else (
                 recent + (1.0 - (1.0 - RECENT_WEIGHT) ** run) * (mean - recent))
+        if sent is not None and len(sent.t_s) and "elapsed" in header:
+            self._row_costs.append(float(header["elapsed"]) / len(sent.t_s))
         if sent is None or header.get("epoch") != self.epoch or sent.epoch != self.epoch:
             return None
         self._child_problem = _problem(header.get("problem"))
