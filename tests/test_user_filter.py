@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -334,3 +335,39 @@ def test_an_object_that_misbehaves_when_read_is_a_problem_not_a_crash(tmp_path):
     estimator.step(0.0)
     assert estimator.paused and "no array for you" in estimator.problem.message
     assert estimator.problem.message.startswith("weird.py:4 in __array__: RuntimeError")
+
+
+# ---- its process -----------------------------------------------------------------------------
+
+def test_tunes_re_run_runs_your_filter_on_every_row(tmp_path):
+    from app.engine.config import open_log
+    from app.engine.offline import filter_log
+    from app.engine.refilter import refilter
+    log_path = tmp_path / "log.txt"
+    log_path.write_bytes(b"".join(log_lines(3.0)))
+    log = open_log(log_path)
+    course = Path(__file__).resolve().parents[1] / "examples" / "course_ekf.py"
+    result = refilter(log, ekf.PRESETS["course"], str(course))
+    with UserFilterEstimator(course, ekf.PRESETS["course"]) as estimator:
+        rows = filter_log(log, estimator, ekf.PRESETS["course"])
+    assert np.array_equal(result.rows.quat, rows.quat) and len(rows) == 300
+
+
+def test_a_dropped_estimator_ends_its_process(tmp_path):
+    import gc
+    import os
+
+    from waiting import wait_until
+    estimator = UserFilterEstimator(write_filter(tmp_path, "flat"))
+    pid = estimator.remote.process.pid
+    os.kill(pid, 0)                                     # running
+    del estimator
+    gc.collect()
+
+    def gone() -> bool:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        return False
+    wait_until(gone, 10, "the filter's process to end")

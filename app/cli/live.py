@@ -81,10 +81,13 @@ def health_line(snapshot: Snapshot) -> str:
 
 
 def user_line(user) -> str:
-    """The user's filter in a few words: "yours my_filter.py running, 12 us/sample"."""
+    """The user's filter in a few words: "yours my_filter.py running, 12 us/sample, 9 ms
+    behind"."""
     text = f"yours {user.name} {user.state}"
     if user.time_per_sample_s == user.time_per_sample_s:
         text += f", {user.time_per_sample_s * 1e6:.0f} us/sample"
+    if user.state == "running" and user.lag_s == user.lag_s:
+        text += f", {user.lag_s * 1e3:.0f} ms behind"
     if user.slow:
         text += f", too slow: {user.used_fraction:.0%} of the samples used"
     if user.missing_steps:
