@@ -81,10 +81,13 @@ def health_line(snapshot: Snapshot) -> str:
 
 
 def user_line(user) -> str:
-    """The user's filter in a few words: "yours my_filter.py running, 12 us/sample"."""
+    """The user's filter in a few words: "yours my_filter.py running, 12 us/sample, 9 ms
+    behind"."""
     text = f"yours {user.name} {user.state}"
     if user.time_per_sample_s == user.time_per_sample_s:
         text += f", {user.time_per_sample_s * 1e6:.0f} us/sample"
+    if user.state == "running" and user.lag_s == user.lag_s:
+        text += f", {user.lag_s * 1e3:.0f} ms behind"
     if user.slow:
         text += f", too slow: {user.used_fraction:.0%} of the samples used"
     if user.missing_steps:
@@ -154,12 +157,24 @@ class _Watch:
         self.failures_shown = 0
         self.recording_shown = False
         self.user_said = ""
+        self.user_printed = (0, 0)         # (generation, lines) of what your filter printed
 
     def _user_news(self, snapshot: Snapshot) -> None:
-        """The user's filter's problems and reloads, each once, on stderr."""
+        """The user's filter's problems and reloads, each once, and what it printed, on
+        stderr."""
         user = snapshot.user
         if user is None:
             return
+        generation, shown = self.user_printed
+        if user.generation != generation:
+            shown = 0
+        new = user.printed_total - shown
+        if new > len(user.printed):
+            print(f"orientation-lab: your filter printed {new - len(user.printed)} lines more",
+                  file=sys.stderr)
+        for line in user.printed[len(user.printed) - min(new, len(user.printed)):]:
+            print(f"{user.name}: {line}", file=sys.stderr, flush=True)
+        self.user_printed = (user.generation, user.printed_total)
         news = user.problem.message if user.problem is not None else user.message
         if news and news != self.user_said:
             self.user_said = news
