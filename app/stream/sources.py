@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -32,10 +33,33 @@ _MAX_LINES_PER_CHUNK = 4096
 REPLAY_MIN_INTERVAL_S = 0.01
 
 
+@dataclass(frozen=True)
+class Capabilities:
+    """What a source can do; the engine asks these, never the source's kind.
+
+    pause: be paused and stepped (ReplayControl paused / step); seek: be sought (seek_s, a
+    checkpoint's jump); pace: play at a speed, loop; reconnect: a live phone that connects,
+    goes away and comes back (its connection state and peer come from its events); forward:
+    its lines are a live phone's stream, which ``--forward`` hands on."""
+
+    pause: bool = False
+    seek: bool = False
+    pace: bool = False
+    reconnect: bool = False
+    forward: bool = False
+
+
+LIVE_PHONE = Capabilities(reconnect=True, forward=True)
+REPLAY = Capabilities(pause=True, seek=True, pace=True)
+
+
 class Source:
-    """Interface of every sample source. ``kind``: "tcp" | "replay" | "simulator"."""
+    """Interface of every sample source. ``kind`` names it for people (session.json's
+    "source", logs): "tcp" | "phyphox" | "sensor-logger" | "replay" | "simulator";
+    :attr:`capabilities` says what it can do."""
 
     kind = "source"
+    capabilities = Capabilities()
 
     def start(self) -> None:
         """Begin producing (bind the port, open the file...). May raise OSError/LogError."""
@@ -66,6 +90,7 @@ class TcpSource(Source):
     policy: one stream, newcomers wait, `allow`, junk closed)."""
 
     kind = "tcp"
+    capabilities = LIVE_PHONE
 
     def __init__(self, host: str = "0.0.0.0", port: int = DEFAULT_PORT,
                  max_queued: int = 256, allow=(), takeover_after_s: float = 3.0,
@@ -120,6 +145,7 @@ class LineReplaySource(Source):
     """
 
     kind = "replay"
+    capabilities = REPLAY
 
     def __init__(self, lines: list[bytes] | bytes, name: str, speed: float = 1.0,
                  loop: bool = False, paused: bool = False) -> None:
@@ -349,7 +375,11 @@ class DemoOrPhoneSource(Source):
 
     @property
     def kind(self) -> str:  # type: ignore[override]
-        return "tcp" if self.phone_active else self.demo.kind
+        return self.phone.kind if self.phone_active else self.demo.kind
+
+    @property
+    def capabilities(self) -> Capabilities:  # type: ignore[override]
+        return self.phone.capabilities if self.phone_active else self.demo.capabilities
 
     def start(self) -> None:
         self.phone.start()
