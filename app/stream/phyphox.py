@@ -239,28 +239,41 @@ class PhyphoxClient:
         self.in_flight = 0
         self.in_flight_max = 0
         self._connection: http.client.HTTPConnection | None = None
+        self._reused = False
 
     def close(self) -> None:
         if self._connection is not None:
             self._connection.close()
             self._connection = None
 
-    def get(self, path: str) -> Any:
-        """GET path -> the JSON reply; _Gone when the phone does not answer, PhyphoxError
-        when it answers something else."""
+    def _request(self, path: str) -> tuple[int, bytes]:
+        self._reused = self._connection is not None
         if self._connection is None:
             self._connection = http.client.HTTPConnection(self.address.host, self.address.port,
                                                           timeout=self.timeout_s)
+        self.requests += 1
+        self._connection.request("GET", path, headers={"Accept": "application/json"})
+        response = self._connection.getresponse()
+        body = response.read(MAX_REPLY_BYTES + 1)
+        if response.will_close:
+            self.close()
+        return response.status, body
+
+    def get(self, path: str) -> Any:
+        """GET path -> the JSON reply; _Gone when the phone does not answer, PhyphoxError
+        when it answers something else."""
         self.in_flight += 1
         self.in_flight_max = max(self.in_flight_max, self.in_flight)
-        self.requests += 1
         try:
-            self._connection.request("GET", path, headers={"Accept": "application/json"})
-            response = self._connection.getresponse()
-            body = response.read(MAX_REPLY_BYTES + 1)
-            status = response.status
-            if response.will_close:
+            try:
+                status, body = self._request(path)
+            except (ConnectionError, http.client.BadStatusLine):
+                if not self._reused:
+                    raise
+                # the phone closed a kept-alive connection while it was idle: once more on a
+                # new one (a request that never reached it)
                 self.close()
+                status, body = self._request(path)
         except (OSError, http.client.HTTPException) as error:
             self.close()
             raise _Gone(_reason(error)) from None
@@ -297,8 +310,10 @@ class PhyphoxPoller:
 
     def __init__(self, address: PhyphoxAddress, items: ItemQueue, timeout_s: float = 3.0,
                  poll_s: float = POLL_S, retry_max_s: float = 2.0,
-                 start_measurement: bool = True, clock=time.monotonic) -> None:
+                 start_measurement: bool = True, stall_s: float = STALL_S,
+                 clock=time.monotonic) -> None:
         self.address = address
+        self.stall_s = float(stall_s)
         self.items = items
         self.client = PhyphoxClient(address, timeout_s)
         self.poll_s = float(poll_s)
@@ -426,7 +441,7 @@ class PhyphoxPoller:
             self.samples += len(samples)
             self._last_data = self.clock()
             self.items.chunk(self.connection, lines_of(samples))
-        elif measuring and self.clock() - self._last_data > STALL_S:
+        elif measuring and self.clock() - self._last_data > self.stall_s:
             self._check_cleared()
         if not measuring or not config.sensors:
             return IDLE_POLL_S
@@ -518,11 +533,11 @@ class PhyphoxSource(Source):
 
     def __init__(self, url: str, timeout_s: float = 3.0, poll_s: float = POLL_S,
                  retry_max_s: float = 2.0, start_measurement: bool = True,
-                 max_queued_bytes: int = 16 << 20) -> None:
+                 stall_s: float = STALL_S, max_queued_bytes: int = 16 << 20) -> None:
         self.address = parse_address(url)
         self.items = ItemQueue(max_queued_bytes)
         self.poller = PhyphoxPoller(self.address, self.items, timeout_s, poll_s, retry_max_s,
-                                    start_measurement)
+                                    start_measurement, stall_s)
         self._thread = PhyphoxThread(self.poller)
         self.name = f"phyphox at {self.address.text}"
 

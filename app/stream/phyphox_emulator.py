@@ -130,7 +130,7 @@ class PhyphoxPhone:
         self._lock = threading.Lock()
         self._server: HTTPServer | None = None
         self._thread: threading.Thread | None = None
-        self._back_at: float | None = None
+        self.closing = False
         self._vanish_timer: threading.Timer | None = None
         if measuring:
             self.start_measurement()
@@ -332,6 +332,7 @@ class PhyphoxPhone:
             pass
 
         Handler.phone = phone
+        self.closing = False
         server = HTTPServer((self.host, self.requested_port if self.port is None
                              else self.port), Handler)
         self._server = server
@@ -348,6 +349,7 @@ class PhyphoxPhone:
             self._vanish_timer.cancel()
             self._vanish_timer = None
         server, self._server = self._server, None
+        self.closing = True                 # a kept-alive connection ends after its request
         if server is not None:
             server.shutdown()
             server.server_close()
@@ -423,6 +425,8 @@ class _Handler(BaseHTTPRequestHandler):
     def _reply(self, status: int, data: Any) -> None:
         body = json.dumps(data, allow_nan=False).encode("utf-8")
         self.send_response(status)
+        if self.close_connection:
+            self.send_header("Connection", "close")
         self.send_header("Content-Type", "application/json")
         self.send_header("Access-Control-Allow-Origin", "*")
         self.send_header("Content-Length", str(len(body)))
@@ -455,6 +459,8 @@ class _Handler(BaseHTTPRequestHandler):
             self.wfile.write(body)
             return
         status, reply = self.phone.answer(self.command, path, params)
+        if self.phone.closing:
+            self.close_connection = True
         self._reply(status, reply)
 
     def do_GET(self) -> None:  # noqa: N802 (http.server's name)

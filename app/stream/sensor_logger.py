@@ -60,6 +60,9 @@ GRAVITY_MATCH_NS = 100_000_000
 #: app's default (not standardised) is assumed.
 DECIDE_WITHIN_NS = 2_000_000_000
 NOTE_INTERVAL_S = 1.0
+#: A body over the limit but at most this large is read and dropped before the 413, so the
+#: sender sees the answer; a larger one is answered at once and its connection closed.
+DRAIN_BYTES = 64 << 20
 
 
 class SensorLoggerConverter:
@@ -246,7 +249,6 @@ class SensorLoggerEndpoint:
         self._note_times: dict[str, float] = {}
         self._server: ThreadingHTTPServer | None = None
         self._thread: threading.Thread | None = None
-        self._slots = threading.BoundedSemaphore(self.max_clients)
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -261,7 +263,7 @@ class SensorLoggerEndpoint:
 
         Handler.endpoint = endpoint
         Handler.timeout = self.body_timeout_s
-        server = _Server((self.host, self.requested_port), Handler, endpoint)
+        server = _Server((self.host, self.requested_port), Handler, endpoint, self.max_clients)
         self._server = server
         self.port = server.server_address[1]
         self.state = "waiting"
@@ -333,10 +335,10 @@ class SensorLoggerEndpoint:
     def _new_stream(self, previous: _Stream | None, device: str, session: str, peer: str,
                     now: float) -> _Stream:
         self.connections += 1
-        if previous is None or not previous.active:
-            detail = "Sensor Logger"
-        elif previous.device == device:
+        if previous is not None and previous.device == device:
             detail = "Sensor Logger: a new recording on the phone"
+        elif previous is None or not previous.active:
+            detail = "Sensor Logger"
         else:
             detail = (f"Sensor Logger: took over from {previous.peer} (silent for "
                       f"{now - previous.last_push:.1f} s)")
@@ -405,12 +407,14 @@ class _Server(ThreadingHTTPServer):
     daemon_threads = True
     request_queue_size = 64
 
-    def __init__(self, address, handler, endpoint: SensorLoggerEndpoint) -> None:
+    def __init__(self, address, handler, endpoint: SensorLoggerEndpoint,
+                 max_clients: int) -> None:
         self.endpoint = endpoint
+        self._slots = threading.BoundedSemaphore(max_clients)
         super().__init__(address, handler)
 
     def process_request(self, request, client_address) -> None:
-        if not self.endpoint._slots.acquire(blocking=False):
+        if not self._slots.acquire(blocking=False):
             self.endpoint.count("too many clients")
             self.shutdown_request(request)
             return
@@ -420,7 +424,7 @@ class _Server(ThreadingHTTPServer):
         try:
             super().process_request_thread(request, client_address)
         finally:
-            self.endpoint._slots.release()
+            self._slots.release()
 
     def service_actions(self) -> None:
         self.endpoint.housekeeping()
@@ -494,8 +498,20 @@ class _PushHandler(BaseHTTPRequestHandler):
         if length < 0:
             raise _BodyError(400, "Orientation Lab: bad Content-Length")
         if length > limit:
+            if length <= DRAIN_BYTES:
+                self._discard(length, deadline)      # so the phone reads the answer
             raise too_large
         return self._read(length, deadline)
+
+    def _discard(self, size: int, deadline: float) -> None:
+        try:
+            while size > 0 and time.monotonic() < deadline:
+                piece = self.rfile.read1(min(size, 65536))
+                if not piece:
+                    return
+                size -= len(piece)
+        except OSError:
+            return
 
     def do_POST(self) -> None:  # noqa: N802 (http.server's name)
         peer = f"{self.client_address[0]}:{self.client_address[1]}"
