@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from app.stream.phyphox import SENSOR_TAGS
+from app.stream.phyphox_api import SENSOR_TAGS
 from app.stream.phyphox_experiment import experiment_xml
 from app.stream.protocol import ParseError, parse_line
 
