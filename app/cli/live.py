@@ -14,7 +14,7 @@ import threading
 import time
 
 import ekf
-from app.cli import options
+from app.cli import options, phones
 from app.engine import config
 from app.engine.estimates import EstimatesWriter
 from app.engine.snapshot import Snapshot, lag_text
@@ -33,6 +33,8 @@ def cmd_send(args: argparse.Namespace) -> int:
         lines = read_lines(config.resolve_log_path(args.log))
     except LogError as error:
         raise config.ConfigError(str(error)) from None
+    if args.as_app != "sensor-fusion":
+        return phones.send_as_app(args, lines)
     stop = threading.Event()
     try:
         with PhoneEmulator(args.host, args.port) as phone:
@@ -234,13 +236,16 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 def add_commands(sub) -> None:
     send = sub.add_parser(
-        "send", help="phone emulator: stream a log to a server like the Sensor Fusion app",
-        description="Connect to HOST:PORT like the phone app and stream LOG with its original "
-                    "timing.")
+        "send", help="phone emulator: stream a log like the Sensor Fusion app, phyphox or "
+                     "Sensor Logger",
+        description="Connect to HOST:PORT like the Sensor Fusion app and stream LOG with its "
+                    "original timing; --as phyphox serves it through phyphox's remote "
+                    "interface on HOST:PORT, --as sensor-logger pushes it to --url.")
     send.add_argument("log", help="log file (.txt or .txt.gz) in the phone's format, or a "
                                   "recorded session folder")
     options.add_connect(send)
     options.add_speed_loop(send)
+    phones.add_send_options(send)
     send.set_defaults(func=cmd_send)
 
     serve = sub.add_parser(
