@@ -95,7 +95,8 @@ def user_line(user) -> str:
 
 
 def _recording(args: argparse.Namespace, settings: ekf.EKFSettings | None,
-               estimator: str) -> tuple[Recorder | None, EstimatesWriter | None]:
+               estimator: str, source_kind: str = "tcp") \
+        -> tuple[Recorder | None, EstimatesWriter | None]:
     """The recorder and estimates file of a session folder (None, None without --record). A
     folder that holds a session already is left alone: the recording goes to DIR-2, ..."""
     if not args.record:
@@ -105,7 +106,7 @@ def _recording(args: argparse.Namespace, settings: ekf.EKFSettings | None,
         print(f"orientation-lab: {note}", file=sys.stderr, flush=True)
     try:
         recorder = Recorder(folder, settings or ekf.PRESETS["default"],
-                            info={"source": "tcp", "estimator": estimator},
+                            info={"source": source_kind, "estimator": estimator},
                             max_bytes=args.record_max_mb,
                             min_free_bytes=args.record_min_free_mb)
     except OSError as error:
@@ -128,7 +129,7 @@ def _start_engine(args: argparse.Namespace) -> Engine:
         raise config.ConfigError("serve: give exactly one --estimator")
     settings = config.load_settings(args.settings)
     source = config.make_source(options.source_options(args))
-    recorder, writer = _recording(args, settings, names[0])
+    recorder, writer = _recording(args, settings, names[0], source.kind)
     forwarder = LineForwarder(*args.forward) if args.forward else None
     engine = Engine(source, settings, names[0], comparisons=not args.no_comparisons,
                     recorder=recorder, estimates=writer, limits=args.limits,
@@ -137,7 +138,8 @@ def _start_engine(args: argparse.Namespace) -> Engine:
         engine.start()
     except OSError as error:
         engine.stop()
-        raise config.ConfigError(f"cannot listen on {args.host}:{args.port}: "
+        where = args.sensor_logger or f"{args.host}:{args.port}"
+        raise config.ConfigError(f"cannot listen on {where}: "
                                  f"{error.strerror or error}") from None
     return engine
 
@@ -204,10 +206,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     previous_handler = None
     if threading.current_thread() is threading.main_thread():
         previous_handler = signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    source = engine.source
-    addresses = ", ".join(source.info()["listen_addresses"] or [args.host])
-    print(f"listening on port {source.port}; type one of these into the phone app: {addresses}",
-          flush=True)
+    print(engine.source.connect_hint(), flush=True)
     snapshot = engine.snapshot_now()
     watch = _Watch(args)
     last_print = time.monotonic()
@@ -253,6 +252,7 @@ def add_commands(sub) -> None:
         description="Listen for the phone, run the estimators and print stream health once a "
                     "second. Ctrl-C stops.")
     options.add_listen(serve)
+    options.add_phone_apps(serve)
     options.add_record(serve)
     options.add_estimator(serve)
     options.add_settings(serve)

@@ -296,6 +296,10 @@ class PhyphoxSource(Source):
     def read(self, timeout: float = 0.05) -> list[Chunk | SourceEvent]:
         return self.items.get(timeout)
 
+    def connect_hint(self) -> str:
+        return (f"polling phyphox at {self.address.url} (in phyphox: Allow remote access; "
+                "the measurement is started from here)")
+
     def info(self) -> dict[str, Any]:
         poller = self.poller
         config = poller.config

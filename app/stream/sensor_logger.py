@@ -26,6 +26,7 @@ epoch nanoseconds become epoch milliseconds.
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import socket
 import threading
@@ -38,6 +39,7 @@ from app.stream.netinfo import lan_ipv4_addresses
 from app.stream.phone_apps import ItemQueue, lines_of
 from app.stream.sensor_logger_convert import FRAMES, SensorLoggerConverter
 from app.stream.sources import LIVE_PHONE, Source
+from app.stream.tcp_server import parse_networks
 
 DEFAULT_PORT = 8000
 NOTE_INTERVAL_S = 1.0
@@ -68,7 +70,8 @@ class SensorLoggerEndpoint:
     def __init__(self, items: ItemQueue, host: str = "0.0.0.0", port: int = DEFAULT_PORT,
                  frames: str = "auto", max_body_bytes: int = 8 << 20,
                  takeover_after_s: float = 3.0, idle_after_s: float = 5.0,
-                 body_timeout_s: float = 10.0, max_clients: int = 8, clock=time.monotonic) -> None:
+                 body_timeout_s: float = 10.0, max_clients: int = 8, allow=(),
+                 clock=time.monotonic) -> None:
         if frames not in FRAMES:
             raise ValueError(f"frames: one of {', '.join(FRAMES)}, got {frames!r}")
         self.items = items
@@ -81,6 +84,7 @@ class SensorLoggerEndpoint:
         self.idle_after_s = float(idle_after_s)
         self.body_timeout_s = float(body_timeout_s)
         self.max_clients = int(max_clients)
+        self.allowed = parse_networks(allow)
         self.clock = clock
         self.state = "stopped"
         self.stream: _Stream | None = None
@@ -88,7 +92,7 @@ class SensorLoggerEndpoint:
         self.counts: dict[str, int] = {"batches": 0, "samples": 0, "bad JSON": 0,
                                        "not a push": 0, "too large": 0, "second device": 0,
                                        "busy": 0, "too many clients": 0, "batch out of order": 0,
-                                       "other requests": 0}
+                                       "other requests": 0, "not allowed": 0}
         self.second_devices: dict[str, int] = {}
         self._lock = threading.Lock()
         self._note_times: dict[str, float] = {}
@@ -141,6 +145,16 @@ class SensorLoggerEndpoint:
         if now - self._note_times.get(kind, -1e9) >= NOTE_INTERVAL_S:
             self._note_times[kind] = now
             self.items.event(kind, 0, peer, detail)
+
+    def allows(self, address: str) -> bool:
+        """Whether `address` may push (``allow``: addresses or networks; empty: anyone)."""
+        if not self.allowed:
+            return True
+        try:
+            ip = ipaddress.ip_address(address)
+        except ValueError:
+            return False
+        return any(ip in network for network in self.allowed)
 
     def push(self, body: bytes, peer: str) -> tuple[int, str]:
         """One POSTed body: (HTTP status, text to answer)."""
@@ -360,6 +374,12 @@ class _PushHandler(BaseHTTPRequestHandler):
 
     def do_POST(self) -> None:  # noqa: N802 (http.server's name)
         peer = f"{self.client_address[0]}:{self.client_address[1]}"
+        if not self.endpoint.allows(str(self.client_address[0])):
+            count = self.endpoint.count("not allowed")
+            self.endpoint.note("closed", f"a push from {peer} is not from an allowed address "
+                                         f"({count} so far)", peer)
+            self._answer(403, "Orientation Lab: this address may not push here", close=True)
+            return
         try:
             body = self._body()
         except _BodyError as error:
@@ -395,10 +415,11 @@ class SensorLoggerSource(Source):
 
     def __init__(self, host: str = "0.0.0.0", port: int = DEFAULT_PORT, frames: str = "auto",
                  takeover_after_s: float = 3.0, max_body_bytes: int = 8 << 20,
-                 idle_after_s: float = 5.0, max_queued_bytes: int = 16 << 20) -> None:
+                 idle_after_s: float = 5.0, max_queued_bytes: int = 16 << 20,
+                 allow=()) -> None:
         self.items = ItemQueue(max_queued_bytes)
         self.endpoint = SensorLoggerEndpoint(self.items, host, port, frames, max_body_bytes,
-                                             takeover_after_s, idle_after_s)
+                                             takeover_after_s, idle_after_s, allow=allow)
         self._addresses: list[str] = []
         self.name = "Sensor Logger"
 
@@ -420,6 +441,10 @@ class SensorLoggerSource(Source):
 
     def read(self, timeout: float = 0.05) -> list[Chunk | SourceEvent]:
         return self.items.get(timeout)
+
+    def connect_hint(self) -> str:
+        return (f"listening on port {self.port} for Sensor Logger; type one of these into its "
+                f"HTTP Push URL: {', '.join(self.urls())}")
 
     def info(self) -> dict[str, Any]:
         endpoint = self.endpoint

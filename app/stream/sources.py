@@ -78,6 +78,11 @@ class Source:
     def control(self, command: Any) -> None:
         """Apply a ReplayControl (replays) or a connection command (TCP); others ignore it."""
 
+    def connect_hint(self) -> str:
+        """One line for the user: how the phone reaches this source ("" when it plays a
+        file)."""
+        return ""
+
     def info(self) -> dict[str, Any]:
         """Health fields: connection_state, peer, port, listen_addresses, replay (dict or None);
         TCP also waiting_peers, connections_closed, allowed."""
@@ -120,6 +125,11 @@ class TcpSource(Source):
     def control(self, command: Any) -> None:
         if isinstance(command, CONNECTION_COMMANDS):
             self.server.control(command)
+
+    def connect_hint(self) -> str:
+        addresses = ", ".join(self._addresses or [self.server.host])
+        return (f"listening on port {self.port}; type one of these into the phone app: "
+                f"{addresses}")
 
     def info(self) -> dict[str, Any]:
         state = self.server.state
@@ -408,6 +418,9 @@ class DemoOrPhoneSource(Source):
             self.phone.control(command)
         elif not self.phone_active:
             self.demo.control(command)
+
+    def connect_hint(self) -> str:
+        return self.phone.connect_hint()
 
     def info(self) -> dict[str, Any]:
         if self.phone_active:
