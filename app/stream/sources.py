@@ -83,6 +83,11 @@ class Source:
         file)."""
         return ""
 
+    def played(self) -> LineReplaySource | None:
+        """The replay this source plays now (its lines, seeks and file), None while a live
+        phone streams."""
+        return None
+
     def info(self) -> dict[str, Any]:
         """Health fields: connection_state, peer, port, listen_addresses, replay (dict or None);
         TCP also waiting_peers, connections_closed, allowed."""
@@ -190,6 +195,9 @@ class LineReplaySource(Source):
     def line_index(self) -> int:
         """The next line to go out (the target while re-syncing after a seek)."""
         return max(self._index, self._fast_until)
+
+    def played(self) -> LineReplaySource:
+        return self
 
     def line(self, index: int) -> bytes:
         return self.data[self.starts[index]:self.starts[index + 1]]
@@ -421,6 +429,9 @@ class DemoOrPhoneSource(Source):
 
     def connect_hint(self) -> str:
         return self.phone.connect_hint()
+
+    def played(self) -> LineReplaySource | None:
+        return None if self.phone_active else self.demo.played()
 
     def info(self) -> dict[str, Any]:
         if self.phone_active:
