@@ -10,7 +10,8 @@ parameters in the query, a JSON or a form body (the body wins).
 
 The log's ACC, GYR, MAG and ORI samples fill the experiment's sensor buffers as the
 measurement runs, with the log's own timing scaled by ``speed``; the experiment time starts
-at 0 with the log's first sample and stops while the measurement is stopped. ``digits``
+at 0 with the log's first sample (or at ``start_ms`` of the log's time: 0 serves the log's own
+times) and stops while the measurement is stopped. ``digits``
 rounds what is served to that many significant digits as the phone does (about 8; the
 threshold is then nudged up by one unit in the last place); None serves every value exactly.
 :meth:`vanish` makes the phone unreachable for a while (the measurement goes on),
@@ -96,7 +97,7 @@ class PhyphoxPhone:
     def __init__(self, lines: list[bytes], host: str = "127.0.0.1", port: int = 0,
                  speed: float = 1.0, xml: str | None = None, digits: int | None = None,
                  measuring: bool = False, nan_samples: dict[str, set[int]] | None = None,
-                 clock=time.monotonic) -> None:
+                 start_ms: int | None = None, clock=time.monotonic) -> None:
         self.host = host
         self.requested_port = port
         self.port: int | None = None
@@ -109,6 +110,8 @@ class PhyphoxPhone:
         samples = _log_samples(lines)
         starts = [int(t[0]) for t, _ in samples.values()]
         self.t0_ms = min(starts) if starts else 0
+        # the log time at experiment time 0 (default: its first sample)
+        self.start_ms = self.t0_ms if start_ms is None else int(start_ms)
         self.samples = samples
         self.columns: dict[str, _Column] = {}
         self.times_s: dict[str, np.ndarray] = {}          # sensor type -> log time [s]
@@ -226,8 +229,10 @@ class PhyphoxPhone:
         return values
 
     def _origin_s(self) -> float:
-        """The log time at experiment time 0."""
-        return self._cleared_at_s or 0.0
+        """Experiment time 0, in seconds after the log's first sample."""
+        if self._cleared_at_s is not None:
+            return self._cleared_at_s
+        return (self.start_ms - self.t0_ms) / 1000.0
 
     def _delivered(self, time_buffer: str, data: np.ndarray, first: int) -> None:
         """Notes a time buffer whose last sample of the log the client now has."""
