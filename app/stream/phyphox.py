@@ -305,7 +305,7 @@ class PhyphoxSource(Source):
         config = poller.config
         return {"connection_state": "waiting" if poller.state == "stopped" else poller.state,
                 "peer": self.address.text, "port": None, "listen_addresses": [],
-                "replay": None,
+                "replay": None, "connect_hint": self.connect_hint(),
                 "phyphox": {"url": self.address.url,
                             "experiment": config.title if config else None,
                             "missing": list(config.missing) if config else [],

@@ -453,4 +453,5 @@ class SensorLoggerSource(Source):
         return {"connection_state": "waiting" if state == "stopped" else state,
                 "peer": stream.peer if stream else None, "port": endpoint.port,
                 "listen_addresses": list(self._addresses), "replay": None,
+                "connect_to": self.urls(), "connect_hint": self.connect_hint(),
                 "sensor_logger": {**endpoint.info(), "urls": self.urls()}}

@@ -141,7 +141,8 @@ class TcpSource(Source):
         return {"connection_state": "waiting" if state == "stopped" else state,
                 "peer": self.server.peer, "port": self.server.port,
                 "listen_addresses": list(self._addresses), "replay": None,
-                **self.server.info()}
+                "connect_to": [f"{address}:{self.server.port}" for address in self._addresses],
+                "connect_hint": self.connect_hint(), **self.server.info()}
 
 
 class LineReplaySource(Source):
@@ -439,6 +440,6 @@ class DemoOrPhoneSource(Source):
         info = dict(self.demo.info())
         phone = self.phone.info()
         for key in ("port", "listen_addresses", "waiting_peers", "connections_closed",
-                    "allowed"):
+                    "allowed", "connect_to", "connect_hint"):
             info[key] = phone.get(key)
         return info
