@@ -35,6 +35,8 @@ def cmd_send(args: argparse.Namespace) -> int:
         raise config.ConfigError(str(error)) from None
     if args.as_app != "sensor-fusion":
         return phones.send_as_app(args, lines)
+    if args.gone:
+        raise config.ConfigError("--gone: only with --as phyphox or --as sensor-logger")
     stop = threading.Event()
     try:
         with PhoneEmulator(args.host, args.port) as phone:

@@ -69,6 +69,18 @@ def add_send_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--digits", type=int, default=0, metavar="N",
                        help="phyphox: round what is served to N significant digits, as the "
                             "phone does (about 8); 0 serves the log's values exactly (default)")
+    group.add_argument("--start-ms", type=int, metavar="MS",
+                       help="phyphox: the log's time (ms) at experiment time 0 (default: its "
+                            "first sample, as on the phone; 0 serves the log's own times)")
+    group.add_argument("--epoch-ms", type=int, metavar="MS",
+                       help="sensor-logger: the phone clock's reading (UTC epoch ms) at the "
+                            "log's first sample (default: now; its first sample's own time "
+                            "pushes the log's times)")
+    group.add_argument("--gone", type=_gone, metavar="AT:SECONDS",
+                       help="phyphox, sensor-logger: the phone leaves the network when the "
+                            "log reaches AT seconds, for SECONDS (phyphox refuses connections, "
+                            "its measurement goes on; Sensor Logger's batches wait and go out "
+                            "after)")
     group.add_argument("--started", action="store_true",
                        help="phyphox: the measurement runs from the start (default: it waits "
                             "for the PC to start it, as phyphox does until someone presses play)")
@@ -81,6 +93,17 @@ def _period(text: str) -> float:
         raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
     if not 0.01 <= value <= 600:
         raise argparse.ArgumentTypeError(f"a batch period between 0.01 and 600 s, got {text}")
+    return value
+
+
+def _gone(text: str) -> tuple[float, float]:
+    at, sep, seconds = str(text).partition(":")
+    try:
+        value = (float(at), float(seconds))
+    except ValueError:
+        value = (-1.0, -1.0)
+    if not sep or not (value[0] >= 0 and value[1] > 0):
+        raise argparse.ArgumentTypeError(f"expected AT:SECONDS, e.g. 300:5, got {text!r}")
     return value
 
 
@@ -98,21 +121,26 @@ def _serve_phyphox(args: argparse.Namespace, lines: list[bytes]) -> int:
     if args.digits < 0:
         raise config.ConfigError(f"--digits: 0 or more, got {args.digits}")
     phone = PhyphoxPhone(lines, args.host, args.port, speed=args.speed,
-                         digits=args.digits or None, measuring=args.started)
+                         digits=args.digits or None, measuring=args.started,
+                         start_ms=args.start_ms)
     try:
         phone.start()
     except OSError as error:
         raise config.ConfigError(f"cannot serve on {args.host}:{args.port}: "
                                  f"{error.strerror or error}") from None
+    measuring = (f"; measuring since {phone.events[0]['systemTime']:.3f} (epoch s)"
+                 if phone.events else "")
     print(f"phyphox (emulated) serving {len(lines)} lines on http://{args.host}:{phone.port}; "
-          "it stops once a client has fetched the whole log", file=sys.stderr, flush=True)
+          f"it stops once a client has fetched the whole log{measuring}", file=sys.stderr,
+          flush=True)
     try:
-        phone.serve_forever()
+        phone.serve_forever(gone=args.gone)
     except KeyboardInterrupt:
         return 130
     finally:
         phone.stop()
-    print(f"served the log to its end ({phone.requests} requests)", file=sys.stderr)
+    print(f"served the log to its end ({phone.requests} requests, "
+          f"{phone.overlapping_requests} overlapping another)", file=sys.stderr)
     return 0
 
 
@@ -123,8 +151,12 @@ def _push_sensor_logger(args: argparse.Namespace, lines: list[bytes]) -> int:
         parse_push_url(args.url)
     except ValueError as error:
         raise config.ConfigError(f"--url: {error}") from None
+    first = next((int(line.split(b"\t", 1)[0]) for line in lines
+                  if line.split(b"\t", 1)[0].isdigit()), 0)
+    offset = None if args.epoch_ms is None else args.epoch_ms - first
     phone = SensorLoggerPhone(args.url, period_s=args.period, platform=args.platform,
-                              standardised=args.standardised, device_id=args.device_id)
+                              standardised=args.standardised, device_id=args.device_id,
+                              time_offset_ms=offset, gone=args.gone)
     stop = threading.Event()
     try:
         pushed = phone.stream_lines(lines, args.speed, args.loop, stop)
@@ -134,7 +166,8 @@ def _push_sensor_logger(args: argparse.Namespace, lines: list[bytes]) -> int:
         print(f"Sensor Logger would show: {message}", file=sys.stderr)
     statuses = ", ".join(f"{count} x {status}" for status, count in sorted(phone.statuses.items()))
     print(f"pushed {pushed} samples to {args.url} in {phone.message_id} batches "
-          f"({statuses or 'none answered'})", file=sys.stderr)
+          f"({statuses or 'none answered'}); the log's time + {phone.time_offset_ms} ms was the "
+          "phone's clock (UTC epoch ms)", file=sys.stderr)
     if phone.message_id and not phone.statuses:
         raise config.ConfigError(f"cannot push to {args.url}: nothing answered")
     return 0

@@ -378,11 +378,16 @@ class PhyphoxPhone:
     def serving(self) -> bool:
         return self._server is not None
 
-    def serve_forever(self, stop: threading.Event | None = None) -> None:
+    def serve_forever(self, stop: threading.Event | None = None,
+                      gone: tuple[float, float] | None = None) -> None:
         """Serve in this thread's stead until `stop` is set (or the log was served to its end
-        and then 1 s passed, when `stop` is None)."""
+        and then 1 s passed, when `stop` is None). gone (AT, SECONDS): the phone leaves the
+        network when its measurement reaches AT seconds of the log, for SECONDS."""
         done_at = None
         while stop is None or not stop.is_set():
+            if gone is not None and self.position_s() >= gone[0]:
+                self.vanish(gone[1])
+                gone = None
             if stop is None and self.served_to_end:
                 done_at = done_at or self.clock()
                 if self.clock() - done_at > 1.0:
@@ -401,7 +406,8 @@ class _Handler(BaseHTTPRequestHandler):
 
     phone: PhyphoxPhone
     protocol_version = "HTTP/1.1"
-    timeout = 1.0                       # an idle kept-alive connection is closed after this
+    timeout = 1.0
+    disable_nagle_algorithm = True      # headers and body go out at once (no 40 ms wait)                       # an idle kept-alive connection is closed after this
 
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (the base's name)
         return

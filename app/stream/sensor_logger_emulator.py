@@ -75,7 +75,7 @@ class SensorLoggerPhone:
     def __init__(self, url: str, period_s: float = 1.0, platform: str = "android",
                  standardised: bool = False, device_id: str | None = None,
                  session_id: str | None = None, time_offset_ms: int | None = None,
-                 timeout_s: float = 5.0) -> None:
+                 timeout_s: float = 5.0, gone: tuple[float, float] | None = None) -> None:
         if platform not in PLATFORMS:
             raise ValueError(f"platform: one of {', '.join(PLATFORMS)}, got {platform!r}")
         self.host, self.port, self.path = parse_push_url(url)
@@ -86,12 +86,15 @@ class SensorLoggerPhone:
         self.session_id = session_id or uuid.uuid4().hex
         self.time_offset_ms = time_offset_ms
         self.timeout_s = float(timeout_s)
+        self.gone = gone             # (AT, SECONDS): the network gone at AT s of the log
         self.message_id = 0
         self.statuses: dict[int, int] = {}
         self.messages_shown: list[str] = []    # what Sensor Logger would show (499 texts)
         self.samples_pushed = 0
         self.failed_attempts = 0
+        self.started_at: float | None = None   # time.monotonic() when the log's time 0 was
         self._pending: list[dict[str, Any]] = []
+        self._shift_ns = 0
         self._hold_until = 0.0
         self._connection: http.client.HTTPConnection | None = None
 
@@ -145,6 +148,8 @@ class SensorLoggerPhone:
     # -- pushing ------------------------------------------------------------------------------------
 
     def message(self, payload: list[dict[str, Any]]) -> dict[str, Any]:
+        if self._shift_ns:
+            payload = [dict(entry, time=entry["time"] + self._shift_ns) for entry in payload]
         message = {"messageId": self.message_id, "sessionId": self.session_id,
                    "deviceId": self.device_id, "payload": payload}
         self.message_id += 1
@@ -201,14 +206,27 @@ class SensorLoggerPhone:
         """Push the lines' samples with their timing / speed (0: as fast as possible), a
         batch every period_s of log time; returns the payload entries pushed with a 200."""
         while True:
+            clock_now = self.time_offset_ms is None
+            if clock_now:
+                self.time_offset_ms = 0
             entries, pace = self.entries(lines)
             start = time.perf_counter()
+            self.started_at = time.monotonic()
+            if clock_now:
+                # the phone stamps its samples when it takes them: the log's first now
+                first = next((int(line.split(b"\t", 1)[0]) for line in lines
+                              if line.split(b"\t", 1)[0].isdigit()), 0)
+                self.time_offset_ms = int(time.time() * 1000) - first
+                self._shift_ns = self.time_offset_ms * 1_000_000
             batch: list[dict[str, Any]] = []
             batch_end = self.period_s
             for index, due in enumerate(pace):
                 if stop is not None and stop.is_set():
                     break
                 if due > batch_end:
+                    if self.gone is not None and batch_end >= self.gone[0]:
+                        self.vanish(self.gone[1] / (speed or 1.0))
+                        self.gone = None
                     if speed > 0:
                         wait = start + batch_end / speed - time.perf_counter()
                         if wait > 0:
@@ -231,6 +249,7 @@ class SensorLoggerPhone:
                 return self.samples_pushed
             # the next pass goes on in time, as a phone's clock does
             self.time_offset_ms = (self.time_offset_ms or 0) + int(pace[-1] * 1000) + 1000
+            self._shift_ns = 0
 
 
 def _xyz(name: str, ns: int, values) -> dict[str, Any]:
