@@ -113,7 +113,8 @@ def phyphox_serve_flow(log: Path, folder: Path, gone: str, duration_s: float,
     time.sleep(1.0)                                  # the phone's app is open first
     process = serve(["--phyphox", f"127.0.0.1:{port}"], folder, 15)
     out, err = process.communicate(timeout=duration_s + 180)
-    results["phyphox serve"] = {"code": process.returncode, "final": out.strip()[-300:],
+    results["phyphox serve"] = {"code": process.returncode,
+                                "final": out.strip().splitlines()[-1][-300:],
                                 "stderr": err.strip()[-300:], "phone": finish(phone, 30)}
 
 
@@ -125,7 +126,8 @@ def sensor_logger_serve_flow(log: Path, folder: Path, gone: str, first_ms: int,
                  "--period", str(PERIOD_S), "--epoch-ms", str(first_ms), "--gone", gone)
     phone_said = finish(phone, duration_s + 120)
     out, err = process.communicate(timeout=120)
-    results["Sensor Logger serve"] = {"code": process.returncode, "final": out.strip()[-300:],
+    results["Sensor Logger serve"] = {"code": process.returncode,
+                                      "final": out.strip().splitlines()[-1][-300:],
                                       "stderr": err.strip()[-300:], "phone": phone_said}
 
 

@@ -198,7 +198,8 @@ def run_gui(options: WindowOptions) -> int:
     except OSError as error:            # e.g. the port is taken
         engine.stop()
         given = options.source
-        where = "" if given.replay else f" (listening on {given.host}:{given.port})"
+        where = ("" if given.replay else f" (listening on {given.sensor_logger})"
+                 if given.sensor_logger else f" (listening on {given.host}:{given.port})")
         raise ConfigError(f"cannot start the source{where}: {error.strerror or error}"
                           + ("; another program (or Orientation Lab) uses that port: choose "
                              "another with --port" if error.errno == errno.EADDRINUSE else "")) \
