@@ -103,7 +103,7 @@ def add_phone_apps(parser: argparse.ArgumentParser) -> None:
                         help="take Sensor Logger's HTTP Push on PORT (type http://THIS-PC:PORT/ "
                              "into Sensor Logger) instead of listening for the Sensor Fusion app")
     parser.add_argument("--sensor-logger-frames", type=SENSOR_LOGGER_FRAMES, default="auto",
-                        choices=("auto", "standardised", "not-standardised"),
+                        metavar="auto|standardised|not-standardised",
                         help="Sensor Logger's Standardise Units & Frames setting (default auto: "
                              "told from its gravity and orientation)")
 
