@@ -73,6 +73,8 @@ class StreamHealth:
     connections_closed: dict[str, int] = field(default_factory=dict)  # reason -> count
     allowed: list[str] = field(default_factory=list)          # who may connect (empty: anyone)
     recording: str | None = None             # "recording into DIR (1.2 MB)" / "recording stopped: ..."
+    connect_to: list[str] = field(default_factory=list)   # what to type into the phone's app
+    connect_hint: str = ""                   # how the phone reaches the source, one line
 
 
 def lag_text(health: StreamHealth) -> str:

@@ -52,7 +52,7 @@ from app.engine.userfilter.remote import RemoteFilter
 from app.stream.fastparse import FastLineParser
 from app.stream.lines import read_lines
 from app.stream.ordering import TimeOrderer
-from app.stream.sources import DemoOrPhoneSource, Source
+from app.stream.sources import Source
 
 WATCH_INTERVAL_S = 0.3
 RERUN_PIECE = 4096             # samples per piece of a re-run (cancel and progress checks)
@@ -92,11 +92,7 @@ def ordered_log(path: Path, piece_bytes: int = 1 << 20) -> tuple[np.ndarray, ...
 
 def replay_path(source: Source) -> Path | None:
     """The log a replay source plays (None: a live phone or a source without a file)."""
-    if isinstance(source, DemoOrPhoneSource):
-        source = None if source.phone_active else source.demo
-    if source is None or source.kind != "replay":
-        return None
-    path = getattr(source, "path", None)
+    path = getattr(source.played(), "path", None)
     return Path(path) if path is not None else None
 
 
