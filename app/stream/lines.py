@@ -6,9 +6,10 @@ with its original timing.
 
 from __future__ import annotations
 
+import contextlib
 import gzip
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -104,19 +105,25 @@ CHUNK_BYTES = 1 << 18          # the offline commands' reading: 256 KiB at a tim
 _MAX_CARRY_BYTES = 1 << 24     # a "line" longer than this is passed on in pieces (bounded)
 
 
-def log_chunks(path: str | Path, chunk_bytes: int = CHUNK_BYTES) -> Iterator[bytes]:
+def log_chunks(path: str | Path, chunk_bytes: int = CHUNK_BYTES,
+               on_read: Callable[[int], None] | None = None) -> Iterator[bytes]:
     """A log's bytes (plain or gzip) chunk by chunk, as read: memory for one chunk whatever the
-    file's size. The first chunk is checked as text. LogError when the file is missing, a
+    file's size. The first chunk is checked as text; `on_read` gets the bytes of the file read
+    so far (of a gzip file: compressed) after each chunk. LogError when the file is missing, a
     folder, unreadable (a damaged gzip stream among them, wherever it breaks), mostly binary or
     empty (raised at the end, when nothing was read)."""
     path = Path(path)
     total = 0
     with open_log_bytes(path) as stream:
+        underlying = getattr(stream, "fileobj", None) or stream    # a gzip file's own bytes
         while True:
             try:
                 chunk = stream.read(chunk_bytes)
             except (OSError, EOFError, zlib.error) as error:
                 raise LogError(f"{path}: cannot read ({why_unreadable(error)})") from None
+            if on_read is not None:
+                with contextlib.suppress(OSError, ValueError):
+                    on_read(underlying.tell())
             if not chunk:
                 break
             if total == 0:

@@ -205,6 +205,19 @@ class LogFile:
         self.limits = limits
         self.chunk_bytes = chunk_bytes
         self.stats: LogStats | None = None      # what the latest complete pass found
+        self._read = 0                          # bytes of the file the current pass has read
+
+    @property
+    def fraction_read(self) -> float:
+        """How much of the file the current (or latest) pass has read, 0 to 1."""
+        try:
+            size = Path(self.path).stat().st_size
+        except OSError:
+            return 0.0
+        return min(1.0, self._read / size) if size else 1.0
+
+    def _on_read(self, position: int) -> None:
+        self._read = position
 
     def chunks(self) -> Iterator[LogData]:
         """The ordered samples, chunk by chunk (:class:`LogData` pieces, session starts as
@@ -224,7 +237,7 @@ class LogFile:
                            tuple(int(k) for k in ordered.session_starts))
 
         path = Path(self.path)
-        for data in log_chunks(path, self.chunk_bytes):
+        for data in log_chunks(path, self.chunk_bytes, self._on_read):
             parsed = parser.feed_arrays(data)
             if len(parsed.t_ms):
                 ordered = orderer.push_arrays(parsed.t_ms, parsed.tag, parsed.values)
