@@ -207,6 +207,7 @@ class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWi
         box.addWidget(self.central_splitter, 1)
         for view in self.views():
             view.camera_changed.connect(lambda v=view: self._on_camera_changed(v))
+        self.transport.navigated.connect(self.plots.follow)    # a seek or Play: follow again
 
     def _build_tool_workspaces(self, use_gl: bool | None, tune_log: str | Path | None) -> None:
         """Calibrate (task 2, Allan, magnetometer), Tune (settings, A/B re-filter, auto-tune)

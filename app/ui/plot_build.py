@@ -11,7 +11,7 @@ from PySide6 import QtCore, QtWidgets
 
 from app.ui.no_data import NoDataText
 from app.ui.plot_items import Curve, PlotGroup, TimeAxis, cache_painting, legend_icon
-from app.ui.plot_specs import (DEFAULT_WINDOW_S, GATE_COLOR, LEFT_AXIS_WIDTH, LEGENDS,
+from app.ui.plot_specs import (DEFAULT_WINDOW_S, FOLLOW_NOTE_STYLE, GATE_COLOR, LEFT_AXIS_WIDTH, LEGENDS,
                                MAX_WINDOW_S, PLOTS, REJECTED_COLOR, CurveSpec, PlotSpec)
 
 
@@ -36,8 +36,16 @@ class PlotPanelBuild:
                                      "(Space when live)")
         self.pause_button.toggled.connect(lambda checked: self.set_paused(checked))
         self.follow_button = QtWidgets.QPushButton("Follow")
-        self.follow_button.setToolTip("Show the newest samples again")
+        self.follow_button.setObjectName("follow_button")
+        self.follow_button.setToolTip("Show the newest samples again (a replay: its position; "
+                                      "a seek, Home or Play follows it too)")
         self.follow_button.clicked.connect(self.follow)
+        self.follow_button.setEnabled(False)        # following already
+        # While not following: what the plots show instead, in a colour that stands out
+        self.follow_note = QtWidgets.QLabel("")
+        self.follow_note.setObjectName("follow_note")
+        self.follow_note.setStyleSheet(FOLLOW_NOTE_STYLE)
+        self.follow_note.setVisible(False)
         self.cursor_checkbox = QtWidgets.QCheckBox("Cursor")
         self.cursor_checkbox.setToolTip("A draggable line reading every visible curve")
         self.cursor_checkbox.toggled.connect(self.set_cursor_visible)
@@ -51,6 +59,7 @@ class PlotPanelBuild:
         for widget in (self.window_spin, self.pause_button, self.follow_button,
                        self.cursor_checkbox, self.unwrap_checkbox, self.clear_button):
             toolbar.addWidget(widget)
+        toolbar.addWidget(self.follow_note)
         toolbar.addStretch(1)
         return toolbar
 

@@ -26,6 +26,9 @@ EULER_TOOLTIP = ("Euler angles z-y-x (the course's q2euler intent, its errata fi
                  "R = Rz(yaw) Ry(pitch) Rx(roll), sensor -> East-North-Up; yaw about up "
                  "(0 = the phone's y axis to the north, counter-clockwise positive), pitch about "
                  "the turned y axis (±90°), roll about the phone's x axis.")
+# The toolbar's note while the plots do not follow (paused, or zoomed/dragged by hand)
+FOLLOW_NOTE_STYLE = ("QLabel { background: #ffe8a8; color: #5a3c00; border: 1px solid #e0b040; "
+                     "border-radius: 3px; padding: 1px 6px; }")
 LEFT_AXIS_WIDTH = 64        # px, the same for every plot so their time axes line up
 BAND_FRACTION = 0.035       # the rejected band: this much of the plot's height, at the bottom
 

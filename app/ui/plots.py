@@ -14,7 +14,8 @@ Samples arrive in PlotChunks (one per display frame) and go into preallocated nu
 of bounded size; the current tab's curves are redrawn at most once per display frame, only
 over the visible window, peak-downsampled to the plot's width. Following shows the last
 `window_s` seconds; pausing (button, Space, or dragging/zooming a plot) freezes the view while
-samples keep being stored, Follow resumes. The legend of each tab is a row of toggles above
+samples keep being stored, and a note in the toolbar says so with the times shown; Follow
+resumes (the window also calls follow() on a replay's seek or Play). The legend of each tab is a row of toggles above
 its plots (never over the data); the cursor reads every visible curve into a small table.
 A sensor the stream does not deliver has its plot say so ("no gyroscope in this stream").
 
@@ -49,6 +50,7 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
     def __init__(self, parent: QtWidgets.QWidget | None = None) -> None:
         super().__init__(parent)
         self.following = True
+        self.pause_reason = ""          # "paused" or "zoomed" while not following
         self.unwrapped = False
         self._dirty = True
         self._last_range: tuple[float, float] | None = None
@@ -267,18 +269,47 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
     def set_current_group(self, key: str) -> None:
         self.tabs.setCurrentIndex([k for k, _ in GROUPS].index(key))
 
-    def set_paused(self, paused: bool) -> None:
-        """Pause: the view stays where it is while samples keep being stored."""
+    def set_paused(self, paused: bool, reason: str = "paused") -> None:
+        """Pause: the view stays where it is while samples keep being stored. `reason` ("paused"
+        or "zoomed": a plot dragged or zoomed by hand) is said in the toolbar's note, with the
+        time range shown, until the plots follow again (Follow; a replay's seek, Home or
+        Play)."""
         paused = bool(paused)
+        if paused:
+            self.pause_reason = reason
         if paused == self.paused:
+            self._show_follow_state()
             return
         self.following = not paused
         self.pause_button.blockSignals(True)
         self.pause_button.setChecked(paused)
         self.pause_button.blockSignals(False)
         self.pause_button.setText("Paused" if paused else "Pause")
+        self.follow_button.setEnabled(paused)
         self._dirty = True
+        self._show_follow_state()
         self.paused_changed.emit(paused)
+
+    def follow_text(self) -> str:
+        """The toolbar's note: "" while following, else why not and which times are shown."""
+        if self.following:
+            return ""
+        low, high = self.x_range()
+        span = high - low
+        why = "zoomed by hand" if self.pause_reason == "zoomed" else "paused"
+        low_text, high_text = time_text(low, span, 1), time_text(high, span, 1)
+        unit = "" if ":" in high_text else " s"
+        return f"not following ({why}): showing {low_text} – {high_text}{unit}"
+
+    def _show_follow_state(self) -> None:
+        text = self.follow_text()
+        if self.follow_note.text() != text:
+            self.follow_note.setText(text)
+            self.follow_note.setToolTip(
+                "The plots stay on these times while samples keep arriving; Follow (or, in a "
+                "replay, a seek, Home or Play) shows the newest again" if text else "")
+        if self.follow_note.isVisible() != bool(text):
+            self.follow_note.setVisible(bool(text))
 
     def follow(self) -> None:
         self.set_paused(False)
@@ -346,7 +377,7 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
     def _on_manual_range(self, *args) -> None:
         # The user dragged or zoomed a plot: they want to look at it, so stop following.
         if not self._setting_range:
-            self.set_paused(True)
+            self.set_paused(True, "zoomed")
 
     def _on_x_range_changed(self, view_box, x_range) -> None:
         """A plot's time range changed by hand (drag, zoom, its menu): the others follow."""
@@ -384,6 +415,8 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
         self._dirty = False
         t_start, t_end = self.x_range()
         self._last_range = (t_start, t_end) if self.following else None
+        if not self.following:
+            self._show_follow_state()
         group = self.current_group()
         bounds: dict[str, list[tuple[float, float]]] = {key: [] for key in self.groups[group].plots}
         for stream in self._streams_of(group):

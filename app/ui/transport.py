@@ -138,7 +138,11 @@ class MarkerSlider(QtWidgets.QSlider):
 
 
 class TransportBar(QtWidgets.QFrame):
-    """Replay and recording controls. `send(command)` forwards commands."""
+    """Replay and recording controls. `send(command)` forwards commands. `navigated` is
+    emitted when the user moves the replay somewhere (a seek: the slider, a key, a marker, Home
+    or End) or plays it: the plots follow the replay again."""
+
+    navigated = QtCore.Signal()
 
     def __init__(self, send: Callable[[object], None],
                  parent: QtWidgets.QWidget | None = None) -> None:
@@ -342,6 +346,8 @@ class TransportBar(QtWidgets.QFrame):
             self._send(ReplayControl(paused=paused))
         self._replay = {**self._replay, "paused": paused, "finished": False}
         self._show_play(paused)
+        if not paused:
+            self.navigated.emit()
 
     def _show_play(self, paused: bool) -> None:
         """The button offers what a click does: Play when paused (or at the end), else Pause."""
@@ -363,6 +369,7 @@ class TransportBar(QtWidgets.QFrame):
         target = max(0.0, min(float(seconds), self.duration_s()))
         self._send(ReplayControl(seek_s=target))
         self._replay = {**self._replay, "position_s": target, "finished": False}
+        self.navigated.emit()
 
     def jump_by(self, seconds: float) -> None:
         self.seek_to(self.position_s() + seconds)

@@ -258,3 +258,75 @@ def test_ctrl_l_clears_the_plots_and_says_so(window, fake_engine, qtbot):
     window.tick()
     window.clear_action.trigger()
     assert "plots cleared" in window.statusBar().currentMessage()
+
+
+def _wheel_zoom(plots, key: str) -> None:
+    """Turn the mouse wheel over a plot, as a user zooms it."""
+    group = next(g for g in plots.groups.values() if key in g.plots)
+    view_box = plots.plots[key].getViewBox()
+    centre = view_box.sceneBoundingRect().center()
+    viewport = group.graphics.viewport()
+    pos = QtCore.QPointF(group.graphics.mapFromScene(centre))
+    event = QtGui.QWheelEvent(pos, QtCore.QPointF(viewport.mapToGlobal(pos.toPoint())),
+                              QtCore.QPoint(0, 0), QtCore.QPoint(0, 240),
+                              QtCore.Qt.MouseButton.NoButton,
+                              QtCore.Qt.KeyboardModifier.NoModifier,
+                              QtCore.Qt.ScrollPhase.NoScrollPhase, False)
+    QtWidgets.QApplication.sendEvent(viewport, event)
+
+
+def _session_at(window, engine, seq: int, position_s: float, plot, paused: bool = False):
+    snapshot = make_snapshot(seq, position_s)
+    snapshot.t_ms, snapshot.t0_ms = int(position_s * 1000), 0
+    snapshot.replay = {**REPLAY, "duration_s": 60.0, "position_s": position_s, "paused": paused}
+    snapshot.session_plot = plot
+    engine.snapshots.append(snapshot)
+    window.tick()
+
+
+def test_a_zoom_stops_following_visibly_and_home_then_play_follow_the_replay_again(
+        window, fake_engine, qtbot):
+    """Issue 51, item 3: after a zoom, Home and Play, the plot stayed at 52-54 s while the
+    replay played at 8 s, with nothing but a "Paused" button to say why."""
+    plot = SessionPlot()
+    for start in range(0, 60, 2):
+        plot.add(make_chunk(float(start), count=200))
+    plot.finish()
+    plots = window.plots
+    _session_at(window, fake_engine, 1, 53.0, plot)
+    assert plots.x_range()[1] == pytest.approx(53.0) and not plots.follow_note.isVisible()
+    assert not plots.follow_button.isEnabled()               # following: nothing to resume
+    _wheel_zoom(plots, "acc")
+    assert plots.paused and plots.pause_reason == "zoomed"
+    low, high = plots.x_range()
+    assert high - low < plots.window_s                        # zoomed in
+    note = plots.follow_note
+    assert note.isVisible() and "not following (zoomed by hand)" in note.text()
+    assert f"{low:.1f} – {high:.1f} s" in note.text()
+    assert plots.follow_button.isEnabled()
+    _press(qtbot, window, "Home")
+    assert fake_engine.commands[-1] == ReplayControl(seek_s=0.0)
+    _session_at(window, fake_engine, 2, 0.0, plot, paused=True)
+    _press(qtbot, window, "Space")                            # Play
+    assert fake_engine.commands[-1] == ReplayControl(paused=False)
+    _session_at(window, fake_engine, 3, 8.0, plot)
+    assert not plots.paused and not note.isVisible()
+    assert plots.x_range() == pytest.approx((8.0 - plots.window_s, 8.0))
+
+
+def test_a_seek_follows_again_but_a_step_keeps_the_zoom(window, fake_engine, qtbot):
+    plot = SessionPlot()
+    for start in range(0, 60, 2):
+        plot.add(make_chunk(float(start), count=200))
+    plot.finish()
+    plots = window.plots
+    _session_at(window, fake_engine, 1, 30.0, plot, paused=True)
+    _wheel_zoom(plots, "gyr")
+    zoomed = plots.x_range()
+    _press(qtbot, window, "Ctrl+Right")                       # one sample: still inspecting
+    assert fake_engine.commands[-1] == ReplayControl(paused=True, step=1)
+    _session_at(window, fake_engine, 2, 30.01, plot, paused=True)
+    assert plots.paused and plots.x_range() == pytest.approx(zoomed)
+    _press(qtbot, window, "Right")                            # a jump: show where it went
+    _session_at(window, fake_engine, 3, 31.0, plot, paused=True)
+    assert not plots.paused and plots.x_range()[1] == pytest.approx(31.0)
