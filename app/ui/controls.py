@@ -157,9 +157,11 @@ class FilterPanel(QtWidgets.QWidget, _FollowsEngine):
             checkbox.setEnabled(not missing)
             checkbox.setToolTip(f"{absent_text(sensor)}: the switch applies when its samples "
                                 "arrive" if missing else "")
-        notes = [absent_text(sensor) for sensor in SENSOR_NAMES if sensor in absent]
-        self.sensor_note.setText("; ".join(notes))
-        self.sensor_note.setVisible(bool(notes))
+        missing = [SENSOR_NAMES[sensor] for sensor in SENSOR_NAMES if sensor in absent]
+        # one short line ("no gyroscope or magnetometer in this stream"): the panel's height
+        # barely changes
+        self.sensor_note.setText(f"no {' or '.join(missing)} in this stream" if missing else "")
+        self.sensor_note.setVisible(bool(missing))
 
     def update_status(self, status: FilterStatus) -> None:
         """Follow the engine's view of the switches without sending commands back."""

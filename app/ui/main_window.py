@@ -356,6 +356,7 @@ class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWi
             return
         self._absent = absent
         self.controls.set_absent(absent)
+        self.fit_filter_dock()                   # the note under the switches: room for it
         for sensor, action in self.sensor_actions.items():
             action.setEnabled(sensor not in absent)
             action.setToolTip(absent_text(sensor) if sensor in absent else action.text())

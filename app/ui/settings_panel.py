@@ -100,6 +100,7 @@ class SettingsPanel(QtWidgets.QWidget):
         self.message = QtWidgets.QLabel("")
         self.message.setWordWrap(True)
         layout = QtWidgets.QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
         layout.addLayout(self._buttons())
         layout.addWidget(self.table, 1)
         layout.addWidget(self.message)
@@ -164,6 +165,13 @@ class SettingsPanel(QtWidgets.QWidget):
             self.table.resizeColumnsToContents()
         finally:
             self._filling = False
+
+    def columns_width(self) -> int:
+        """The table's width showing every column up to Course whole (the meaning, the last
+        column, takes what is left and scrolls)."""
+        table = self.table
+        return (sum(table.columnWidth(c) for c in range(COLUMNS.index("course") + 1))
+                + table.verticalScrollBar().sizeHint().width() + 2 * table.frameWidth())
 
     # -- edits --------------------------------------------------------------------------------
 

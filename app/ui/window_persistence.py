@@ -50,6 +50,22 @@ class WindowPersistence:
                          QtCore.Qt.Orientation.Horizontal)
         self.central_splitter.setSizes([int(height * 0.36), int(height * 0.64)])
         self.views_splitter.setSizes([1, 1, 1])
+        self.fit_filter_dock()
+
+    def fit_filter_dock(self) -> None:
+        """The Filter dock as tall as its lights, switches and buttons (it does not scroll in
+        the default layout); the docks below it give up the room, never below their own
+        minimum."""
+        dock = self.filter_dock
+        if dock.isFloating() or dock.isHidden():
+            return
+        scroll = dock.widget()
+        content = scroll.widget()
+        content.adjustSize()
+        title = dock.minimumSizeHint().height() - scroll.minimumSizeHint().height()
+        needed = content.sizeHint().height() + 2 * scroll.frameWidth() + max(title, 0)
+        if dock.height() < needed or not dock.isVisible():
+            self.resizeDocks([dock], [needed], QtCore.Qt.Orientation.Vertical)
 
 
     # ---- layouts and persistence ----------------------------------------------------------
