@@ -42,7 +42,8 @@ def test_calibrate_prints_the_table_the_checks_and_the_allan_figures(logs, capsy
     out = tmp_path / "s.json"
     assert cli.main(["calibrate", str(logs["rest"]), "-o", str(out), "--profile", "sim"]) == 0
     text = capsys.readouterr().out
-    assert "Covariance gyr" in text and "normality p" in text and "ARW" in text
+    assert "Covariance gyr" in text and "K² p" in text and "ARW" in text
+    assert "verdict: Gaussian: neither test rejects normality at the 1 % level" in text
     saved = json.loads(out.read_text())
     assert saved["settings"]["gyr_bias"][0] == pytest.approx(0.01, abs=1e-3)
     assert saved["calibration"]["allan"]["axes"][0]["arw_rad_per_sqrt_s"] > 0

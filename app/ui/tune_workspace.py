@@ -194,6 +194,7 @@ class TuneWorkspace(QtWidgets.QWidget):
         self.settings_panel = SettingsPanel(send, settings(), store=store)
         settings_box = QtWidgets.QGroupBox("Filter settings (live: the filter and the re-run)")
         QtWidgets.QVBoxLayout(settings_box).addWidget(self.settings_panel)
+        self.settings_box = settings_box
         self.ab_plots = ABPlots()
         self.smooth_checkbox = QtWidgets.QCheckBox("Smoothed (forward + backward RTS pass)")
         self.smooth_checkbox.setToolTip("The offline smoother of `filter --smooth`: our EKF "
@@ -210,7 +211,7 @@ class TuneWorkspace(QtWidgets.QWidget):
         self.splitter = QtWidgets.QSplitter(QtCore.Qt.Orientation.Horizontal)
         self.splitter.setObjectName("tune_splitter")
         self.splitter.setChildrenCollapsible(False)
-        self.splitter.addWidget(settings_box)
+        self.splitter.addWidget(self.settings_box)
         self.splitter.addWidget(self.ab_page)
         self.splitter.setStretchFactor(0, 0)
         self.splitter.setStretchFactor(1, 1)
@@ -241,12 +242,15 @@ class TuneWorkspace(QtWidgets.QWidget):
             QtCore.QTimer.singleShot(0, self._load_pending)
 
     def size_panes(self) -> None:
-        """The settings pane as wide as its table's columns up to Course (the meaning beyond
-        scrolls), the runs the rest, never narrower than RUNS_MIN_WIDTH."""
+        """The settings pane as wide as its table's columns, the runs the rest, never narrower
+        than RUNS_MIN_WIDTH."""
         total = self.splitter.width()
         if total <= 0:
             return
-        wanted = self.settings_panel.columns_width() + SETTINGS_PANE_MARGIN
+        table = self.settings_panel.table
+        around = (self.settings_box.width() - table.width() if table.width() > 0
+                  and self.settings_box.width() > table.width() else SETTINGS_PANE_MARGIN)
+        wanted = self.settings_panel.columns_width() + around
         left = max(min(wanted, total - RUNS_MIN_WIDTH), 0)
         self.splitter.setSizes([left, max(total - left, 0)])
 

@@ -308,11 +308,12 @@ class ABCompareView(QtWidgets.QWidget):
         buttons = QtWidgets.QHBoxLayout()
         for w in (self.keep_button, self.clear_button):
             buttons.addWidget(w)
-        buttons.addWidget(self.timing, 1)
+        buttons.addStretch(1)
         layout = QtWidgets.QVBoxLayout(self)
         layout.setContentsMargins(0, 4, 0, 0)
         layout.addWidget(self.table)
         layout.addLayout(buttons)
+        layout.addWidget(self.timing)
 
     def on_result(self, result: RefilterResult) -> None:
         self.resultReady.emit(result)

@@ -28,6 +28,8 @@ def _to_bool(value: Any, default: bool) -> bool:
 class WindowPersistence:
     """Default layout, named layouts, saving and restoring the window's set-up."""
 
+    _filter_dock_fitted = False
+
     def arrange_default_layout(self) -> None:
         """The docks on the right: Filter above, the table and the connection below, tabbed
         together on screens too short to stack all three; the views above the plots."""
@@ -56,16 +58,22 @@ class WindowPersistence:
         """The Filter dock as tall as its lights, switches and buttons (it does not scroll in
         the default layout); the docks below it give up the room, never below their own
         minimum."""
+        QtCore.QTimer.singleShot(0, self._fit_filter_dock_now)    # once laid out
+
+    def _fit_filter_dock_now(self) -> None:
         dock = self.filter_dock
-        if dock.isFloating() or dock.isHidden():
-            return
+        if dock.isFloating() or not dock.isVisible():
+            return              # (the window's first show fits it)
         scroll = dock.widget()
-        content = scroll.widget()
-        content.adjustSize()
-        title = dock.minimumSizeHint().height() - scroll.minimumSizeHint().height()
-        needed = content.sizeHint().height() + 2 * scroll.frameWidth() + max(title, 0)
-        if dock.height() < needed or not dock.isVisible():
-            self.resizeDocks([dock], [needed], QtCore.Qt.Orientation.Vertical)
+        missing = scroll.widget().sizeHint().height() - scroll.viewport().height()
+        if missing > 0:
+            self.resizeDocks([dock], [dock.height() + missing], QtCore.Qt.Orientation.Vertical)
+
+    def showEvent(self, event: QtGui.QShowEvent) -> None:  # noqa: N802 (Qt name)
+        super().showEvent(event)
+        if not self._filter_dock_fitted:
+            self._filter_dock_fitted = True
+            self.fit_filter_dock()
 
 
     # ---- layouts and persistence ----------------------------------------------------------
