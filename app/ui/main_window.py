@@ -328,7 +328,7 @@ class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWi
         self._apply_user(snapshot)
         self.calibration.feed(snapshot)
         self.consistency.apply_snapshot(snapshot)
-        self.plots.append(snapshot.plot)
+        self.plots.append(snapshot.plot, snapshot.status.sensors_enabled)
         self.plots.set_status(snapshot.status)
         self.plots.set_time_origin(snapshot.t0_ms)
         replay = snapshot.replay

@@ -11,8 +11,9 @@ from PySide6 import QtCore, QtWidgets
 
 from app.ui.no_data import NoDataText
 from app.ui.plot_items import Curve, PlotGroup, TimeAxis, cache_painting, legend_icon
-from app.ui.plot_specs import (DEFAULT_WINDOW_S, FOLLOW_NOTE_STYLE, GATE_COLOR, LEFT_AXIS_WIDTH, LEGENDS,
-                               MAX_WINDOW_S, PLOTS, REJECTED_COLOR, CurveSpec, PlotSpec)
+from app.ui.plot_specs import (DEFAULT_WINDOW_S, FOLLOW_NOTE_STYLE, GATE_COLOR, LEFT_AXIS_WIDTH,
+                               LEGEND_TIPS, LEGENDS, MAX_WINDOW_S, OFF_COLOR, PLOTS,
+                               REJECTED_COLOR, CurveSpec, PlotSpec)
 
 
 class PlotPanelBuild:
@@ -88,7 +89,7 @@ class PlotPanelBuild:
             button.setCheckable(True)
             button.setChecked(True)
             button.setAutoRaise(True)
-            button.setToolTip(f"Show or hide {name}")
+            button.setToolTip(f"Show or hide {LEGEND_TIPS.get(name, name)}")
             button.toggled.connect(lambda checked, g=key, n=name: self.set_shown(g, n, checked))
             row.addWidget(button)
             group.toggles[name] = button
@@ -137,6 +138,10 @@ class PlotPanelBuild:
             band = Curve(pen=pg.mkPen(REJECTED_COLOR, width=4), antialias=False)
             plot.addItem(band, ignoreBounds=True)
             self.bands[spec.key] = band
+            off = Curve(pen=pg.mkPen(OFF_COLOR, width=4, style=QtCore.Qt.PenStyle.DashLine),
+                        antialias=False)
+            plot.addItem(off, ignoreBounds=True)
+            self.off_bands[spec.key] = off
             pen = pg.mkPen(GATE_COLOR, width=1, style=QtCore.Qt.PenStyle.DashLine)
             lines = (pg.InfiniteLine(angle=0, pen=pen), pg.InfiniteLine(angle=0, pen=pen))
             for line in lines:

@@ -1,7 +1,8 @@
 """Live plots in time since the session's start, in three tabs.
 
-* Sensors: accelerometer, gyroscope and magnetometer (x, y, z, norm), the gates on the norms
-  and the samples the filter rejected as a thin band of ticks along the bottom;
+* Sensors: accelerometer, gyroscope and magnetometer (x, y, z, norm), the gates on the norms,
+  the samples the filter rejected as a thin red band of ticks along the bottom and, where the
+  sensor was switched off (its samples not used, no gate asked), a grey dashed band instead;
 * Orientation: yaw, pitch and roll (z-y-x) of OWN (solid) and PHONE (dashed, same colour),
   wrapped to ±180° (±90° for pitch) with the line broken at a wrap, or unwrapped in one turn;
 * Error vs PHONE: total angle, heading and inclination of OWN against PHONE, compared at
@@ -37,9 +38,9 @@ from app.ui.plot_build import PlotPanelBuild
 from app.ui.plot_data import (SampleBuffer, break_at_wraps, peak_downsample, rejected_spans,
                               time_text, unwrap_deg, unwrap_in_turn)
 from app.ui.plot_items import Curve, PlotGroup
-from app.ui.plot_specs import (BAND_FRACTION, FIRST_PLOTS, GROUPS, MARKER_COLOR, STREAM_COLUMNS,
-                               USER_STREAMS, USER_TOGGLES, CurveSpec, curve_specs,
-                               readout_table)
+from app.ui.plot_specs import (BAND_FRACTION, FIRST_PLOTS, GROUPS, MARKER_COLOR, OFF_JOIN_S,
+                               STREAM_COLUMNS, USER_STREAMS, USER_TOGGLES, CurveSpec,
+                               curve_specs, readout_table)
 
 class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
     """Toolbar (window length, Pause/Follow, Cursor, Unwrap, Clear), three tabs of plots and
@@ -69,6 +70,11 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
         self.plots: dict[str, pg.PlotItem] = {}
         self.curves: list[tuple[CurveSpec, Curve]] = []
         self.bands: dict[str, Curve] = {}
+        self.off_bands: dict[str, Curve] = {}
+        # per banded sensor: [start, end] times (s) of the samples that arrived while it was
+        # switched off (said by each snapshot's status), merged into stretches
+        self.off_spans: dict[str, list[list[float]]] = {"acc": [], "mag": []}
+        self._off_band_spans: dict[str, np.ndarray] = {}
         self.gate_lines: dict[str, tuple[pg.InfiniteLine, pg.InfiniteLine]] = {}
         self.cursors: dict[str, pg.InfiniteLine] = {}
         self.groups: dict[str, PlotGroup] = {}
@@ -102,8 +108,10 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
 
     # ---- data in ---------------------------------------------------------------------------
 
-    def append(self, chunk: PlotChunk) -> None:
-        """Store the new samples; drawing waits for the next refresh()."""
+    def append(self, chunk: PlotChunk, enabled: dict[str, bool] | None = None) -> None:
+        """Store the new samples; drawing waits for the next refresh(). enabled: the sensor
+        switches these samples were filtered with (FilterStatus.sensors_enabled): the samples
+        of a switched-off sensor are drawn as "off", not as rejected."""
         for key, t, values, rejected in (("acc", chunk.t_acc, chunk.acc, chunk.acc_rejected),
                                          ("gyr", chunk.t_gyr, chunk.gyr, None),
                                          ("mag", chunk.t_mag, chunk.mag, chunk.mag_rejected)):
@@ -122,6 +130,29 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
                                ("user_error", chunk.t_user_err, chunk.user_error_deg)):
             if len(t):
                 self._append(key, t, np.asarray(values, float).reshape(len(t), 3))
+        for key, t in (("acc", chunk.t_acc), ("mag", chunk.t_mag)):
+            if enabled is not None and enabled.get(key) is False and len(t):
+                self._add_off_span(key, float(t[0]), float(t[-1]))
+
+    def _add_off_span(self, key: str, start: float, end: float) -> None:
+        spans = self.off_spans[key]
+        if spans and start <= spans[-1][1] + OFF_JOIN_S:
+            spans[-1][1] = max(spans[-1][1], end)
+        else:
+            spans.append([start, end])
+        self._dirty = True
+
+    def off_mask(self, key: str, t: np.ndarray) -> np.ndarray:
+        """Which of the times `t` fall in a stretch in which the sensor was switched off."""
+        spans = self.off_spans.get(key) or []
+        if not spans or not len(t):
+            return np.zeros(len(t), bool)
+        starts = np.array([a for a, _ in spans])
+        ends = np.array([b for _, b in spans])
+        index = np.searchsorted(starts, t, side="right") - 1
+        inside = index >= 0
+        inside[inside] = t[inside] <= ends[index[inside]]
+        return inside
 
     def set_user_present(self, present: bool) -> None:
         """YOURS loaded or not: its legend toggles (and OWN's beside it in the error tab) show
@@ -166,6 +197,8 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
         if t[0] < buffer.last_time() - 1e-6:
             for other in self.live_buffers.values():
                 other.clear()
+            if self.session is None:
+                self._clear_off_spans()
             self._dirty = self._dirty or self.session is None
         buffer.append(t, values)
         # While paused, samples after the frozen view change nothing on screen; a replay's
@@ -332,6 +365,9 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
         if name == "rejected":
             for band in self.bands.values():
                 band.setVisible(bool(shown))
+        elif name == "off":
+            for band in self.off_bands.values():
+                band.setVisible(bool(shown))
         elif name == "gates" and not shown:     # shown again with the next status
             for lines in self.gate_lines.values():
                 for line in lines:
@@ -350,8 +386,13 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
     def clear(self) -> None:
         for buffer in self.live_buffers.values():
             buffer.clear()
+        self._clear_off_spans()
         self._dirty = True
         self.refresh()
+
+    def _clear_off_spans(self) -> None:
+        for spans in self.off_spans.values():
+            spans.clear()
 
     def latest_time(self) -> float:
         if self.session is not None and self._position is not None:
@@ -481,18 +522,30 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
             if valid:
                 bounds[spec.plot].append((low, high))
         if stream in self.bands:
-            rejected = values[:, 4] > 0.5 if len(t) else np.zeros(0, bool)
+            off = self.off_mask(stream, t)
+            rejected = (values[:, 4] > 0.5) & ~off if len(t) else np.zeros(0, bool)
             self._band_spans[stream] = rejected_spans(t, rejected)
+            self._off_band_spans[stream] = rejected_spans(t, off)
 
     def _draw_band(self, key: str) -> None:
         """The rejected samples as ticks along the bottom of the plot (the curves stay
-        visible above them)."""
-        spans = self._band_spans.get(key, np.empty((0, 2)))
+        visible above them), and where the sensor was switched off a grey dashed band at the
+        same height."""
         low, high = self.plots[key].getViewBox().viewRange()[1]
         level = low + BAND_FRACTION * (high - low)
-        x = spans.reshape(-1)
-        self.bands[key].set_curve(x, np.full(len(x), level), True,
-                                  (level, level) if len(x) else None, connect="pairs")
+        for bands, spans in ((self.bands, self._band_spans),
+                             (self.off_bands, self._off_band_spans)):
+            x = spans.get(key, np.empty((0, 2))).reshape(-1)
+            bands[key].set_curve(x, np.full(len(x), level), True,
+                                 (level, level) if len(x) else None, connect="pairs")
+
+    def off_band_spans(self, key: str) -> np.ndarray:
+        """The "off" stretches drawn in the plot's visible window, (n, 2) [start, end] s."""
+        return self._off_band_spans.get(key, np.empty((0, 2)))
+
+    def rejected_band_spans(self, key: str) -> np.ndarray:
+        """The rejected stretches drawn in the plot's visible window, (n, 2) [start, end] s."""
+        return self._band_spans.get(key, np.empty((0, 2)))
 
     def _fit_y(self, key: str, low: float, high: float) -> None:
         """Fit the y range to the visible curves' span (and gate lines), with hysteresis so the
