@@ -330,3 +330,56 @@ def test_a_seek_follows_again_but_a_step_keeps_the_zoom(window, fake_engine, qtb
     _press(qtbot, window, "Right")                            # a jump: show where it went
     _session_at(window, fake_engine, 3, 31.0, plot, paused=True)
     assert not plots.paused and plots.x_range()[1] == pytest.approx(31.0)
+
+
+def _recorded_session(folder, label=None):
+    import json
+    folder.mkdir(parents=True)
+    (folder / "raw.txt").write_text("1000\tACC\t0\t0\t9.81\n1010\tACC\t0\t0\t9.81\n")
+    data = {"format": 2, "app_version": "0.1.0", "timeline": []}
+    if label is not None:
+        data["label"] = label
+    (folder / "session.json").write_text(json.dumps(data))
+    return folder
+
+
+def test_exports_are_named_after_the_session_not_raw_export(tmp_path):
+    """Issue 51: File → Export suggested raw_export.* for every recorded session."""
+    from app.ui.sessions import export_path
+    plain = _recorded_session(tmp_path / "2026-12-01_10-00-00")
+    assert export_path(plain / "raw.txt", "csv") == plain / "2026-12-01_10-00-00_export.csv"
+    assert export_path(plain, "mat") == plain / "2026-12-01_10-00-00_export.mat"
+    labelled = _recorded_session(tmp_path / "2026-12-02_09-30-00", label="Lab 2: rotation!")
+    assert export_path(labelled / "session.json", "log") == \
+        labelled / "Lab_2_rotation_2026-12-02_09-30-00_export.txt"
+    log = tmp_path / "demo_session.txt.gz"
+    assert export_path(log, "csv") == tmp_path / "demo_session_export.csv"
+    assert export_path(tmp_path / "walk.txt", "csv") == tmp_path / "walk_export.csv"
+
+
+def test_a_session_is_labelled_and_named_by_its_label(window, fake_engine, tmp_path):
+    """Issue 51: sessions were named by their time stamp only."""
+    import types
+
+    from app.engine.session import read_session, session_label
+    old = _recorded_session(tmp_path / "2026-12-01_10-00-00")          # no label: loads
+    assert session_label(old) == "" and read_session(old / "session.json")
+    fake_engine.source = types.SimpleNamespace(path=str(old / "raw.txt"), kind="replay",
+                                               name="raw.txt")
+    controls = window.sessions
+    assert controls.label_session("  Lab 2:\n rotation  ")
+    assert session_label(old) == "Lab 2: rotation"
+    assert read_session(old / "session.json").timeline == []          # the rest kept
+    assert window.windowTitle() == "Orientation Lab — Lab 2: rotation (2026-12-01_10-00-00)"
+    controls._fill_recent()
+    texts = [a.text() for a in controls.recent_menu.actions()]
+    assert texts[0] == "Lab 2: rotation (2026-12-01_10-00-00)"
+    assert controls.recent_menu.actions()[0].toolTip() == str(old)
+    assert controls.label_session("")                                   # removed again
+    assert session_label(old) == ""
+    fake_engine.source = types.SimpleNamespace(path=str(tmp_path / "walk.txt"), kind="replay")
+    assert not controls.label_session("x")                              # a phone's own log
+    assert "no session.json" in controls.last_message
+    for widget in QtWidgets.QApplication.topLevelWidgets():
+        if widget.objectName() == "session_message":
+            widget.close()
