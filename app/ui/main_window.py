@@ -77,7 +77,7 @@ def default_settings() -> QtCore.QSettings:
     return QtCore.QSettings(ORGANIZATION, APPLICATION)
 
 
-PREPARING_TEXT = "preparing the filter\n(the first start compiles it: about a minute)"
+PREPARING_TEXT = "preparing the filter\n(the first start compiles it: about half a minute)"
 
 
 def phone_no_data_text(snapshot: Snapshot) -> str:
