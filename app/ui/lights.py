@@ -48,7 +48,7 @@ class Light(QtWidgets.QWidget):
             text = max(metrics.horizontalAdvance(text) for text in (name, *CAPTIONS.values()))
             self.setMinimumSize(COMPACT_LAMP_PX + 8 + text, 2 * metrics.height() + 2)
         else:
-            self.setMinimumSize(84, 66)
+            self.setMinimumSize(84, 60)
         self.setSizePolicy(QtWidgets.QSizePolicy.Policy.Preferred,
                            QtWidgets.QSizePolicy.Policy.Fixed)
         self.setToolTip(f"{name}: no data yet")

@@ -96,7 +96,6 @@ class SettingsPanel(QtWidgets.QWidget):
         self.table = QtWidgets.QTableWidget(len(self.rows), len(COLUMNS))
         self.table.setHorizontalHeaderLabels([c.capitalize() for c in COLUMNS])
         self.table.verticalHeader().setVisible(False)
-        self.table.horizontalHeader().setStretchLastSection(True)
         self.table.setHorizontalScrollBarPolicy(QtCore.Qt.ScrollBarPolicy.ScrollBarAsNeeded)
         self.table.itemChanged.connect(self._on_item_changed)
         # what the current row's setting means (the declaration's doc), below the table
@@ -195,8 +194,13 @@ class SettingsPanel(QtWidgets.QWidget):
     def columns_width(self) -> int:
         """The table's width showing every column whole."""
         table = self.table
-        return (sum(table.columnWidth(c) for c in range(len(COLUMNS)))
-                + table.verticalScrollBar().sizeHint().width() + 2 * table.frameWidth())
+        header = table.horizontalHeader()
+        natural = [max(table.sizeHintForColumn(c), header.sectionSizeHint(c))
+                   for c in range(len(COLUMNS))]
+        natural = [min(width, MAX_VALUE_COLUMN_PX) if c in (VALUE, 3, 4) else width
+                   for c, width in enumerate(natural)]
+        return (sum(natural) + table.verticalScrollBar().sizeHint().width()
+                + 2 * table.frameWidth())
 
     # -- edits --------------------------------------------------------------------------------
 

@@ -215,7 +215,9 @@ class TuneWorkspace(QtWidgets.QWidget):
         self.splitter.addWidget(self.ab_page)
         self.splitter.setStretchFactor(0, 0)
         self.splitter.setStretchFactor(1, 1)
-        self._panes_sized = False
+        # the panes follow the window's size until the user drags the handle between them
+        self._panes_by_user = False
+        self.splitter.splitterMoved.connect(lambda *_: setattr(self, "_panes_by_user", True))
         # Auto-tune: its parameters, ranges and figures over the whole width
         self.tune_page = QtWidgets.QWidget()
         self.tune_message = QtWidgets.QLabel(NO_SESSION_TEXT)
@@ -234,18 +236,20 @@ class TuneWorkspace(QtWidgets.QWidget):
 
     def showEvent(self, event) -> None:  # noqa: N802 (Qt name)
         super().showEvent(event)
-        if not self._panes_sized:
-            self._panes_sized = True
-            self.size_panes()
+        self.size_panes()
         if self.pending_log is not None and self.prepared is None:
             # Reading a long log takes a moment: after the tab has been drawn.
             QtCore.QTimer.singleShot(0, self._load_pending)
+
+    def resizeEvent(self, event) -> None:  # noqa: N802 (Qt name)
+        super().resizeEvent(event)
+        self.size_panes()
 
     def size_panes(self) -> None:
         """The settings pane as wide as its table's columns, the runs the rest, never narrower
         than RUNS_MIN_WIDTH."""
         total = self.splitter.width()
-        if total <= 0:
+        if total <= 0 or self._panes_by_user:
             return
         table = self.settings_panel.table
         around = (self.settings_box.width() - table.width() if table.width() > 0

@@ -13,6 +13,7 @@ from typing import Any
 from PySide6 import QtCore, QtGui, QtWidgets
 
 SETTINGS_VERSION = 2
+FIT_ATTEMPTS = 4
 DEFAULT_SIZE = (1600, 1000)     # the first start: this, or 92 % of a smaller screen
 
 
@@ -60,14 +61,17 @@ class WindowPersistence:
         minimum."""
         QtCore.QTimer.singleShot(0, self._fit_filter_dock_now)    # once laid out
 
-    def _fit_filter_dock_now(self) -> None:
+    def _fit_filter_dock_now(self, attempt: int = 0) -> None:
         dock = self.filter_dock
         if dock.isFloating() or not dock.isVisible():
             return              # (the window's first show fits it)
         scroll = dock.widget()
         missing = scroll.widget().sizeHint().height() - scroll.viewport().height()
-        if missing > 0:
+        if missing > 0 and attempt < FIT_ATTEMPTS:
+            # resizeDocks shares a change between the docks it touches: ask again until the
+            # dock has the room (or its neighbours are at their minimum)
             self.resizeDocks([dock], [dock.height() + missing], QtCore.Qt.Orientation.Vertical)
+            QtCore.QTimer.singleShot(0, lambda: self._fit_filter_dock_now(attempt + 1))
 
     def showEvent(self, event: QtGui.QShowEvent) -> None:  # noqa: N802 (Qt name)
         super().showEvent(event)
