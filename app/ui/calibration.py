@@ -36,15 +36,16 @@ from app.ui import figures
 from app.ui.no_data import NoDataText
 
 TABLE_COLUMNS = (
-    ("sensor", ""), ("axis", ""), ("unit", "the unit of mean and std (cov: its square)"),
-    ("mean", "mean of the stretch [unit]"), ("std", "standard deviation [unit]"),
-    ("cov x", "covariance with x [unit²]"), ("cov y", "covariance with y [unit²]"),
-    ("cov z", "covariance with z [unit²]"),
+    ("sensor", "the sensor and its unit (mean, std: that unit; cov: its square)"),
+    ("axis", ""), ("mean", "mean of the stretch [unit]"), ("std", "standard deviation [unit]"),
+    ("verdict", VERDICT_RULE),
     ("K² p", "D'Agostino–Pearson K² normality test: p-value (below 0.01: not Gaussian)"),
     ("A² (1 % crit.)", "Anderson–Darling normality test: A², and in brackets its critical "
                        "value at 1 % (above it: not Gaussian)"),
-    ("acf(1)", "autocorrelation at one sample's lag"),
-    ("verdict", VERDICT_RULE))
+    ("acf(1)", "autocorrelation at one sample's lag (correlated: above 0.2 and beyond white "
+               "noise's)"),
+    ("cov x", "covariance with x [unit²]"), ("cov y", "covariance with y [unit²]"),
+    ("cov z", "covariance with z [unit²]"))
 NO_REST_DATA = "no data"
 NO_MAG_DATA = "no readings"
 MAG_FIT_EVERY = 25        # refit the magnetometer after this many new readings
@@ -259,6 +260,8 @@ class RestTab(QtWidgets.QWidget):
                                       (reference or {}).get(sensor), sensor, source.moving_s)
             plot.addItem(region, ignoreBounds=True)
             region.setBounds((0.0, max(source.duration_s, 1e-3)))
+            # one time axis, under the three (their x is linked): room for the curves
+            plot.showAxis("bottom", plot is self.series_plots[-1])
         low, high = self._stretch_s(result)
         self._moving_regions = True
         for region in self.regions:
@@ -335,6 +338,7 @@ class RestTab(QtWidgets.QWidget):
                     plot.setTitle(f"{sensor}: no samples", size="8pt")
             if self.source is None:
                 figures.draw_series(self.series_plots[r], analysis, sensor)
+                self.series_plots[r].showAxis("bottom", True)
             figures.draw_autocorrelation(self.acf_plots[r], analysis, sensor)
         self._show_stretch(result)
         self._fill_table(result)
@@ -348,12 +352,11 @@ class RestTab(QtWidgets.QWidget):
             unit = UNITS[sensor]
             for k, report in enumerate(reports):
                 verdict = report.verdict + (", correlated" if report.correlated else "")
-                rows.append([sensor, report.axis, unit, f"{report.mean:.6g}",
-                             f"{report.std:.3g}", *(f"{v:.3e}" for v in cov[k]),
-                             f"{report.normality_p:.3g}",
+                rows.append([f"{sensor} [{unit}]", report.axis, f"{report.mean:.6g}",
+                             f"{report.std:.3g}", verdict, f"{report.normality_p:.3g}",
                              f"{report.anderson:.3g} ({report.anderson_critical:.3g})",
                              f"{report.acf[1]:.2f}" if len(report.acf) > 1 else "",
-                             verdict])
+                             *(f"{v:.2e}" for v in cov[k])])
         self.table.setRowCount(len(rows))
         for r, row in enumerate(rows):
             for c, text in enumerate(row):

@@ -28,6 +28,7 @@ SPEEDS = ((0.1, "0.1×"), (0.25, "0.25×"), (0.5, "0.5×"), (1.0, "1×"), (2.0, 
           (10.0, "10×"), (0.0, "max"))
 MARKER_COLOR = (230, 120, 0)
 SLIDER_MIN_WIDTH = 160      # px: the time slider stays usable however much else the bar shows
+SLIDER_MIN_WIDTH_LIVE = 40  # px: no replay to move through
 MARKER_HIT_PX = 6
 
 
@@ -264,6 +265,10 @@ class TransportBar(QtWidgets.QFrame):
         for widget in self.replay_widgets:
             if widget.isEnabled() != enabled:
                 widget.setEnabled(enabled)
+        # a replay's slider keeps its room; live, the recording's figures and the peer get it
+        minimum = SLIDER_MIN_WIDTH if enabled else SLIDER_MIN_WIDTH_LIVE
+        if self.slider.minimumWidth() != minimum:
+            self.slider.setMinimumWidth(minimum)
         has_session = bool(replay and replay.get("session_file"))
         if self.timeline_checkbox.isHidden() == has_session:
             self.timeline_checkbox.setVisible(has_session)

@@ -122,8 +122,8 @@ class TuningPanel(QtWidgets.QWidget):
         names = list(tuning.RANGES)
         present = tuning.sensors_in(self.log)
         units = {row.name: row.unit for row in ekf.settings_rows()}
-        table = QtWidgets.QTableWidget(len(names), 5)
-        table.setHorizontalHeaderLabels(["tune", "low", "high", "before", "after"])
+        table = QtWidgets.QTableWidget(len(names), 6)
+        table.setHorizontalHeaderLabels(["tune", "low", "high", "before", "after", "unit"])
         table.setVerticalHeaderLabels(names)
         for r, name in enumerate(names):
             sensor = tuning.setting_sensor(name)
@@ -139,6 +139,9 @@ class TuningPanel(QtWidgets.QWidget):
             low, high = tuning.RANGES[name]
             table.setItem(r, 1, QtWidgets.QTableWidgetItem(f"{low:g}"))
             table.setItem(r, 2, QtWidgets.QTableWidgetItem(f"{high:g}"))
+            unit = QtWidgets.QTableWidgetItem(units.get(name, "-"))
+            unit.setFlags(QtCore.Qt.ItemFlag.ItemIsEnabled)
+            table.setItem(r, 5, unit)
             tip = (f"{name} [{units.get(name, '-')}]" if usable else
                    f"{name}: no {SENSOR_NAMES[sensor]} in this session, so it has no effect")
             table.verticalHeaderItem(r).setToolTip(tip)
@@ -149,6 +152,7 @@ class TuningPanel(QtWidgets.QWidget):
         header = table.horizontalHeader()
         header.setSectionResizeMode(QtWidgets.QHeaderView.ResizeMode.Stretch)
         header.setSectionResizeMode(0, QtWidgets.QHeaderView.ResizeMode.ResizeToContents)
+        header.setSectionResizeMode(5, QtWidgets.QHeaderView.ResizeMode.ResizeToContents)
         return table
 
     def _layout(self) -> None:

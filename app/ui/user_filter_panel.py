@@ -78,7 +78,8 @@ class UserFilterPanel(QtWidgets.QGroupBox):
     """Your filter (YOURS): status, lights, problem, and Load / New / Unload buttons."""
 
     def __init__(self, send: Send, parent: QtWidgets.QWidget | None = None) -> None:
-        super().__init__("Your filter (YOURS)", parent)
+        super().__init__("", parent)        # the dock's title says "Your filter"
+        self.setFlat(True)
         self.setObjectName("user_filter_panel")
         self.send = send
         self.status: UserFilterStatus | None = None

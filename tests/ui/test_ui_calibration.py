@@ -57,7 +57,7 @@ def test_start_collects_ten_seconds_and_finds_the_noise_and_bias(workspace):
     np.testing.assert_allclose(stats.gyr.std, DEFAULT_NOISE_STD["gyr"], rtol=0.1)
     np.testing.assert_allclose(stats.gyr_bias, BIAS, rtol=0.1)
     assert workspace.rest.table.rowCount() == 9
-    assert workspace.rest.table.item(0, 0).text() == "acc"
+    assert workspace.rest.table.item(0, 0).text().startswith("acc [")
     assert workspace.rest.warnings.text() == ""
     assert "Gyroscope" in workspace.rest.series_plots[1].titleLabel.text
     assert workspace.allan.allan is not None          # the Allan tab follows the rest tab
@@ -298,10 +298,10 @@ def test_the_table_names_the_tests_behind_the_verdict(workspace):
         workspace.feed(snapshot)
     table = workspace.rest.table
     headers = [table.horizontalHeaderItem(c).text() for c in range(table.columnCount())]
-    assert {"unit", "K² p", "A² (1 % crit.)", "verdict"} <= set(headers)
+    assert {"K² p", "A² (1 % crit.)", "verdict"} <= set(headers)
     verdicts = {table.item(r, headers.index("verdict")).text() for r in range(table.rowCount())}
     assert verdicts <= {"Gaussian", "mixed", "not Gaussian", "Gaussian, correlated",
                         "mixed, correlated", "not Gaussian, correlated"}
-    assert table.item(0, headers.index("unit")).text() == UNITS["acc"]
+    assert table.item(0, 0).text() == f"acc [{UNITS['acc']}]"
     assert "D'Agostino–Pearson K² p ≥ 0.01" in workspace.rest.verdict_rule.text()
     assert "mixed" in workspace.rest.verdict_rule.text()

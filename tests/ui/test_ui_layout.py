@@ -183,3 +183,28 @@ def test_the_tune_plots_axis_titles_stay_apart(qtbot, make_window, fake_engine, 
     no_data = tune.ab_plots.no_data           # no ghost yet: its plot says so, the errors do not
     assert no_data["difference"].isVisible() and "ghost" in no_data["difference"].text()
     assert not no_data["total"].isVisible() and not no_data["heading"].isVisible()
+
+
+@pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
+def test_the_filter_dock_does_not_scroll_even_with_a_note_of_absent_sensors(
+        qtbot, make_window, fake_engine, size):
+    """Issue 51: the Filter dock scrolled in the default layout, and on an accelerometer-only
+    log (its "no gyroscope" note) Reset filter and Align heading were cut in half."""
+    from clipping import clipped, scrolls
+    window = _shown(make_window(fake_engine), size)
+    scroll = window.filter_dock.widget()
+    qtbot.waitUntil(lambda: not scrolls(scroll), timeout=2000)
+    snapshot = make_snapshot(1, 2.5)
+    snapshot.session_samples = {"acc": 250, "ori": 250}            # no gyroscope, no magnetometer
+    fake_engine.snapshots.append(snapshot)
+    window.tick()
+    note = window.controls.sensor_note
+    assert note.isVisibleTo(window) and "no gyroscope" in note.text()
+    qtbot.waitUntil(lambda: not scrolls(scroll), timeout=2000)
+    assert note.text() == "no gyroscope or magnetometer in this stream"     # one short line
+    cut = [finding for finding in clipped(window, whole=(scroll,)) if "filter_dock" in finding
+           or "Reset filter" in finding or "Align heading" in finding]
+    assert cut == []
+    for button in (window.controls.reset_button, window.controls.align_button):
+        seen = button.visibleRegion().boundingRect()
+        assert seen.size() == button.size(), (button.text(), seen, button.size())
