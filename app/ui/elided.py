@@ -21,6 +21,7 @@ class ElidedLabel(QtWidgets.QLabel):
         super().__init__(text, parent)
         self._mode = mode
         self._minimum_text = minimum_text
+        self._shorter: tuple[str, ...] = ()
         self.setSizePolicy(QtWidgets.QSizePolicy.Policy.Preferred,
                            QtWidgets.QSizePolicy.Policy.Preferred)
         self.setToolTip(text)
@@ -38,7 +39,10 @@ class ElidedLabel(QtWidgets.QLabel):
         return QtCore.QSize(max(min(width, self.maximumWidth()), self.minimumSizeHint().width()),
                             super().sizeHint().height())
 
-    def setText(self, text: str) -> None:  # noqa: N802 (Qt name)
+    def setText(self, text: str, shorter: tuple[str, ...] = ()) -> None:  # noqa: N802
+        """`text`, and `shorter` forms of it to show, in order, when it does not fit (the
+        last one is cut with "…" when none fits)."""
+        self._shorter = tuple(shorter)
         if text == self.text():
             return
         super().setText(text)
@@ -47,8 +51,13 @@ class ElidedLabel(QtWidgets.QLabel):
 
     def shown_text(self) -> str:
         """The text as drawn at the label's width now."""
-        return self.fontMetrics().elidedText(self.text(), self._mode,
-                                             max(self.contentsRect().width(), 0))
+        room = max(self.contentsRect().width(), 0)
+        metrics = self.fontMetrics()
+        for text in (self.text(), *self._shorter):
+            if metrics.horizontalAdvance(text) <= room:
+                return text
+        last = self._shorter[-1] if self._shorter else self.text()
+        return metrics.elidedText(last, self._mode, room)
 
     def paintEvent(self, event: QtGui.QPaintEvent) -> None:  # noqa: N802 (Qt name)
         painter = QtGui.QPainter(self)

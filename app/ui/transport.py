@@ -326,14 +326,17 @@ class TransportBar(QtWidgets.QFrame):
             text = error if error.startswith("cannot record") else f"recording stopped: {error}"
             style = "color: #c01818; font-weight: bold;"
         elif active:
-            text = (f"REC {clock_text(recording.get('elapsed_s', 0.0))[:-2]} · "
-                    f"{size_text(int(recording.get('bytes', 0)))} · "
-                    f"{int(recording.get('lines', 0)):,} lines")
+            elapsed = f"REC {clock_text(recording.get('elapsed_s', 0.0))[:-2]}"
+            size = size_text(int(recording.get("bytes", 0)))
+            text = f"{elapsed} · {size} · {int(recording.get('lines', 0)):,} lines"
+            shorter = (f"{elapsed} · {size}", elapsed)       # what fits, the time first
             style = "color: #c01818;"
         else:
             text = "saved"
             style = "color: #666;"
-        _set_text(self.record_label, text)
+        if not active or error:
+            shorter = ()
+        self.record_label.setText(text, shorter)
         folder = str(recording.get("folder", ""))
         tooltip = f"{text}\n{folder}" if folder else text
         if self.record_label.toolTip() != tooltip:

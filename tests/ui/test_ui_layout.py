@@ -208,3 +208,22 @@ def test_the_filter_dock_does_not_scroll_even_with_a_note_of_absent_sensors(
     for button in (window.controls.reset_button, window.controls.align_button):
         seen = button.visibleRegion().boundingRect()
         assert seen.size() == button.size(), (button.text(), seen, button.size())
+
+
+def test_an_elided_label_shows_the_longest_form_that_fits_and_never_widens_its_panel(qtbot):
+    from app.ui.elided import ElidedLabel
+    label = ElidedLabel(minimum_text="REC 0:00")
+    qtbot.addWidget(label)
+    full, shorter = "REC 1:12 · 3.0 MB · 12,345 lines", ("REC 1:12 · 3.0 MB", "REC 1:12")
+    label.setText(full, shorter)
+    metrics = label.fontMetrics()
+    assert label.minimumSizeHint().width() < metrics.horizontalAdvance(shorter[1]) + 10
+    assert label.sizeHint().width() >= metrics.horizontalAdvance(full)
+    label.resize(metrics.horizontalAdvance(full) + 8, 20)
+    assert label.shown_text() == full and label.toolTip() == full
+    label.resize(metrics.horizontalAdvance(shorter[0]) + 8, 20)
+    assert label.shown_text() == shorter[0]                # the size, not "3.0 M…"
+    label.resize(metrics.horizontalAdvance(shorter[1]) + 8, 20)
+    assert label.shown_text() == shorter[1]
+    label.resize(metrics.horizontalAdvance("REC") + 8, 20)
+    assert label.shown_text().endswith("…")
