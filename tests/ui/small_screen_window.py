@@ -1,11 +1,11 @@
 """The whole window on a small screen, as a user meets it: run as a script in its own process
 (the screen's size is the process's: offscreen with a config file, or an X server such as
 Xvfb), it opens the window as `orientation-lab` does (sized to the screen), streams a log to it
-through the phone emulator, starts a recording, loads a filter of yours that fails, then shows
+through the phone emulator (or plays the demo), starts a recording, loads a filter of yours that fails, then shows
 every workspace, the Tune and Calibrate tabs and every dock in turn and reports, as JSON on
 stdout, the window's width against the screen's and everything cut (tests/ui/clipping.py):
 
-    python tests/ui/small_screen_window.py LOG BROKEN_FILTER.py OUT_FOLDER
+    python tests/ui/small_screen_window.py LOG BROKEN_FILTER.py OUT_FOLDER [live|demo]
 
 Used by tests/ui/test_ui_small_screen.py.
 """
@@ -24,7 +24,9 @@ sys.path.append(str(HERE))              # clipping (after the package paths: tes
 TIMEOUT_S = 60.0
 
 
-def main(log: str, broken: str, out: str) -> int:
+def main(log: str, broken: str, out: str, source: str = "live") -> int:
+    """source: "live" (the phone emulator streams `log` over TCP) or "demo" (the built-in demo
+    replays, the TCP server listening)."""
     from PySide6 import QtCore, QtWidgets
 
     from app.engine.commands import LoadUserFilter, StartRecording, StopRecording
@@ -36,7 +38,8 @@ def main(log: str, broken: str, out: str) -> int:
     from clipping import clipped, hidden_columns, scrolls
 
     app = make_application()
-    engine = build_engine(WindowOptions(source=SourceOptions(host="127.0.0.1", port=0)))
+    engine = build_engine(WindowOptions(source=SourceOptions(host="127.0.0.1", port=0,
+                                                             demo=source == "demo")))
     engine.start()
     settings = QtCore.QSettings(str(Path(out) / "settings.ini"),
                                 QtCore.QSettings.Format.IniFormat)
@@ -81,11 +84,12 @@ def main(log: str, broken: str, out: str) -> int:
             for column in hidden_columns(table):
                 report["findings"].append(f"{where}: {table.objectName() or type(table).__name__}"
                                           f" hides its column {column!r}")
-        if window.transport.slider.isVisible() and window.transport.slider.width() < 150:
+        if window.transport.replaying and window.transport.slider.width() < 150:
             report["findings"].append(f"{where}: the time slider is "
                                       f"{window.transport.slider.width()} px wide")
 
-    pump_until(lambda: engine.source.port, "the TCP server")
+    if source == "live":
+        pump_until(lambda: engine.source.port, "the TCP server")
     stop = threading.Event()
     lines = read_lines(log)
 
@@ -94,7 +98,8 @@ def main(log: str, broken: str, out: str) -> int:
             emulator.stream_lines(lines, 1.0, True, stop)
 
     sender = threading.Thread(target=phone, daemon=True)
-    sender.start()
+    if source == "live":
+        sender.start()
     window.send(LoadUserFilter(broken))
     window.send(StartRecording(str(Path(out) / "recording")))
     pump_until(lambda: (window.last_snapshot is not None and window.last_snapshot.recording
@@ -128,7 +133,8 @@ def main(log: str, broken: str, out: str) -> int:
     pump_until(lambda: not window.last_snapshot.recording.get("active"), "the recording saved")
     check("after the recording")
     stop.set()
-    sender.join(10.0)
+    if sender.is_alive():
+        sender.join(10.0)
     window.close()
     window.shutdown()
     print(json.dumps(report))
@@ -136,4 +142,4 @@ def main(log: str, broken: str, out: str) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(*sys.argv[1:4]))
+    sys.exit(main(*sys.argv[1:5]))
