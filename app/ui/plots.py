@@ -35,8 +35,8 @@ from PySide6 import QtCore, QtWidgets
 from app.engine.snapshot import FilterStatus, PlotChunk
 from app.ui.no_data import NoDataText
 from app.ui.plot_build import PlotPanelBuild
-from app.ui.plot_data import (SampleBuffer, break_at_wraps, peak_downsample, rejected_spans,
-                              time_text, unwrap_deg, unwrap_in_turn)
+from app.ui.plot_data import (OffSpans, SampleBuffer, break_at_wraps, peak_downsample,
+                              rejected_spans, time_text, unwrap_deg, unwrap_in_turn)
 from app.ui.plot_items import Curve, PlotGroup
 from app.ui.plot_specs import (BAND_FRACTION, FIRST_PLOTS, GROUPS, MARKER_COLOR, OFF_JOIN_S,
                                STREAM_COLUMNS, USER_STREAMS, USER_TOGGLES, CurveSpec,
@@ -71,9 +71,9 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
         self.curves: list[tuple[CurveSpec, Curve]] = []
         self.bands: dict[str, Curve] = {}
         self.off_bands: dict[str, Curve] = {}
-        # per banded sensor: [start, end] times (s) of the samples that arrived while it was
-        # switched off (said by each snapshot's status), merged into stretches
-        self.off_spans: dict[str, list[list[float]]] = {"acc": [], "mag": []}
+        # per banded sensor: the stretches in which its samples arrived while it was switched
+        # off (said by each snapshot's status)
+        self.off_spans = {"acc": OffSpans(OFF_JOIN_S), "mag": OffSpans(OFF_JOIN_S)}
         self._off_band_spans: dict[str, np.ndarray] = {}
         self.gate_lines: dict[str, tuple[pg.InfiniteLine, pg.InfiniteLine]] = {}
         self.cursors: dict[str, pg.InfiniteLine] = {}
@@ -132,27 +132,8 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
                 self._append(key, t, np.asarray(values, float).reshape(len(t), 3))
         for key, t in (("acc", chunk.t_acc), ("mag", chunk.t_mag)):
             if enabled is not None and enabled.get(key) is False and len(t):
-                self._add_off_span(key, float(t[0]), float(t[-1]))
-
-    def _add_off_span(self, key: str, start: float, end: float) -> None:
-        spans = self.off_spans[key]
-        if spans and start <= spans[-1][1] + OFF_JOIN_S:
-            spans[-1][1] = max(spans[-1][1], end)
-        else:
-            spans.append([start, end])
-        self._dirty = True
-
-    def off_mask(self, key: str, t: np.ndarray) -> np.ndarray:
-        """Which of the times `t` fall in a stretch in which the sensor was switched off."""
-        spans = self.off_spans.get(key) or []
-        if not spans or not len(t):
-            return np.zeros(len(t), bool)
-        starts = np.array([a for a, _ in spans])
-        ends = np.array([b for _, b in spans])
-        index = np.searchsorted(starts, t, side="right") - 1
-        inside = index >= 0
-        inside[inside] = t[inside] <= ends[index[inside]]
-        return inside
+                self.off_spans[key].add(float(t[0]), float(t[-1]))
+                self._dirty = True
 
     def set_user_present(self, present: bool) -> None:
         """YOURS loaded or not: its legend toggles (and OWN's beside it in the error tab) show
@@ -393,6 +374,7 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
     def _clear_off_spans(self) -> None:
         for spans in self.off_spans.values():
             spans.clear()
+        self._dirty = True
 
     def latest_time(self) -> float:
         if self.session is not None and self._position is not None:
@@ -522,7 +504,7 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
             if valid:
                 bounds[spec.plot].append((low, high))
         if stream in self.bands:
-            off = self.off_mask(stream, t)
+            off = self.off_spans[stream].mask(t)
             rejected = (values[:, 4] > 0.5) & ~off if len(t) else np.zeros(0, bool)
             self._band_spans[stream] = rejected_spans(t, rejected)
             self._off_band_spans[stream] = rejected_spans(t, off)

@@ -27,7 +27,7 @@ TIMEOUT_S = 60.0
 def main(log: str, broken: str, out: str, source: str = "live") -> int:
     """source: "live" (the phone emulator streams `log` over TCP) or "demo" (the built-in demo
     replays, the TCP server listening)."""
-    from PySide6 import QtCore, QtWidgets
+    from PySide6 import QtCore
 
     from app.engine.commands import LoadUserFilter, StartRecording, StopRecording
     from app.engine.config import SourceOptions

@@ -139,7 +139,7 @@ def test_a_switched_off_magnetometer_draws_off_not_rejected(panel):
     panel.refresh()
     assert panel.rejected_band_spans("mag").shape == (1, 2)
     panel.clear()
-    assert panel.off_spans["mag"] == []
+    assert panel.off_spans["mag"].spans == []
 
 
 def test_rejected_spans_merge_runs_and_widen_single_samples():
