@@ -9,6 +9,7 @@ from __future__ import annotations
 import pyqtgraph as pg
 from PySide6 import QtCore, QtWidgets
 
+from app.ui.elided import ElidedLabel
 from app.ui.no_data import NoDataText
 from app.ui.plot_items import Curve, PlotGroup, TimeAxis, cache_painting, legend_icon
 from app.ui.plot_specs import (DEFAULT_WINDOW_S, FOLLOW_NOTE_STYLE, GATE_COLOR, LEFT_AXIS_WIDTH,
@@ -43,7 +44,7 @@ class PlotPanelBuild:
         self.follow_button.clicked.connect(self.follow)
         self.follow_button.setEnabled(False)        # following already
         # While not following: what the plots show instead, in a colour that stands out
-        self.follow_note = QtWidgets.QLabel("")
+        self.follow_note = ElidedLabel("", minimum_text="not following…")
         self.follow_note.setObjectName("follow_note")
         self.follow_note.setStyleSheet(FOLLOW_NOTE_STYLE)
         self.follow_note.setVisible(False)

@@ -318,10 +318,10 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
     def _show_follow_state(self) -> None:
         text = self.follow_text()
         if self.follow_note.text() != text:
-            self.follow_note.setText(text)
+            self.follow_note.setText(text, (text.split(": showing ")[0],))
             self.follow_note.setToolTip(
-                "The plots stay on these times while samples keep arriving; Follow (or, in a "
-                "replay, a seek, Home or Play) shows the newest again" if text else "")
+                f"{text}\nThe plots stay on these times while samples keep arriving; Follow "
+                "(or, in a replay, a seek, Home or Play) shows the newest again" if text else "")
         if self.follow_note.isVisible() != bool(text):
             self.follow_note.setVisible(bool(text))
 

@@ -126,6 +126,8 @@ def main(log: str, broken: str, out: str, source: str = "live") -> int:
                 views.setCurrentIndex(view)
                 check(f"Calibrate / {views.tabText(view)}")
     window.workspaces.setCurrentIndex(0)
+    zoom(window.plots)                  # the note that the plots no longer follow
+    check("Live / Replay, a plot zoomed")
     for dock in window.docks():
         dock.raise_()
         check(f"dock {dock.objectName()}")
@@ -139,6 +141,23 @@ def main(log: str, broken: str, out: str, source: str = "live") -> int:
     window.shutdown()
     print(json.dumps(report))
     return 0
+
+
+def zoom(plots) -> None:
+    """Turn the mouse wheel over the accelerometer's plot, as a user zooms it."""
+    from PySide6 import QtCore, QtGui, QtWidgets
+    group = plots.groups["sensors"]
+    view_box = plots.plots["acc"].getViewBox()
+    position = QtCore.QPointF(group.graphics.mapFromScene(view_box.sceneBoundingRect().center()))
+    viewport = group.graphics.viewport()
+    event = QtGui.QWheelEvent(position, QtCore.QPointF(viewport.mapToGlobal(position.toPoint())),
+                              QtCore.QPoint(0, 0), QtCore.QPoint(0, 240),
+                              QtCore.Qt.MouseButton.NoButton,
+                              QtCore.Qt.KeyboardModifier.NoModifier,
+                              QtCore.Qt.ScrollPhase.NoScrollPhase, False)
+    QtWidgets.QApplication.sendEvent(viewport, event)
+    if not plots.follow_note.isVisible():
+        raise SystemExit("the zoom did not stop following")
 
 
 if __name__ == "__main__":
