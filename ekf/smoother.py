@@ -88,6 +88,11 @@ __all__ = ["REJECTED_STRETCH_S", "rejected_stretches", "smooth_batch"]
 BLOCK_ROWS = 1 << 14
 """Rows of forward records held at a time (smooth_batch's memory: about 1 kB a row of them)."""
 
+CHI2_99 = {3: 11.344866730144373, 6: 16.811893829770927}
+"""The 99 % points of the chi-square distribution with 3 and 6 degrees of freedom
+(``scipy.stats.chi2.ppf(0.99, k)``): the consistency gate on the error state (attitude, and
+gyroscope bias where it is estimated) of the forward and backward estimates."""
+
 REJECTED_STRETCH_S = 1.0
 """A stretch of rejected magnetometer readings longer than this [s] is one the backward pass
 carries no heading across (module docstring)."""
@@ -224,9 +229,10 @@ def _heading_projector(q, m):
 
 
 @njit(cache=True)
-def _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m, rejected, x_s, Ps_next, last):
+def _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m, rejected, x_s, P_s, Ps_next,
+              last):
     """The RTS pass of the module docstring over one block of rows, from its last row down,
-    in place into x_s. At a row k of a rejected stretch (``rejected[k]``) the gain is
+    in place into x_s, the smoothed covariances (error coordinates) into P_s. At a row k of a rejected stretch (``rejected[k]``) the gain is
     Pi_k C_k Pi_k+1 (the heading rule of the module docstring).
 
     The last block (`last`) ends the recording: x_s of its last row is x_f's. Any other block's
@@ -238,6 +244,7 @@ def _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m, rejected, x_s, Ps_nex
         N = x_f.shape[0]
         x_s[N - 1] = x_f[N - 1]
         Ps = _error_cov(x_f[N - 1, :4], P_f[N - 1], m)
+        P_s[N - 1] = Ps
         top = N - 2
     else:
         Ps = Ps_next.copy()
@@ -285,7 +292,123 @@ def _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m, rejected, x_s, Ps_nex
         if not np.isfinite(x_s[k]).all():
             x_s[k] = x_f[k]   # a degenerate step: keep the filter's estimate
             Ps = Pf
+        P_s[k] = Ps
     return Ps
+
+
+@njit(cache=True)
+def mahalanobis2(d, S):
+    """d^T S^-1 d: the squared Mahalanobis distance of a difference d whose covariance is S
+    (chi-square with len(d) degrees of freedom when d is zero-mean Gaussian). NaN when S is not
+    positive definite."""
+    x = _solve_spd(S, d.reshape(d.shape[0], 1).copy())
+    total = 0.0
+    for i in range(d.shape[0]):
+        total += d[i] * x[i, 0]
+    return total
+
+
+@njit(cache=True)
+def fuse_information(Y_f, y_f, Y_b, y_b):
+    """The information-form combination of two independent Gaussian estimates of one state,
+    each given by its information matrix Y = P^-1 and information vector y = P^-1 x:
+
+        Y = Y_f + Y_b               information adds up
+        y = y_f + y_b               and so does information times mean
+        x = Y^-1 y,   P = Y^-1      the combined estimate
+
+    (for two estimates x_f, x_b with covariances P_f, P_b this is
+    x = (P_f^-1 + P_b^-1)^-1 (P_f^-1 x_f + P_b^-1 x_b)). Returns (x, P); NaN where Y is not
+    positive definite."""
+    P = _inverse(Y_f + Y_b)
+    return _mv(P, y_f + y_b), P
+
+
+@njit(cache=True)
+def _is_identity(x):
+    """A filter before it initialised: its quaternion exactly (1, 0, 0, 0)."""
+    return x[0] == 1.0 and x[1] == 0.0 and x[2] == 0.0 and x[3] == 0.0
+
+
+@njit(cache=True)
+def _inverse(P):
+    m = P.shape[0]
+    return _solve_spd(0.5 * (P + P.T), np.eye(m))
+
+
+@njit(cache=True)
+def _error_of(x_ref, x, m):
+    """x as an error about the nominal x_ref: (log(conj(q_ref) ⊗ q), b - b_ref)."""
+    e = _quat_mul(np.array([x_ref[0], -x_ref[1], -x_ref[2], -x_ref[3]]), x[:4])
+    if e[0] < 0.0:
+        e = -e
+    d = np.zeros(m)
+    d[:3] = _log(e)
+    if m == 6:
+        d[3:] = x[4:7] - x_ref[4:7]
+    return d
+
+
+@njit(cache=True)
+def backward_information(x_o, P_o, x_s, P_s, x_ref, m):
+    """The backward estimate at a row in information form, (Y_b, y_b), in error coordinates
+    about the nominal `x_ref`: what the rows after it add to the forward pass that the RTS pass
+    smoothed (x_o, P_o, its estimate; x_s, P_s the smoothed one, P_s in error coordinates).
+    Information adds up, so the rows after contribute
+        Y_b = P_s^-1 - P_o^-1,      y_b = P_s^-1 d_s - P_o^-1 d_o
+    (d_s, d_o: x_s and x_o as errors about x_ref)."""
+    Y_s = _inverse(P_s)
+    Y_o = _inverse(_error_cov(x_o[:4], P_o, m))
+    Y_b = Y_s - Y_o
+    Y_b = 0.5 * (Y_b + Y_b.T)
+    y_b = _mv(Y_s, _error_of(x_ref, x_s, m)) - _mv(Y_o, _error_of(x_ref, x_o, m))
+    return Y_b, y_b
+
+
+@njit(cache=True)
+def consistency(Y_b, y_b, P_f):
+    """The chi-square statistic of the attitudes of a forward estimate N(0, P_f) and a backward
+    one given by its information (Y_b, y_b): the backward estimate in covariance form,
+    P_b = Y_b^-1 and d = P_b y_b (Y_b made definite by a relative 1e-9 on its diagonal: a
+    direction the rows after say nothing about gets a huge variance, not an infinite one), and
+    its attitude difference d_theta against the sum of the two attitude covariances:
+        d_theta^T (P_f,theta + P_b,theta)^-1 d_theta    (chi-square, 3 degrees of freedom).
+    NaN when Y_b is not positive semi-definite (the rows after would remove information)."""
+    m = P_f.shape[0]
+    scale = 0.0
+    for i in range(m):
+        scale = max(scale, abs(Y_b[i, i]))
+    P_b = _inverse(Y_b + (1e-9 * scale + 1e-300) * np.eye(m))
+    d = _mv(P_b, y_b)
+    return mahalanobis2(d[:3].copy(), P_f[:3, :3] + P_b[:3, :3])
+
+
+@njit(cache=True)
+def _combine(x_o, P_o, x_s, P_s, x_f, P_f, m, out, stat):
+    """Per row of one block: the forward estimate (x_f, P_f: the filter as set) and the
+    backward information of the RTS pass over the smoother's own forward pass (x_o, P_o) and
+    its smoothed states (x_s, P_s): their combination into out (the forward estimate where the
+    combination is degenerate) and the chi-square statistic of their consistency into stat (NaN:
+    degenerate; 0: no backward estimate, before the filters initialised)."""
+    for k in range(x_f.shape[0]):
+        out[k] = x_f[k]
+        stat[k] = 0.0
+        if _is_identity(x_f[k]) or _is_identity(x_o[k]):
+            continue
+        Pfd = _error_cov(x_f[k, :4], P_f[k], m)
+        Y_b, y_b = backward_information(x_o[k], P_o[k], x_s[k], P_s[k], x_f[k], m)
+        stat[k] = consistency(Y_b, y_b, Pfd)
+        delta, _ = fuse_information(_inverse(Pfd), np.zeros(m), Y_b, y_b)
+        q = _quat_mul(x_f[k, :4], _exp(delta[:3]))
+        q = q / np.sqrt(np.sum(q * q))
+        if q[0] < 0.0:
+            q = -q
+        if not (np.isfinite(q).all() and np.isfinite(delta).all()):
+            stat[k] = np.nan
+            continue
+        out[k, :4] = q
+        if m == 6:
+            out[k, 4:7] = x_f[k, 4:7] + delta[3:]
 
 
 class _Records:
@@ -341,16 +464,22 @@ def _less(m: np.ndarray, offset: np.ndarray | None) -> np.ndarray:
     return m if offset is None else m - offset
 
 
-def _as_set(settings: EKFSettings, sensors, t, g, a, m, changes: dict,
-            block_rows: int) -> tuple[np.ndarray, np.ndarray | None]:
-    """The lights of the filter as set, not of the smoother's forward pass (N, 3), and the
-    magnetometer offset to subtract for the forward pass (None: none)."""
-    from ekf.fast.filter import FastEKF
+def _record_cfg(est) -> np.ndarray:
+    from ekf.fast.layout import C
 
-    as_set = FastEKF(settings, sensors)
-    flags = np.zeros((t.shape[0], 3), dtype=np.bool_)
-    for first in range(0, t.shape[0], block_rows):
-        end = first + block_rows
+    cfg = est._cfg.copy()
+    cfg[C.record_prediction] = 1.0
+    return cfg
+
+
+def _run_as_set(as_set, t, g, a, m, changes: dict, blocks: list,
+                flags: np.ndarray) -> tuple[list, np.ndarray | None]:
+    """The filter as set over the rows, block by block: its lights into `flags` (N, 3); its
+    state at each block's start, and the magnetometer offset for the smoother's own forward
+    pass to subtract (None: none)."""
+    starts = []
+    for first, end in blocks:
+        starts.append(as_set._packed.copy())
         r = as_set.run_batch(t[first:end], g[first:end], a[first:end], m[first:end])
         flags[first:end, 0], flags[first:end, 1], flags[first:end, 2] = \
             r.acc_rejected, r.mag_rejected, r.at_rest
@@ -361,45 +490,57 @@ def _as_set(settings: EKFSettings, sensors, t, g, a, m, changes: dict,
         # the forward pass would have no heading; the offset the filter found over the
         # whole recording is subtracted instead (its least-squares fit, unshrunk: offline
         # nothing is at stake in between), a calibration as calibrate-mag's
-        return flags, np.asarray(state["mag_offset_fit"], float)
-    return flags, None
+        return starts, np.asarray(state["mag_offset_fit"], float)
+    return starts, None
 
 
-def _forward_backward(est, t, g, a, m, offset: np.ndarray | None, rejected_stretch_s: float,
-                      block_rows: int) -> tuple[np.ndarray, np.ndarray]:
-    """The forward pass of `est` and the backward pass: the smoothed states (N, 7) and the
-    forward pass's flags (N, 3).
+def _forward_backward(est, as_set, t, g, a, m, changes: dict, rejected_stretch_s: float,
+                      block_rows: int) -> tuple[np.ndarray, ...]:
+    """The smoother's forward pass (`est`), the backward RTS pass over it, and per row the
+    combination with the filter as set (`as_set`; None: `est` is the filter as set): the
+    combined states (N, 7), the states of the filter as set (N, 7), the consistency statistic
+    (N,) and the lights of the filter as set (N, 3).
 
-    The forward pass runs block by block, keeping only the filter's state at each block's
+    Each forward pass runs block by block, keeping only the filter's state at each block's
     start; the backward pass runs the blocks in reverse, each recorded again from its state
     (the same compiled loop from the same state: the same records, bit for bit). Memory: the
-    records of one block instead of the whole recording's (~1 kB a row)."""
-    from ekf.fast.layout import C
+    records of one block instead of the whole recording's (~1 kB a row for each pass)."""
     from ekf.fast.steps import _run_batch_record
 
-    cfg = est._cfg.copy()
-    cfg[C.record_prediction] = 1.0
+    cfg = _record_cfg(est)
     n = t.shape[0]
-    out_flags = np.zeros((n, 3), dtype=np.bool_)
+    flags = np.zeros((n, 3), dtype=np.bool_)
     x_s = np.zeros((n, 7))
+    x_set = np.zeros((n, 7))
+    stat = np.zeros(n)
     blocks = [(first, min(first + block_rows, n)) for first in range(0, n, block_rows)]
+    offset, set_starts = None, None
+    own_flags = flags
+    if as_set is not None:
+        set_starts, offset = _run_as_set(as_set, t, g, a, m, changes, blocks, flags)
+        own_flags = np.zeros((n, 3), dtype=np.bool_)
     records = _Records(min(block_rows, n) + 1)
     starts = []
     for first, end in blocks:
         starts.append(est._packed.copy())
         records.record(_run_batch_record, est._packed, cfg, t[first:end], g[first:end],
-                       a[first:end], _less(m[first:end], offset), out_flags[first:end])
+                       a[first:end], _less(m[first:end], offset), own_flags[first:end])
     if not n:
-        return x_s, out_flags
+        return x_s, x_set, stat, flags
     m_err = 6 if est.settings.estimate_gyro_bias else 3
     bias_fixed = np.asarray(est.settings.gyr_bias, float)
     # the forward pass's own light (a flag row without a reading keeps the latest one)
     present = np.isfinite(m).all(axis=1)     # the readings of the forward pass
     if offset is not None and not np.isfinite(offset).all():
         present[:] = False
-    rejected = rejected_stretches(t, present, out_flags[:, 1], rejected_stretch_s)
+    rejected = rejected_stretches(t, present, own_flags[:, 1], rejected_stretch_s)
+    P_s = np.zeros((min(block_rows, n) + 1, m_err, m_err))
+    set_records = None
+    if as_set is not None:
+        set_records, set_cfg = _Records(min(block_rows, n)), _record_cfg(as_set)
+    combined = np.zeros((min(block_rows, n), 7))
     Ps = np.zeros((m_err, m_err))
-    after = None
+    after, after_smoothed = None, None
     for index in range(len(blocks) - 1, -1, -1):
         first, end = blocks[index]
         last = after is None
@@ -408,19 +549,35 @@ def _forward_backward(est, t, g, a, m, offset: np.ndarray | None, rejected_stret
                            g[first:end], a[first:end], _less(m[first:end], offset),
                            np.zeros((end - first, 3), dtype=np.bool_))
             records.hold_next(after, end - first)
+            x_s[end] = after_smoothed     # the RTS pass's state there, not the combined one
         rows = end - first + (0 if last else 1)
         Ps = _backward(records.x_f[:rows], records.P_f[:rows], records.x_p[:rows],
                        records.P_p[:rows], records.omega[:rows], records.T[:rows],
                        bias_fixed, m_err, rejected[first:end], x_s[first:first + rows],
-                       Ps, last)
-        after = records.first_row()
-    return x_s, out_flags
+                       P_s[:rows], Ps, last)
+        if not last:
+            x_s[end] = combined_next
+        k = end - first
+        forward = records
+        if set_records is not None:
+            set_records.record(_run_batch_record, set_starts[index].copy(), set_cfg,
+                               t[first:end], g[first:end], a[first:end], m[first:end],
+                               np.zeros((k, 3), dtype=np.bool_))
+            forward = set_records
+        after, after_smoothed = records.first_row(), x_s[first].copy()
+        _combine(records.x_f[:k], records.P_f[:k], x_s[first:end], P_s[:k], forward.x_f[:k],
+                 forward.P_f[:k], m_err, combined[:k], stat[first:end])
+        x_s[first:end] = combined[:k]
+        x_set[first:end] = forward.x_f[:k]
+        combined_next = x_s[first].copy()
+    return x_s, x_set, stat, flags
 
 
 def smooth_batch(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
                  mag: ArrayLike | None, settings: EKFSettings | str | None = None,
                  sensors: tuple[str, ...] | list[str] = SENSORS,
                  rejected_stretch_s: float = REJECTED_STRETCH_S,
+                 consistency_gate: float | None = None,
                  block_rows: int = BLOCK_ROWS) -> BatchResult:
     """The EKF (compiled, `settings` as for ``ekf.filter_batch``) forward over the rows, then
     the backward RTS pass: per row the smoothed quaternion (w-first, sensor -> ENU, w >= 0) and
@@ -430,6 +587,25 @@ def smooth_batch(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
     stretch of rejected magnetometer readings longer than `rejected_stretch_s` [s] the heading
     is the forward pass's (module docstring; inf: no such rule). `block_rows`: the rows whose
     forward records are held at a time (the result does not depend on it)."""
+    t, x_s, x_set, stat, flags, settings = smooth_parts(t_s, gyr, acc, mag, settings, sensors,
+                                                        rejected_stretch_s, block_rows)
+    if consistency_gate is None:
+        consistency_gate = CHI2_99[6 if settings.estimate_gyro_bias else 3]
+    x = np.where((stat <= consistency_gate)[:, None], x_s, x_set)
+    bias = x[:, 4:7] if settings.estimate_gyro_bias else np.tile(
+        np.asarray(settings.gyr_bias, float), (t.shape[0], 1))
+    return BatchResult(t, x[:, :4].copy(), flags[:, 0].copy(), flags[:, 1].copy(),
+                       flags[:, 2].copy(), gyro_bias=bias)
+
+
+def smooth_parts(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
+                 mag: ArrayLike | None, settings: EKFSettings | str | None = None,
+                 sensors: tuple[str, ...] | list[str] = SENSORS,
+                 rejected_stretch_s: float = REJECTED_STRETCH_S,
+                 block_rows: int = BLOCK_ROWS) -> tuple:
+    """What :func:`smooth_batch` chooses from, per row: (t, the combined states (N, 7), the
+    states of the filter as set (N, 7), the consistency statistic (N,; NaN: degenerate), the
+    lights (N, 3), the settings resolved). A state is (q w-first, gyro bias)."""
     from ekf.fast.filter import FastEKF
 
     t, g, a, m = batch_rows(t_s, gyr, acc, mag)
@@ -439,18 +615,9 @@ def smooth_batch(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
         changes["mag_hard_iron_tau_s"] = 0.0
     if settings.mag_bias_innovation_limit != math.inf:
         changes["mag_bias_innovation_limit"] = math.inf
-    forward = settings.with_changes(**changes) if changes else settings
-    flags, offset = None, None
-    if forward is not settings and t.shape[0]:
-        flags, offset = _as_set(settings, sensors, t, g, a, m, changes, block_rows)
-    est = FastEKF(forward, sensors)
-    x_s, out_flags = _forward_backward(est, t, g, a, m, offset, rejected_stretch_s, block_rows)
-    n = t.shape[0]
-    bias = x_s[:, 4:7] if est.settings.estimate_gyro_bias else np.tile(
-        np.asarray(est.settings.gyr_bias, float), (n, 1))
-    if flags is not None:
-        out_flags = flags
-    return BatchResult(t, x_s[:, :4].copy(), out_flags[:, 0].copy(), out_flags[:, 1].copy(),
-                       out_flags[:, 2].copy(), gyro_bias=bias)
-
-
+    own = settings.with_changes(**changes) if changes else settings
+    as_set = FastEKF(settings, sensors) if changes else None
+    est = FastEKF(own, sensors)
+    x_s, x_set, stat, flags = _forward_backward(est, as_set, t, g, a, m, changes,
+                                                rejected_stretch_s, block_rows)
+    return t, x_s, x_set, stat, flags, settings
