@@ -1,7 +1,12 @@
-"""The offline smoother: the same EKF forward, then a backward Rauch-Tung-Striebel pass.
+"""The offline smoother: the filter as set, combined with what the rows after each row add.
 
-For a recording (not live): every estimate uses the samples before *and after* it. The forward
-pass is the compiled EKF (``ekf.fast``) with whatever settings, recording per row k the state
+For a recording (not live): every estimate uses the samples before *and after* it. Three
+steps, each below: an RTS pass (the EKF forward, then a backward Rauch-Tung-Striebel pass)
+gives the information the rows after each row add; that information is tested against the
+filter as set (its estimate and covariance at the row); where the two are consistent they are
+combined in information form, where they are not the filter's estimate is kept.
+
+The RTS pass. Its forward pass is the compiled EKF (``ekf.fast``) with whatever settings, recording per row k the state
 after the row's time update, x_{k|k-1} and P_{k|k-1}, and after its measurements, x_{k|k} and
 P_{k|k}. The backward pass runs in error-state (multiplicative) form, because a unit quaternion
 lives on a sphere where additive corrections leave the constraint:
@@ -48,28 +53,56 @@ from both ends, and the rule leaves that drift in (simulated, a 150 uT magnet be
 phone for 10 s: the heading within it 0.27 deg RMS against 0.02 deg without the rule, the
 forward filter 1.6 deg; with north reading 30 deg off after the magnet, 0.27 deg against 10.0).
 
-The gates and lights are the forward filter's (the smoother changes estimates, not decisions);
-its heading-only magnetometer gain is not the optimal one, so the smoother is the RTS
-smoother of the filter as it runs, not of an ideal one. Tested: never worse than the forward
-filter on simulated data with known truth.
+Its heading-only magnetometer gain is not the optimal one, so the RTS pass is the smoother of
+the filter as it runs, not of an ideal one.
+
+The backward estimate. Information adds up: the RTS pass's smoothed estimate at row k
+(x^s_k, P^s_k) is its forward estimate (x^o_k, P^o_k) combined with an estimate from the rows
+after k alone. In information form (Y = P^-1, y = P^-1 x, in error coordinates about the
+forward nominal of the filter as set, :func:`backward_information`):
+      Y_b = (P^s_k)^-1 - (P^o_k)^-1,    y_b = (P^s_k)^-1 d^s_k - (P^o_k)^-1 d^o_k
+(d^s, d^o: x^s and x^o as errors about that nominal). Y_b may be singular: a direction the
+rows after say nothing about (the heading across a rejected stretch, the last row).
+
+The test (:func:`consistency`). The filter as set at row k, N(x^f_k, P^f_k), and the backward
+estimate, N(x^b, P^b) with P^b = Y_b^-1 and x^b = P^b y_b (Y_b made definite by a relative
+1e-9 on its diagonal), are two independent estimates of one state: if both are right, the
+small rotation between their attitudes, d = log(conj(q^f) ⊗ q^b), is Gaussian with the sum of
+their attitude covariances, and d^T (P^f_theta + P^b_theta)^-1 d is chi-square with 3 degrees
+of freedom. Beyond its 99 % point (11.34, ``CHI2_99[3]``, the ``consistency_gate``) one of
+them is wrong (a disturbance a pass took for the field, a heading carried from a field read
+elsewhere) and the row keeps the estimate of the filter as set. So do rows where the backward
+information is degenerate (Y_b not positive semi-definite).
+
+The combination (:func:`fuse_information`), where they are consistent: the information-form
+combination of two Gaussian estimates, Y = Y_f + Y_b, y = y_f + y_b, x = Y^-1 y (y_f = 0: the
+filter's own estimate is the origin of its error coordinates), and the smoothed state is
+x^f ⊕ x = (q^f ⊗ exp(x_theta), b^f + x_b).
+
+The gates and lights are the filter's as set (the smoother changes estimates, not decisions).
 
 The online hard-iron fit (``mag_hard_iron_tau_s``) is not in x: it is a least-squares fit beside
 the filter whose offset, subtracted from every reading, changes along the recording. The
 backward pass cannot smooth it, and carries the late readings' heading (made with a later
 offset) back to rows filtered with an earlier one. With ``smooth_hard_iron`` false (the default
-preset, chosen by ``benchmarks/tune_defaults.py --smoother``) the forward pass runs without the
-fit; the lights are still those of the filter as set. A raw magnetometer (hundreds of uT of hard
+preset, chosen by ``benchmarks/tune_defaults.py --smoother``) the RTS pass's forward pass runs
+without the fit; the filter as set, which the backward information is combined with, keeps
+it. A raw magnetometer (hundreds of uT of hard
 iron, whose offset the filter acquires: ``ekf.reference_field._check_uncalibrated``) would leave
 that pass without a heading: there the offset the filter as set found by the recording's end is
 subtracted from every reading first, as an offline calibration.
 
-The forward pass also runs without ``mag_bias_innovation_limit`` (always: it is no choice of the
-smoother's). That limit keeps a live filter from reading a heading far off as a gyroscope bias,
+The RTS pass's forward pass also runs without ``mag_bias_innovation_limit`` (always: it is no
+choice of the smoother's; the filter as set keeps it). That limit keeps a live filter from reading a heading far off as a gyroscope bias,
 at the price of a gain below the one its covariance asks for; the backward pass trusts the
 forward covariances, and with the bias held back it spread the heading's corrections wrongly
 (the Nexus 5 recordings smoothed: 4.37° with the limit, 3.39° without; the disturbed swinging
 walk 12.1° against 5.6°). The whole recording already tells the smoother what the limit guards
 the live filter against.
+
+Memory: each forward pass runs block by block (``BLOCK_ROWS``), keeping only the filter's state
+at each block's start; the backward pass takes the blocks in reverse, each recorded again from
+its state (the same compiled loop from the same state: the same records, bit for bit).
 """
 
 from __future__ import annotations
@@ -83,15 +116,16 @@ from numpy.typing import ArrayLike
 from ekf.estimator import SENSORS, BatchResult, batch_rows
 from ekf.settings import EKFSettings, resolve_settings
 
-__all__ = ["REJECTED_STRETCH_S", "rejected_stretches", "smooth_batch"]
+__all__ = ["CHI2_99", "REJECTED_STRETCH_S", "backward_information", "consistency",
+           "fuse_information", "rejected_stretches", "smooth_batch", "smooth_parts"]
 
 BLOCK_ROWS = 1 << 14
 """Rows of forward records held at a time (smooth_batch's memory: about 1 kB a row of them)."""
 
 CHI2_99 = {3: 11.344866730144373, 6: 16.811893829770927}
 """The 99 % points of the chi-square distribution with 3 and 6 degrees of freedom
-(``scipy.stats.chi2.ppf(0.99, k)``): the consistency gate on the error state (attitude, and
-gyroscope bias where it is estimated) of the forward and backward estimates."""
+(``scipy.stats.chi2.ppf(0.99, k)``); 3: the consistency gate on the attitudes of the forward and
+backward estimates (module docstring)."""
 
 REJECTED_STRETCH_S = 1.0
 """A stretch of rejected magnetometer readings longer than this [s] is one the backward pass
@@ -412,7 +446,7 @@ def _combine(x_o, P_o, x_s, P_s, x_f, P_f, m, out, stat):
 
 
 class _Records:
-    """The forward pass's records of one block of rows (and one row more: the first row of the
+    """A forward pass's records of one block of rows (and one row more: the first row of the
     block after it), refilled block by block."""
 
     def __init__(self, rows: int) -> None:
@@ -540,7 +574,7 @@ def _forward_backward(est, as_set, t, g, a, m, changes: dict, rejected_stretch_s
         set_records, set_cfg = _Records(min(block_rows, n)), _record_cfg(as_set)
     combined = np.zeros((min(block_rows, n), 7))
     Ps = np.zeros((m_err, m_err))
-    after, after_smoothed = None, None
+    after, after_smoothed, combined_next = None, None, None
     for index in range(len(blocks) - 1, -1, -1):
         first, end = blocks[index]
         last = after is None
@@ -577,20 +611,20 @@ def smooth_batch(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
                  mag: ArrayLike | None, settings: EKFSettings | str | None = None,
                  sensors: tuple[str, ...] | list[str] = SENSORS,
                  rejected_stretch_s: float = REJECTED_STRETCH_S,
-                 consistency_gate: float | None = None,
+                 consistency_gate: float = CHI2_99[3],
                  block_rows: int = BLOCK_ROWS) -> BatchResult:
-    """The EKF (compiled, `settings` as for ``ekf.filter_batch``) forward over the rows, then
-    the backward RTS pass: per row the smoothed quaternion (w-first, sensor -> ENU, w >= 0) and
-    gyro bias; the flags are the forward filter's (with `settings` as given). Same arguments as
-    ``ekf.filter_batch``; the forward pass runs without ``mag_bias_innovation_limit`` and, with
-    ``smooth_hard_iron`` false, without the online hard-iron fit (module docstring). Within a
-    stretch of rejected magnetometer readings longer than `rejected_stretch_s` [s] the heading
-    is the forward pass's (module docstring; inf: no such rule). `block_rows`: the rows whose
-    forward records are held at a time (the result does not depend on it)."""
+    """The EKF (compiled, `settings` as for ``ekf.filter_batch``) combined with what the rows
+    after each row add (module docstring): per row the smoothed quaternion (w-first, sensor ->
+    ENU, w >= 0) and gyro bias; the flags are the filter's as set. Same arguments as
+    ``ekf.filter_batch``; the RTS pass's forward pass runs without ``mag_bias_innovation_limit``
+    and, with ``smooth_hard_iron`` false, without the online hard-iron fit (module docstring).
+    Within a stretch of rejected magnetometer readings longer than `rejected_stretch_s` [s] the
+    RTS pass carries no heading (inf: no such rule). A row whose two attitude estimates differ
+    by more than `consistency_gate` (chi-square, 3 degrees of freedom; inf: no gate) keeps the
+    estimate of the filter as set. `block_rows`: the rows whose records are held at a time (the
+    result does not depend on it)."""
     t, x_s, x_set, stat, flags, settings = smooth_parts(t_s, gyr, acc, mag, settings, sensors,
                                                         rejected_stretch_s, block_rows)
-    if consistency_gate is None:
-        consistency_gate = CHI2_99[6 if settings.estimate_gyro_bias else 3]
     x = np.where((stat <= consistency_gate)[:, None], x_s, x_set)
     bias = x[:, 4:7] if settings.estimate_gyro_bias else np.tile(
         np.asarray(settings.gyr_bias, float), (t.shape[0], 1))
