@@ -64,7 +64,7 @@ forward nominal of the filter as set, :func:`backward_information`):
 (d^s, d^o: x^s and x^o as errors about that nominal). Y_b may be singular: a direction the
 rows after say nothing about (the heading across a rejected stretch, the last row).
 
-The test (:func:`consistency`). The filter as set at row k, N(x^f_k, P^f_k), and the backward
+The test (``ekf.gaussian.consistency``). The filter as set at row k, N(x^f_k, P^f_k), and the backward
 estimate, N(x^b, P^b) with P^b = Y_b^-1 and x^b = P^b y_b (Y_b made definite by a relative
 1e-9 on its diagonal), are two independent estimates of one state: if both are right, the
 small rotation between their attitudes, d = log(conj(q^f) ⊗ q^b), is Gaussian with the sum of
@@ -74,7 +74,7 @@ them is wrong (a disturbance a pass took for the field, a heading carried from a
 elsewhere) and the row keeps the estimate of the filter as set. So do rows where the backward
 information is degenerate (Y_b not positive semi-definite).
 
-The combination (:func:`fuse_information`), where they are consistent: the information-form
+The combination (``ekf.gaussian.fuse_information``), where they are consistent: the information-form
 combination of two Gaussian estimates, Y = Y_f + Y_b, y = y_f + y_b, x = Y^-1 y (y_f = 0: the
 filter's own estimate is the origin of its error coordinates), and the smoothed state is
 x^f ⊕ x = (q^f ⊗ exp(x_theta), b^f + x_b).
@@ -114,10 +114,11 @@ from numba import njit
 from numpy.typing import ArrayLike
 
 from ekf.estimator import SENSORS, BatchResult, batch_rows
+from ekf.gaussian import consistency, fuse_information, inverse, mm, mv, solve_spd
 from ekf.settings import EKFSettings, resolve_settings
 
-__all__ = ["CHI2_99", "REJECTED_STRETCH_S", "backward_information", "consistency",
-           "fuse_information", "rejected_stretches", "smooth_batch", "smooth_parts"]
+__all__ = ["CHI2_99", "REJECTED_STRETCH_S", "backward_information", "rejected_stretches",
+           "smooth_batch", "smooth_parts"]
 
 BLOCK_ROWS = 1 << 14
 """Rows of forward records held at a time (smooth_batch's memory: about 1 kB a row of them)."""
@@ -130,61 +131,6 @@ backward estimates (module docstring)."""
 REJECTED_STRETCH_S = 1.0
 """A stretch of rejected magnetometer readings longer than this [s] is one the backward pass
 carries no heading across (module docstring)."""
-
-
-# Small dense algebra by hand: numba's np.linalg and @ need scipy's BLAS, which ekf does not use.
-@njit(cache=True)
-def _mm(A, B):
-    out = np.zeros((A.shape[0], B.shape[1]))
-    for i in range(A.shape[0]):
-        for k in range(A.shape[1]):
-            a = A[i, k]
-            if a != 0.0:
-                for j in range(B.shape[1]):
-                    out[i, j] += a * B[k, j]
-    return out
-
-
-@njit(cache=True)
-def _mv(A, v):
-    out = np.zeros(A.shape[0])
-    for i in range(A.shape[0]):
-        for k in range(A.shape[1]):
-            out[i] += A[i, k] * v[k]
-    return out
-
-
-@njit(cache=True)
-def _solve_spd(A, B):
-    """A^-1 B for a symmetric positive definite A (Cholesky); None-free: a non-positive pivot
-    gives NaN, which the caller treats as a degenerate step."""
-    m = A.shape[0]
-    L = np.zeros((m, m))
-    for j in range(m):
-        d = A[j, j]
-        for k in range(j):
-            d -= L[j, k] * L[j, k]
-        if not d > 0.0:
-            return np.full(B.shape, np.nan)
-        L[j, j] = np.sqrt(d)
-        for i in range(j + 1, m):
-            v = A[i, j]
-            for k in range(j):
-                v -= L[i, k] * L[j, k]
-            L[i, j] = v / L[j, j]
-    X = B.copy()
-    for c in range(B.shape[1]):
-        for i in range(m):            # L y = b
-            v = X[i, c]
-            for k in range(i):
-                v -= L[i, k] * X[k, c]
-            X[i, c] = v / L[i, i]
-        for i in range(m - 1, -1, -1):  # L^T x = y
-            v = X[i, c]
-            for k in range(i + 1, m):
-                v -= L[k, i] * X[k, c]
-            X[i, c] = v / L[i, i]
-    return X
 
 
 @njit(cache=True)
@@ -203,7 +149,7 @@ def _error_cov(q, P, m):
     T[:3, :4] = 2.0 * _s_bar(q).T
     for i in range(3, m):
         T[i, i + 1] = 1.0
-    return _mm(_mm(T, P[:n, :n].copy()), T.T.copy())
+    return mm(mm(T, P[:n, :n].copy()), T.T.copy())
 
 
 @njit(cache=True)
@@ -215,7 +161,7 @@ def _rotation(w, T):
         return R
     k = w * T / angle
     K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return R + np.sin(angle) * K + (1.0 - np.cos(angle)) * _mm(K, K)
+    return R + np.sin(angle) * K + (1.0 - np.cos(angle)) * mm(K, K)
 
 
 @njit(cache=True)
@@ -300,10 +246,10 @@ def _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m, rejected, x_s, P_s, P
                 for i in range(3):
                     Phi[i, 3 + i] = -T[k + 1]
         Pp = 0.5 * (Pp + Pp.T) + 1e-15 * np.eye(m)
-        C = _solve_spd(Pp, _mm(Phi, Pf)).T.copy()    # P_f Phi^T Pp^-1 (Pp symmetric)
+        C = solve_spd(Pp, mm(Phi, Pf)).T.copy()    # P_f Phi^T Pp^-1 (Pp symmetric)
         if rejected[k]:
             # no heading (nor bias about up) in from row k+1, none out into row k
-            C = _mm(_mm(_heading_projector(x_f[k, :4], m), C), _heading_projector(xp[:4], m))
+            C = mm(mm(_heading_projector(x_f[k, :4], m), C), _heading_projector(xp[:4], m))
         # delta = x_s[k+1] ⊖ x_p[k+1]
         conj = np.array([xp[0], -xp[1], -xp[2], -xp[3]])
         e = _quat_mul(conj, x_s[k + 1, :4])
@@ -313,7 +259,7 @@ def _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m, rejected, x_s, P_s, P
         delta[:3] = _log(e)
         if m == 6:
             delta[3:] = x_s[k + 1, 4:7] - xp[4:7]
-        d = _mv(C, delta)
+        d = mv(C, delta)
         q = _quat_mul(x_f[k, :4], _exp(d[:3]))
         q = q / np.sqrt(np.sum(q * q))
         if q[0] < 0.0:
@@ -322,7 +268,7 @@ def _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m, rejected, x_s, P_s, P
         x_s[k, 4:7] = x_f[k, 4:7]
         if m == 6:
             x_s[k, 4:7] = x_f[k, 4:7] + d[3:]
-        Ps = Pf + _mm(_mm(C, Ps - Pp), C.T.copy())
+        Ps = Pf + mm(mm(C, Ps - Pp), C.T.copy())
         if not np.isfinite(x_s[k]).all():
             x_s[k] = x_f[k]   # a degenerate step: keep the filter's estimate
             Ps = Pf
@@ -331,43 +277,9 @@ def _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m, rejected, x_s, P_s, P
 
 
 @njit(cache=True)
-def mahalanobis2(d, S):
-    """d^T S^-1 d: the squared Mahalanobis distance of a difference d whose covariance is S
-    (chi-square with len(d) degrees of freedom when d is zero-mean Gaussian). NaN when S is not
-    positive definite."""
-    x = _solve_spd(S, d.reshape(d.shape[0], 1).copy())
-    total = 0.0
-    for i in range(d.shape[0]):
-        total += d[i] * x[i, 0]
-    return total
-
-
-@njit(cache=True)
-def fuse_information(Y_f, y_f, Y_b, y_b):
-    """The information-form combination of two independent Gaussian estimates of one state,
-    each given by its information matrix Y = P^-1 and information vector y = P^-1 x:
-
-        Y = Y_f + Y_b               information adds up
-        y = y_f + y_b               and so does information times mean
-        x = Y^-1 y,   P = Y^-1      the combined estimate
-
-    (for two estimates x_f, x_b with covariances P_f, P_b this is
-    x = (P_f^-1 + P_b^-1)^-1 (P_f^-1 x_f + P_b^-1 x_b)). Returns (x, P); NaN where Y is not
-    positive definite."""
-    P = _inverse(Y_f + Y_b)
-    return _mv(P, y_f + y_b), P
-
-
-@njit(cache=True)
 def _is_identity(x):
     """A filter before it initialised: its quaternion exactly (1, 0, 0, 0)."""
     return x[0] == 1.0 and x[1] == 0.0 and x[2] == 0.0 and x[3] == 0.0
-
-
-@njit(cache=True)
-def _inverse(P):
-    m = P.shape[0]
-    return _solve_spd(0.5 * (P + P.T), np.eye(m))
 
 
 @njit(cache=True)
@@ -391,30 +303,12 @@ def backward_information(x_o, P_o, x_s, P_s, x_ref, m):
     Information adds up, so the rows after contribute
         Y_b = P_s^-1 - P_o^-1,      y_b = P_s^-1 d_s - P_o^-1 d_o
     (d_s, d_o: x_s and x_o as errors about x_ref)."""
-    Y_s = _inverse(P_s)
-    Y_o = _inverse(_error_cov(x_o[:4], P_o, m))
+    Y_s = inverse(P_s)
+    Y_o = inverse(_error_cov(x_o[:4], P_o, m))
     Y_b = Y_s - Y_o
     Y_b = 0.5 * (Y_b + Y_b.T)
-    y_b = _mv(Y_s, _error_of(x_ref, x_s, m)) - _mv(Y_o, _error_of(x_ref, x_o, m))
+    y_b = mv(Y_s, _error_of(x_ref, x_s, m)) - mv(Y_o, _error_of(x_ref, x_o, m))
     return Y_b, y_b
-
-
-@njit(cache=True)
-def consistency(Y_b, y_b, P_f):
-    """The chi-square statistic of the attitudes of a forward estimate N(0, P_f) and a backward
-    one given by its information (Y_b, y_b): the backward estimate in covariance form,
-    P_b = Y_b^-1 and d = P_b y_b (Y_b made definite by a relative 1e-9 on its diagonal: a
-    direction the rows after say nothing about gets a huge variance, not an infinite one), and
-    its attitude difference d_theta against the sum of the two attitude covariances:
-        d_theta^T (P_f,theta + P_b,theta)^-1 d_theta    (chi-square, 3 degrees of freedom).
-    NaN when Y_b is not positive semi-definite (the rows after would remove information)."""
-    m = P_f.shape[0]
-    scale = 0.0
-    for i in range(m):
-        scale = max(scale, abs(Y_b[i, i]))
-    P_b = _inverse(Y_b + (1e-9 * scale + 1e-300) * np.eye(m))
-    d = _mv(P_b, y_b)
-    return mahalanobis2(d[:3].copy(), P_f[:3, :3] + P_b[:3, :3])
 
 
 @njit(cache=True)
@@ -432,7 +326,7 @@ def _combine(x_o, P_o, x_s, P_s, x_f, P_f, m, out, stat):
         Pfd = _error_cov(x_f[k, :4], P_f[k], m)
         Y_b, y_b = backward_information(x_o[k], P_o[k], x_s[k], P_s[k], x_f[k], m)
         stat[k] = consistency(Y_b, y_b, Pfd)
-        delta, _ = fuse_information(_inverse(Pfd), np.zeros(m), Y_b, y_b)
+        delta, _ = fuse_information(inverse(Pfd), np.zeros(m), Y_b, y_b)
         q = _quat_mul(x_f[k, :4], _exp(delta[:3]))
         q = q / np.sqrt(np.sum(q * q))
         if q[0] < 0.0:
