@@ -1,4 +1,4 @@
-function [ctx, reply, entries] = ol_run_block(ctx, T, given, values)
+function [ctx, reply, entries] = ol_run_block(ctx, T, given, values, want_innovations)
 % OL_RUN_BLOCK  The course's filterTemplate loop over a block of samples.
 %
 % T (n x 1) times [s] on the phone's clock; given (n x 3) whether the row gives the gyroscope,
@@ -15,7 +15,8 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values)
 %      mu_normalizeQ.
 % A function that raises OrientationLab:notWritten is skipped (x and P stay); any other error, a
 % returned x that is not 4x1 or P not 4x4, or a non-finite state pauses the filter
-% (ctx.problem). Returns the reply's header fields and arrays (see ol_serve).
+% (ctx.problem). want_innovations (default true): also the innovations of each reading for the
+% consistency view. Returns the reply's header fields and arrays (see ol_serve).
 %
 % Written for Octave's interpreter, where every statement costs: inside the loop only what the
 % filter's state depends on; what does not (the standstill light), or can wait (the
@@ -275,7 +276,11 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values)
     st.acc_out = F(done, 1) ~= 0;
     st.mag_out = F(done, 2) ~= 0;
   end
-  keep = inn_row(1:m) <= done;
+  if nargin < 5 || want_innovations
+    keep = inn_row(1:m) <= done;
+  else
+    keep = false(1, m);
+  end
   rows = inn_row(keep);
   sensors = inn_sensor(keep);
   m = numel(rows);

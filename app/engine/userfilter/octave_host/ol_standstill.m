@@ -20,7 +20,11 @@ function [still, st] = ol_standstill(st, s, T, G, V)
       st.acc_smooth = readings(:, 1);
       st.has_smooth = true;
     end
-    smooth = filter(0.1, [1, -0.9], readings, 0.9 * st.acc_smooth', 2);
+    if columns(readings) == 1                     % filter() takes one column as a vector
+      smooth = 0.9 * st.acc_smooth + 0.1 * readings;
+    else
+      smooth = filter(0.1, [1, -0.9], readings, 0.9 * st.acc_smooth', 2);
+    end
     st.acc_smooth = smooth(:, end);
     moving(acc) = moving(acc) | sum((readings - smooth) .^ 2, 1) > s.rest_acc_threshold^2;
   end
