@@ -343,6 +343,6 @@ def make_estimator(name: str | ekf.Estimator, settings: EKFSettings | None = Non
     UserFilterError when it cannot be loaded), or an estimator object as it is."""
     if not isinstance(name, str):
         return name
-    if is_filter_file(name):
+    if name not in ekf.ESTIMATORS and is_filter_file(name):
         return UserFilterEstimator(name, settings, sensors)
     return ekf.make_estimator(name, settings, sensors)

@@ -108,11 +108,14 @@ def octave_command(octave: Path, code_dir: Path, folder: Path) -> list[str]:
 
 
 def is_matlab_filter(name: str | os.PathLike) -> bool:
-    """Whether an estimator name is a MATLAB filter: an existing folder, or a .m file."""
+    """Whether an estimator name is a MATLAB filter: a .m file, or a folder with .m files in it."""
     text = str(name)
     if text.lower().endswith(".m"):
         return True
-    return Path(text).expanduser().is_dir()
+    try:
+        return any(entry.name.endswith(".m") for entry in os.scandir(Path(text).expanduser()))
+    except OSError:
+        return False
 
 
 def filter_folder(path: str | os.PathLike) -> Path:
