@@ -34,6 +34,21 @@ MAX_COPIED_BYTES = 64 * 1024 * 1024      # data files beside the .m files, copie
 ENV_OCTAVE = "ORIENTATION_LAB_OCTAVE"    # the Octave to use when none is given
 
 
+_chosen: str | None = None
+
+
+def use_octave(path: str | os.PathLike | None) -> None:
+    """The octave-cli MATLAB filters run in from now on (``--octave PATH``, the window's
+    setting); None or "": found as :func:`find_octave` finds it. Checked when a filter loads."""
+    global _chosen
+    _chosen = str(path) if path is not None and str(path).strip() else None
+
+
+def chosen_octave() -> str | None:
+    """The octave-cli chosen with :func:`use_octave` (None: none chosen)."""
+    return _chosen
+
+
 class OctaveNotFound(Exception):
     """No usable octave-cli: the message says how to install it (one line)."""
 
@@ -72,11 +87,11 @@ def _installed_elsewhere() -> list[str]:
 
 
 def find_octave(given: str | os.PathLike | None = None) -> Path:
-    """The octave-cli to run: `given` (a file, or a command on PATH), else
-    $ORIENTATION_LAB_OCTAVE, else ``octave-cli`` (or ``octave``) on PATH, else where the
-    installers put it. OctaveNotFound when there is none."""
+    """The octave-cli to run: `given` (a file, or a command on PATH), else the one chosen
+    (:func:`use_octave`), else $ORIENTATION_LAB_OCTAVE, else ``octave-cli`` (or ``octave``) on
+    PATH, else where the installers put it. OctaveNotFound when there is none."""
     if given is None or str(given).strip() == "":
-        given = os.environ.get(ENV_OCTAVE) or None
+        given = _chosen or os.environ.get(ENV_OCTAVE) or None
     if given is not None:
         text = str(given)
         path = Path(text).expanduser()
@@ -132,8 +147,8 @@ class FolderFile:
 
 class MatlabFolder:
     """A MATLAB filter's folder as it is now: its top-level ``.m`` files (the code) and the
-    other files beside them, read once. :attr:`sha256` is of the code (each .m file's name and
-    bytes, in name order); :meth:`stat` changes whenever a .m file is saved, added or removed;
+    other files beside them, read once. :attr:`source` is the code as one byte string (each .m
+    file's name, length and bytes, in name order), :attr:`sha256` its hash; :meth:`stat` changes whenever a .m file is saved, added or removed;
     :meth:`copy_to` writes exactly these bytes into a directory."""
 
     def __init__(self, path: str | os.PathLike) -> None:
@@ -157,17 +172,10 @@ class MatlabFolder:
                 continue
             self.data.append(FolderFile(entry.name, entry.read_bytes()))
             copied += size
-        digest = hashlib.sha256()
-        for item in self.code:
-            digest.update(item.name.encode("utf-8") + b"\0")
-            digest.update(len(item.data).to_bytes(8, "little"))
-            digest.update(item.data)
-        self.sha256 = digest.hexdigest()
-
-    @property
-    def source(self) -> bytes:
-        """The code as one byte string (what :attr:`sha256` is the hash of, in effect)."""
-        return b"".join(item.name.encode("utf-8") + b"\0" + item.data for item in self.code)
+        self.source = b"".join(item.name.encode("utf-8") + b"\0"
+                               + len(item.data).to_bytes(8, "little") + item.data
+                               for item in self.code)
+        self.sha256 = hashlib.sha256(self.source).hexdigest()
 
     @staticmethod
     def stat(path: str | os.PathLike) -> tuple | None:
