@@ -77,6 +77,9 @@ def estimator_names(text: str) -> list[str]:
     ConfigError; a name ending in .py is a user's filter file, which must exist."""
     names = [name.strip() for name in str(text).split(",") if name.strip()]
     bad = [name for name in names if name not in ekf.ESTIMATORS and not is_filter_file(name)]
+    for name in bad:
+        if Path(name).expanduser().is_dir():
+            filter_file(name)                # a folder without .m files: says so
     if bad or not names:
         raise ConfigError(f"--estimator: unknown {', '.join(repr(b) for b in bad) or repr(text)}; "
                           f"choose from {', '.join(ekf.ESTIMATORS)} or give your filter "
