@@ -367,6 +367,7 @@ def _log_filter_options(parser: argparse.ArgumentParser, several: bool) -> None:
     options.add_settings(parser)
     options.add_limits(parser)
     options.add_traceback(parser)
+    options.add_octave(parser)
     options.add_smooth(parser)
 
 

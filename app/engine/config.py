@@ -23,7 +23,8 @@ from app.engine.errors import ConfigError   # defined apart (profiles raise it t
 from app.engine.pipeline import check_start_state
 from app.engine.session import read_session, session_json_for
 from app.engine.userfilter.code import UserFilterError, is_filter_file
-from app.engine.userfilter.octave import filter_folder, is_matlab_filter
+from app.engine.userfilter.octave import (OctaveNotFound, filter_folder, find_octave,
+                                          is_matlab_filter)
 from app.engine.userfilter.filter import make_estimator as _make_estimator
 from app.stream.fastparse import FastLineParser
 from app.stream.lines import LogError
@@ -108,6 +109,14 @@ def filter_file(path: str | Path) -> str:
         raise ConfigError(f"{path}: no such filter file (orientation-lab new-filter {path} "
                           "writes a template)")
     return str(path)
+
+
+def octave_program(text: str) -> str:
+    """``--octave PATH``: an octave-cli that exists (or the folder it is in)."""
+    try:
+        return str(find_octave(text))
+    except OctaveNotFound as error:
+        raise ConfigError(str(error)) from None
 
 
 def make_estimator(name: str, settings: ekf.EKFSettings | None = None,
