@@ -104,7 +104,7 @@ def filter_file(path: str | Path) -> str:
         if not folder.is_dir() or (path.suffix.lower() == ".m" and not path.is_file()):
             raise ConfigError(f"{path}: no such MATLAB filter (orientation-lab new-filter "
                               f"--matlab {folder} writes the course's functions)")
-        return str(path)
+        return str(folder) if path.suffix.lower() == ".m" else str(path)
     if not path.is_file():
         raise ConfigError(f"{path}: no such filter file (orientation-lab new-filter {path} "
                           "writes a template)")
