@@ -18,6 +18,9 @@ if numel(args) < 2
 end
 more off;
 page_screen_output(false);
+crash_dumps_octave_core(false);       % never an octave-workspace file left in the folder
+sighup_dumps_octave_core(false);
+sigterm_dumps_octave_core(false);
 page_output_immediately(true);
 addpath(fileparts(mfilename('fullpath')));
 ol_serve(args{end - 1}, args{end});
