@@ -148,8 +148,9 @@ class FolderFile:
 class MatlabFolder:
     """A MATLAB filter's folder as it is now: its top-level ``.m`` files (the code) and the
     other files beside them, read once. :attr:`source` is the code as one byte string (each .m
-    file's name, length and bytes, in name order), :attr:`sha256` its hash; :meth:`stat` changes whenever a .m file is saved, added or removed;
-    :meth:`copy_to` writes exactly these bytes into a directory."""
+    file's name, length and bytes, in name order), :attr:`sha256` its hash; :meth:`stat`
+    changes whenever a .m file is saved, added or removed; :meth:`copy_to` writes exactly these
+    bytes into a directory."""
 
     def __init__(self, path: str | os.PathLike) -> None:
         self.folder = filter_folder(path)
