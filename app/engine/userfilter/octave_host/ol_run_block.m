@@ -34,7 +34,6 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values, want_innova
   inn_sensor = zeros(1, 2 * n);
   m = 0;
   paused_at = -1;
-  clock = tic;
   s = ctx.s;
   st = ctx.state;
   x = st.x; P = st.P; tcur = st.t;
@@ -65,6 +64,7 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values, want_innova
   if tcur ~= tcur && n_run > 0                          % NaN: nothing seen yet
     tcur = T(1);
   end
+  clock = tic;
   while k < n_run
     k = k + 1;
     t = T(k);
@@ -234,6 +234,7 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values, want_innova
       ol_progress(k, clock);
     end
   end
+  loop_seconds = toc(clock);          % the filter's work (Python's child: the time in step)
   % ---- after the loop: what the rows show, over all of them at once ---------------------------
   if paused_at >= 0
     done = paused_at;
@@ -297,8 +298,8 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values, want_innova
   st.omega = omega; st.omega_t = omega_t;
   st.mag = last_mag; st.mag_t = mag_t; st.m0 = m0; st.L = L;
   ctx.state = st;
-  reply = struct('run', done, 'seconds', toc(clock), 'paused_at', paused_at, ...
-                 'last_out', done - 1);
+  reply = struct('run', done, 'seconds', loop_seconds, 'block_seconds', toc(clock), ...
+                 'paused_at', paused_at, 'last_out', done - 1);
   entries = {'q', '<f8', [n, 4], Q; 'flags', '|i1', [n, 3], F};
   if done > 0
     entries(end + 1, :) = {'P', '<f8', [4, 4], P(1:4, 1:4)};
