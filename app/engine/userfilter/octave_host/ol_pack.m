@@ -7,16 +7,16 @@ end
 function b = pack(v)
   if isstruct(v)
     names = fieldnames(v);
-    b = ['S', typecast(uint32(numel(names)), 'uint8')];
+    b = [uint8('S'), typecast(uint32(numel(names)), 'uint8')];
     for i = 1:numel(names)
       name = uint8(names{i});
       b = [b, typecast(uint32(numel(name)), 'uint8'), name, pack(v.(names{i}))];
     end
   elseif ischar(v)
     text = unicode2native(v, 'utf-8');
-    b = ['C', typecast(uint32(numel(text)), 'uint8'), text];
+    b = [uint8('C'), typecast(uint32(numel(text)), 'uint8'), text];
   elseif iscell(v)
-    b = ['L', typecast(uint32(numel(v)), 'uint8')];
+    b = [uint8('L'), typecast(uint32(numel(v)), 'uint8')];
     for i = 1:numel(v)
       b = [b, pack(v{i})];
     end
@@ -26,7 +26,7 @@ function b = pack(v)
       kind = 'B';
     end
     d = double(v);
-    b = [kind, typecast(uint32(rows(d)), 'uint8'), typecast(uint32(columns(d)), 'uint8'), ...
+    b = [uint8(kind), typecast(uint32(rows(d)), 'uint8'), typecast(uint32(columns(d)), 'uint8'), ...
          typecast(d(:)', 'uint8')];
   end
   b = uint8(b);
