@@ -22,6 +22,7 @@ crash_dumps_octave_core(false);       % never an octave-workspace file left in t
 sighup_dumps_octave_core(false);
 sigterm_dumps_octave_core(false);
 page_output_immediately(true);
+warning('off', 'Octave:shadowed-function');     % input.m, keyboard.m: no keyboard here
 addpath(fileparts(mfilename('fullpath')));
 ol_serve(args{end - 1}, args{end});
 exit(0);
