@@ -23,6 +23,11 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values, want_innova
 % innovations, the lights of the rows between two readings, the display quaternion) is computed
 % after it over all rows at once.
   n = numel(T);
+  if isstruct(ctx.problem)                 % paused (or the folder did not load): nothing runs
+    reply = struct('run', 0, 'seconds', 0, 'block_seconds', 0, 'paused_at', 0, 'last_out', -1);
+    entries = {'q', '<f8', [n, 4], NaN(n, 4); 'flags', '|i1', [n, 3], -ones(n, 3)};
+    return;
+  end
   V = values';
   G = given' ~= 0;
   Xout = NaN(4, n);
@@ -55,17 +60,11 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values, want_innova
   yes = true;
   beat = 64;
   k = 0;
-  if isstruct(ctx.problem)
-    paused_at = 0;
-    n_run = 0;
-  else
-    n_run = n;
-  end
-  if tcur ~= tcur && n_run > 0                          % NaN: nothing seen yet
+  if tcur ~= tcur && n > 0                              % NaN: nothing seen yet
     tcur = T(1);
   end
   clock = tic;
-  while k < n_run
+  while k < n
     k = k + 1;
     t = T(k);
     % ---- 1. the time update to t ------------------------------------------------------------

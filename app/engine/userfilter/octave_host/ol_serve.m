@@ -56,6 +56,11 @@ function ctx = ol_answer(ctx, h, a, code_dir, folder)
       ol_write_frame(reply, entries);
     case 'reset'
       keep = ctx.problem;
+      if isempty(ctx.s)                     % the folder did not load: nothing to reset
+        ol_write_frame(struct('op', 'reset', 'epoch', h.epoch, 'problem', ctx.problem, ...
+                              'missing', {ol_missing(ctx)}, 'notes', {ctx.notes}));
+        return;
+      end
       if isfield(h, 'settings') && isstruct(h.settings)
         ctx = ol_configure(ctx, h.settings);
       else
