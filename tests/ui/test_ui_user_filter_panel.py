@@ -116,7 +116,8 @@ def test_a_matlab_filter_is_loaded_and_made_as_a_folder(qtbot, tmp_path, monkeyp
                         lambda *args, **kwargs: (str(folder), ""))
     panel.new_matlab_action.trigger()
     assert sent == [LoadUserFilter(str(folder))]
-    assert (folder / "tu_qw.m").read_text().startswith("function [x, P] = tu_qw(x, P, omega, T, Rw)")
+    assert (folder / "tu_qw.m").read_text().startswith(
+        "function [x, P] = tu_qw(x, P, omega, T, Rw)")
     assert "README.md" in panel.action_label.text()
     (folder / "mu_g.m").write_text("% mine, keep")
     panel.new_matlab_action.trigger()                            # never overwritten
