@@ -10,6 +10,18 @@ function [nu, S] = ol_innovations(X, P, Y, sensor, g0, m0, Ra, Rm)
     S = zeros(3, 3, 0);
     return;
   end
+  if m <= 4                              % a few readings: cheaper one by one
+    nu = zeros(3, m);
+    S = zeros(3, 3, m);
+    for i = 1:m
+      if sensor(i) == 1
+        [nu(:, i), S(:, :, i)] = ol_innovation(X(:, i), reshape(P(:, i), 4, 4), Y(:, i), m0, Rm);
+      else
+        [nu(:, i), S(:, :, i)] = ol_innovation(X(:, i), reshape(P(:, i), 4, 4), Y(:, i), g0, Ra);
+      end
+    end
+    return;
+  end
   mags = sensor == 1;
   V0 = g0(:, ones(1, m));
   R = Ra(:)(:, ones(1, m));
