@@ -16,15 +16,18 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values, want_innova
 % A function that raises OrientationLab:notWritten is skipped (x and P stay); any other error, a
 % returned x that is not 4x1 or P not 4x4, or a non-finite state pauses the filter
 % (ctx.problem). want_innovations (default true): also the innovations of each reading for the
-% consistency view. Returns the reply's header fields and arrays (see ol_serve).
+% consistency view. Returns the reply's header fields (seconds: the loop's time, the filter's
+% work; elapsed: the whole block's) and arrays (see ol_serve).
 %
 % Written for Octave's interpreter, where every statement costs: inside the loop only what the
 % filter's state depends on; what does not (the standstill light), or can wait (the
 % innovations, the lights of the rows between two readings, the display quaternion) is computed
 % after it over all rows at once.
+  started = tic;
   n = numel(T);
   if isstruct(ctx.problem)                 % paused (or the folder did not load): nothing runs
-    reply = struct('run', 0, 'seconds', 0, 'block_seconds', 0, 'paused_at', 0, 'last_out', -1);
+    reply = struct('run', 0, 'seconds', 0, 'elapsed', toc(started), 'paused_at', 0, ...
+                   'last_out', -1);
     entries = {'q', '<f8', [n, 4], NaN(n, 4); 'flags', '|i1', [n, 3], -ones(n, 3)};
     return;
   end
@@ -297,7 +300,7 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values, want_innova
   st.omega = omega; st.omega_t = omega_t;
   st.mag = last_mag; st.mag_t = mag_t; st.m0 = m0; st.L = L;
   ctx.state = st;
-  reply = struct('run', done, 'seconds', loop_seconds, 'block_seconds', toc(clock), ...
+  reply = struct('run', done, 'seconds', loop_seconds, 'elapsed', toc(started), ...
                  'paused_at', paused_at, 'last_out', done - 1);
   entries = {'q', '<f8', [n, 4], Q; 'flags', '|i1', [n, 3], F};
   if done > 0
