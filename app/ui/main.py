@@ -14,12 +14,13 @@ import os
 import signal
 import sys
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from app import paths
 from app.engine.config import ConfigError, SourceOptions, load_settings, make_source, open_replay
+from app.engine.shutdown import on_finishing_signals
 from app.engine.worker import Engine
 from app.stream.forwarder import LineForwarder
 from app.stream.sources import DEMO_SESSION
@@ -68,6 +69,25 @@ def replay_engine_factory(options: WindowOptions):
     def build(path: str) -> Engine:
         return Engine(open_replay(path, limits=options.source.limits),
                       settings=load_settings(options.settings), limits=options.source.limits)
+    return build
+
+
+def phone_engine_factory(options: WindowOptions):
+    """The connection panel and File → Connect a phone: an engine on another phone app
+    ("sensor-fusion" PORT, "phyphox" URL, "sensor-logger" PORT) with the window's settings,
+    bounds, who may connect and forward target."""
+    def build(app: str, where: str) -> Engine:
+        source = replace(options.source, replay=None, demo=False, phyphox=None,
+                         sensor_logger=None)
+        if app == "phyphox":
+            source = replace(source, phyphox=where)
+        elif app == "sensor-logger":
+            source = replace(source, sensor_logger=where)
+        else:
+            source = replace(source, port=where)
+        forwarder = LineForwarder(*options.forward) if options.forward else None
+        return Engine(make_source(source), settings=load_settings(options.settings),
+                      limits=options.source.limits, forwarder=forwarder)
     return build
 
 
@@ -174,12 +194,16 @@ def run_gui(options: WindowOptions) -> int:
         temporary_settings = tempfile.TemporaryDirectory(prefix="orientation-lab-")
         settings = QtCore.QSettings(str(Path(temporary_settings.name) / "settings.ini"),
                                     QtCore.QSettings.Format.IniFormat)
+    finishing: list[bool] = []          # SIGTERM or SIGHUP came: the window closes
+    restore_signals = on_finishing_signals(lambda: finishing.append(True))
     try:
         engine.start()
     except OSError as error:            # e.g. the port is taken
+        restore_signals()
         engine.stop()
         given = options.source
-        where = "" if given.replay else f" (listening on {given.host}:{given.port})"
+        where = ("" if given.replay else f" (listening on {given.sensor_logger})"
+                 if given.sensor_logger else f" (listening on {given.host}:{given.port})")
         raise ConfigError(f"cannot start the source{where}: {error.strerror or error}"
                           + ("; another program (or Orientation Lab) uses that port: choose "
                              "another with --port" if error.errno == errno.EADDRINUSE else "")) \
@@ -192,7 +216,8 @@ def run_gui(options: WindowOptions) -> int:
     try:
         window = MainWindow(engine, settings=settings, log_path=log_path,
                             tune_log=session_to_tune(options.source),
-                            engine_factory=replay_engine_factory(options))
+                            engine_factory=replay_engine_factory(options),
+                            phone_factory=phone_engine_factory(options))
         if options.size is not None:
             window.resize(*options.size)
             window.arrange_default_layout()
@@ -200,7 +225,7 @@ def run_gui(options: WindowOptions) -> int:
             window.resize(1600, 1000)
             window.arrange_default_layout()
         window.show()
-        return _run_event_loop(app, window, options)
+        return _run_event_loop(app, window, options, finishing)
     finally:
         # The window stops the engine when it closes; stop it here when it never opened.
         if window is not None:
@@ -210,9 +235,11 @@ def run_gui(options: WindowOptions) -> int:
         if temporary_settings is not None:
             temporary_settings.cleanup()
         signal.signal(signal.SIGINT, signal.default_int_handler)
+        restore_signals()
 
 
-def _run_event_loop(app: Any, window: Any, options: WindowOptions) -> int:
+def _run_event_loop(app: Any, window: Any, options: WindowOptions,
+                    finishing: list[bool]) -> int:
     from PySide6 import QtCore
     status = {"code": 0}
 
@@ -228,10 +255,11 @@ def _run_event_loop(app: Any, window: Any, options: WindowOptions) -> int:
 
     if options.exit_after is not None:
         QtCore.QTimer.singleShot(int(options.exit_after * 1000), finish)
-    # Ctrl+C in the terminal closes the window cleanly; the timer lets Python see it.
+    # Ctrl+C in the terminal closes the window cleanly; the timer lets Python see it, and
+    # closes the window after a SIGTERM or SIGHUP (also one that came while it opened).
     signal.signal(signal.SIGINT, lambda *_: window.close())
     wake = QtCore.QTimer()
-    wake.timeout.connect(lambda: None)
+    wake.timeout.connect(lambda: finishing and window.close())
     wake.start(250)
     app.exec()
     wake.stop()
