@@ -45,6 +45,7 @@ from ekf.estimator import batch_rows
 from ekf.settings import EKFSettings, resolve_settings
 from app.engine.user_problem import UserProblem
 from app.engine.userfilter.code import UserFilterError, is_filter_file
+from app.engine.userfilter.octave_remote import load_filter_process
 from app.engine.userfilter.remote import BlockResult, RemoteFilter, filter_settings
 from app.engine.userfilter.watchdog import DEFAULT_LIMIT_S
 
@@ -104,8 +105,8 @@ class UserFilterEstimator:
         if isinstance(source, RemoteFilter):
             self.remote, self._owner = source, False
         else:
-            self.remote = RemoteFilter.load(source, self.settings, step_limit_s=step_limit_s,
-                                            on_output=on_output, deadline_s=deadline_s)
+            self.remote = load_filter_process(source, self.settings, step_limit_s=step_limit_s,
+                                              on_output=on_output, deadline_s=deadline_s)
             self._owner = True
             weakref.finalize(self, self.remote.close)
             self.wait_started()
