@@ -331,7 +331,8 @@ class UserFilterEstimator:
             while starts and len(sent) < AHEAD and remote.usable:
                 start = starts.pop(0)
                 end = min(n, start + BLOCK_ROWS)
-                block = remote.send_rows(t[start:end], given[start:end], values[start:end])
+                block = remote.send_rows(t[start:end], given[start:end], values[start:end],
+                                         innovations=self.collect_innovations)
                 if block is not None:
                     sent[block] = start
             if not sent:

@@ -53,6 +53,7 @@ class _Held:
     values: np.ndarray
     epoch: int
     at: float
+    innovations: bool
 
 
 @dataclass
@@ -132,14 +133,16 @@ class OctaveRemote(RemoteFilter):
 
     # -- blocks: handed over one by one, sent together ----------------------------------------
 
-    def send_rows(self, t_s: np.ndarray, given: np.ndarray, values: np.ndarray) -> int | None:
+    def send_rows(self, t_s: np.ndarray, given: np.ndarray, values: np.ndarray,
+                  innovations: bool = True) -> int | None:
         """Hand rows over (as RemoteFilter.send_rows); they go at once when Octave is idle,
         else with the next block."""
         if not self.usable:
             return None
         block = next(_blocks)
         self._held.append(_Held(block, np.array(t_s, np.float64), np.array(given, bool),
-                                np.array(values, np.float64), self.epoch, time.monotonic()))
+                                np.array(values, np.float64), self.epoch, time.monotonic(),
+                                bool(innovations)))
         self._flush()
         return block
 
@@ -157,7 +160,8 @@ class OctaveRemote(RemoteFilter):
         self._held = []
         request = super().send_rows(np.concatenate([h.t_s for h in held]),
                                     np.concatenate([h.given for h in held]),
-                                    np.concatenate([h.values for h in held]))
+                                    np.concatenate([h.values for h in held]),
+                                    any(h.innovations for h in held))
         self._last_sent = time.monotonic()
         if request is not None:
             self._groups[request] = (self._last_sent,

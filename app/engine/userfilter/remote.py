@@ -221,16 +221,19 @@ class RemoteFilter:
 
     # -- requests (never wait) ------------------------------------------------------------------
 
-    def send_rows(self, t_s: np.ndarray, given: np.ndarray, values: np.ndarray) -> int | None:
+    def send_rows(self, t_s: np.ndarray, given: np.ndarray, values: np.ndarray,
+                  innovations: bool = True) -> int | None:
         """Hand rows over: t_s (n,) [s], given (n, 3) bool (gyr, acc, mag given to the filter),
-        values (n, 9); the block's id (None: not sent, the process is not usable)."""
+        values (n, 9); the block's id (None: not sent, the process is not usable). innovations
+        False: nobody shows the innovations of these rows (a host may skip computing them)."""
         if not self.usable:
             return None
         block = next(self._ids)
         t_s = np.ascontiguousarray(t_s, dtype=np.float64)
         given = np.ascontiguousarray(given, dtype=bool)
         self._sent[block] = _Sent(t_s, given, self.epoch, time.monotonic())
-        self.process.request({"op": "rows", "id": block, "epoch": self.epoch},
+        self.process.request({"op": "rows", "id": block, "epoch": self.epoch,
+                              "innovations": bool(innovations)},
                              {"t": t_s, "given": given.astype(np.uint8),
                               "values": np.ascontiguousarray(values, dtype=np.float64)})
         return block

@@ -1,15 +1,9 @@
-function [ctx, keep, stop] = ol_failed(ctx, err, name, t, x, P)
-% OL_FAILED  An error in a call of the student's function `name` (x and P: what the loop holds
-% after it). 'Not written yet' (OrientationLab:notWritten) skips the function from now on (keep
-% false); a state the function returned that is not a 4x1 x and 4x4 P (the loop's check of it
-% failed) or any other error pauses the filter (stop true, ctx.problem).
+function [ctx, keep, stop] = ol_failed(ctx, err, name, t)
+% OL_FAILED  An error in a call of the student's function `name`. 'Not written yet'
+% (OrientationLab:notWritten) skips the function from now on (keep false); any other error
+% pauses the filter (stop true, ctx.problem).
   keep = true;
   stop = true;
-  if nargin >= 6 && any(strcmp(name, {'tu_qw', 'mu_g', 'mu_m', 'mu_normalizeQ'})) ...
-     && ~ol_good_state(x, P)
-    ctx.problem = ol_state_problem(ctx, name, x, P, t);
-    return;
-  end
   if strcmp(err.identifier, 'OrientationLab:notWritten')
     keep = false;
     stop = false;

@@ -63,6 +63,7 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values, want_innova
   own_acc_test = ctx.has.acc_outlier;
   own_mag_test = ctx.has.mag_outlier;
   o4 = ones(1, 4); o41 = ones(4, 1); o5 = ones(5, 1);
+  keep_inn = nargin < 5 || want_innovations;
   yes = true;
   beat = 64;
   k = 0;
@@ -77,34 +78,27 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values, want_innova
     if t > tcur
       dt = t - tcur;
       if started && dt <= max_dt
-        if tcur - omega_t <= gyr_hold
-          if do_tu
-            try
-              [x, P] = tu_qw(x, P, omega - bias, dt, Rw);
-              c = o4 * ([x, P] * o5 + P * o41);
-              if c - c ~= 0
-                ctx.problem = ol_state_problem(ctx, 'tu_qw', x, P, t); paused_at = k - 1; break;
-              end
-            catch err
-              [ctx, do_tu, stop] = ol_failed(ctx, err, 'tu_qw', t, x, P);
-              if stop, paused_at = k - 1; break; end
-            end
-          end
-        else
-          Sb = [-x(2), -x(3), -x(4); x(1), -x(4), x(3); x(4), x(1), -x(2); -x(3), x(2), x(1)];
-          P = P + (walk * dt) * (Sb * Sb');
-        end
-        if do_norm
-          try
-            [x, P] = mu_normalizeQ(x, P);
-            c = o4 * ([x, P] * o5 + P * o41);
-            if c - c ~= 0
-              ctx.problem = ol_state_problem(ctx, 'mu_normalizeQ', x, P, t); paused_at = k - 1; break;
-            end
-          catch err
-            [ctx, do_norm, stop] = ol_failed(ctx, err, 'mu_normalizeQ', t, x, P);
+        if tcur - omega_t <= gyr_hold && do_tu && do_norm
+          try                                        % eq. (5)-(6), then |q| = 1: one go
+            [x1, P1] = tu_qw(x, P, omega - bias, dt, Rw);
+            [x1, P1] = mu_normalizeQ(x1, P1);
+            c = o4 * ([x1, P1] * o5 + P1 * o41);       % fails unless 4x1 and 4x4; NaN: not finite
+            if c - c ~= 0, error('OrientationLab:check', 'not a state'); end
+            x = x1; P = P1;
+          catch
+            [ctx, x, P, stop, do_tu, do_norm] = ol_pair(ctx, 'tu_qw', {omega - bias, dt, Rw}, ...
+                                                        x, P, t, do_tu, do_norm);
             if stop, paused_at = k - 1; break; end
           end
+        elseif tcur - omega_t <= gyr_hold
+          [ctx, x, P, stop, do_tu, do_norm] = ol_pair(ctx, 'tu_qw', {omega - bias, dt, Rw}, ...
+                                                      x, P, t, do_tu, do_norm);
+          if stop, paused_at = k - 1; break; end
+        else                                         % no gyroscope: q stays, P grows (task 12)
+          Sb = [-x(2), -x(3), -x(4); x(1), -x(4), x(3); x(4), x(1), -x(2); -x(3), x(2), x(1)];
+          P = P + (walk * dt) * (Sb * Sb');
+          [ctx, x, P, stop, ~, do_norm] = ol_pair(ctx, '', {}, x, P, t, false, do_norm);
+          if stop, paused_at = k - 1; break; end
         end
       end
       tcur = t;
@@ -126,7 +120,7 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values, want_innova
             try
               acc_out = ol_flag(acc_outlier(v, g0, s), 'acc_outlier');
             catch err
-              [ctx, own_acc_test, stop] = ol_failed(ctx, err, 'acc_outlier', t, x, P);
+              [ctx, own_acc_test, stop] = ol_failed(ctx, err, 'acc_outlier', t);
               if stop, paused_at = k - 1; break; end
             end
           end
@@ -135,32 +129,25 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values, want_innova
             acc_out = e > acc_gate || -e > acc_gate;
           end
           acc_light(k) = acc_out;
-          m = m + 1; prior_x(:, m) = x; prior_P(:, m) = P(:); inn_row(m) = k;
-          if ~acc_out
-            if do_g
-              try
-                [x, P] = mu_g(x, P, v, Ra, g0);
-                c = o4 * ([x, P] * o5 + P * o41);
-                if c - c ~= 0
-                  ctx.problem = ol_state_problem(ctx, 'mu_g', x, P, t); paused_at = k - 1; break;
-                end
-              catch err
-                [ctx, do_g, stop] = ol_failed(ctx, err, 'mu_g', t, x, P);
-                if stop, paused_at = k - 1; break; end
-              end
+          if keep_inn                            % the prior, for the consistency view
+            m = m + 1; prior_x(:, m) = x; prior_P(:, m) = P(:); inn_row(m) = k;
+          end
+          if ~acc_out && do_g && do_norm
+            try
+              [x1, P1] = mu_g(x, P, v, Ra, g0);
+              [x1, P1] = mu_normalizeQ(x1, P1);
+              c = o4 * ([x1, P1] * o5 + P1 * o41);
+              if c - c ~= 0, error('OrientationLab:check', 'not a state'); end
+              x = x1; P = P1;
+            catch
+              [ctx, x, P, stop, do_g, do_norm] = ol_pair(ctx, 'mu_g', {v, Ra, g0}, x, P, t, ...
+                                                          do_g, do_norm);
+              if stop, paused_at = k - 1; break; end
             end
-            if do_norm
-              try
-                [x, P] = mu_normalizeQ(x, P);
-                c = o4 * ([x, P] * o5 + P * o41);
-                if c - c ~= 0
-                  ctx.problem = ol_state_problem(ctx, 'mu_normalizeQ', x, P, t); paused_at = k - 1; break;
-                end
-              catch err
-                [ctx, do_norm, stop] = ol_failed(ctx, err, 'mu_normalizeQ', t, x, P);
-                if stop, paused_at = k - 1; break; end
-              end
-            end
+          elseif ~acc_out
+            [ctx, x, P, stop, do_g, do_norm] = ol_pair(ctx, 'mu_g', {v, Ra, g0}, x, P, t, ...
+                                                        do_g, do_norm);
+            if stop, paused_at = k - 1; break; end
           end
         else
           [x, P, heading_known] = ol_start(v, last_mag, t - mag_t <= 0.1, s.initial_attitude_std);
@@ -184,7 +171,7 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values, want_innova
               mag_out = ol_flag(flag, 'mag_outlier');
               L = ol_number(L2, 'mag_outlier', 'L');
             catch err
-              [ctx, own_mag_test, stop] = ol_failed(ctx, err, 'mag_outlier', t, x, P);
+              [ctx, own_mag_test, stop] = ol_failed(ctx, err, 'mag_outlier', t);
               if stop, paused_at = k - 1; break; end
             end
           end
@@ -198,32 +185,25 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values, want_innova
             L = (1 - alpha) * L + alpha * strength;
           end
           mag_light(k) = mag_out;
-          m = m + 1; prior_x(:, m) = x; prior_P(:, m) = P(:); inn_row(m) = k; inn_sensor(m) = 1;
-          if ~mag_out
-            if do_m
-              try
-                [x, P] = mu_m(x, P, v, m0, Rm);
-                c = o4 * ([x, P] * o5 + P * o41);
-                if c - c ~= 0
-                  ctx.problem = ol_state_problem(ctx, 'mu_m', x, P, t); paused_at = k - 1; break;
-                end
-              catch err
-                [ctx, do_m, stop] = ol_failed(ctx, err, 'mu_m', t, x, P);
-                if stop, paused_at = k - 1; break; end
-              end
+          if keep_inn
+            m = m + 1; prior_x(:, m) = x; prior_P(:, m) = P(:); inn_row(m) = k; inn_sensor(m) = 1;
+          end
+          if ~mag_out && do_m && do_norm
+            try
+              [x1, P1] = mu_m(x, P, v, m0, Rm);
+              [x1, P1] = mu_normalizeQ(x1, P1);
+              c = o4 * ([x1, P1] * o5 + P1 * o41);
+              if c - c ~= 0, error('OrientationLab:check', 'not a state'); end
+              x = x1; P = P1;
+            catch
+              [ctx, x, P, stop, do_m, do_norm] = ol_pair(ctx, 'mu_m', {v, m0, Rm}, x, P, t, ...
+                                                          do_m, do_norm);
+              if stop, paused_at = k - 1; break; end
             end
-            if do_norm
-              try
-                [x, P] = mu_normalizeQ(x, P);
-                c = o4 * ([x, P] * o5 + P * o41);
-                if c - c ~= 0
-                  ctx.problem = ol_state_problem(ctx, 'mu_normalizeQ', x, P, t); paused_at = k - 1; break;
-                end
-              catch err
-                [ctx, do_norm, stop] = ol_failed(ctx, err, 'mu_normalizeQ', t, x, P);
-                if stop, paused_at = k - 1; break; end
-              end
-            end
+          elseif ~mag_out
+            [ctx, x, P, stop, do_m, do_norm] = ol_pair(ctx, 'mu_m', {v, m0, Rm}, x, P, t, ...
+                                                        do_m, do_norm);
+            if stop, paused_at = k - 1; break; end
           end
         elseif started
           [x, P, heading_known] = ol_heading(x, P, v, m0, s.initial_attitude_std);
@@ -282,11 +262,7 @@ function [ctx, reply, entries] = ol_run_block(ctx, T, given, values, want_innova
     st.acc_out = F(done, 1) ~= 0;
     st.mag_out = F(done, 2) ~= 0;
   end
-  if nargin < 5 || want_innovations
-    keep = inn_row(1:m) <= done;
-  else
-    keep = false(1, m);
-  end
+  keep = inn_row(1:m) <= done;
   rows = inn_row(keep);
   sensors = inn_sensor(keep);
   m = numel(rows);
