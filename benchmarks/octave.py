@@ -27,6 +27,7 @@ the Sensor Fusion app stamps them (the course's logs: 3 samples a row).
 
     .venv/bin/python benchmarks/octave.py [--minutes 10] [--live-seconds 30]
     .venv/bin/python benchmarks/octave.py --quick
+    .venv/bin/python benchmarks/octave.py --live-only [--live-seconds 30]
 """
 
 from __future__ import annotations
@@ -255,12 +256,15 @@ def main() -> int:
     parser.add_argument("--live-seconds", type=float, default=30.0,
                         help="live streaming for the lag (default 30)")
     parser.add_argument("--quick", action="store_true", help="a smoke run: 0.1 min, 3 s live")
+    parser.add_argument("--live-only", action="store_true", help="only the live lag")
     args = parser.parse_args()
     minutes, live_s = (0.1, 3.0) if args.quick else (args.minutes, args.live_seconds)
     if shutil.which(str(find_octave())) is None:
         print("GNU Octave not found")
         return 1
     warm_up()
+    if args.live_only:
+        return live_table(live_s)
     lines, t, values = session(minutes)
     samples = int(np.count_nonzero(~np.isnan(values[:, [0, 3, 6]])))
     print(f"{minutes:g} min at 100 Hz per sensor: {len(t)} rows, {samples} samples"
@@ -305,6 +309,10 @@ def main() -> int:
             wall = time.perf_counter() - started
             print(f"  .m {label}: {wall:.1f} s ({len(rows.t_ms)} rows; Octave's CPU {cpu:.1f} s)")
 
+    return live_table(live_s)
+
+
+def live_table(live_s: float) -> int:
     live_lines, _, _ = session(live_s / 60.0)
     print(f"\nlive, {live_s:g} s at 100 Hz per sensor:")
     print(f"{'your filter':<18}{'rows':>7}{'answered':>10}{'p50 ms':>9}{'p95 ms':>9}{'max ms':>9}"
