@@ -71,6 +71,7 @@ RATES = {"gyr": 100.0, "acc": 100.0, "mag": 100.0, "ori": 100.0}
 # The course's filterTemplate loop in plain Octave: the same functions, the same gates, no bridge
 # (m0: the simulator's field).
 PLAIN_LOOP = r"""
+crash_dumps_octave_core(false); sigterm_dumps_octave_core(false);
 addpath(getenv('COURSE_M'));
 fid = fopen(getenv('ROWS_FILE'), 'r'); D = fread(fid, [10, Inf], 'double'); fclose(fid);
 n = columns(D); Rw = 1e-4*eye(3); Ra = 0.1*eye(3); Rm = 2*eye(3); g0 = [0; 0; 9.81];
