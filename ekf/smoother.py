@@ -422,12 +422,34 @@ def _run_as_set(as_set, t, g, a, m, changes: dict, blocks: list,
     return starts, None
 
 
+def _forward_passes(est, as_set, t, g, a, m, changes: dict, blocks: list, flags: np.ndarray,
+                    records: "_Records", cfg: np.ndarray) -> tuple:
+    """The filter as set (its lights into `flags`), then the RTS pass's forward pass (its
+    records of the last block left in `records`): the latter's state at each block's start,
+    the former's (None: the same filter), the magnetometer offset the latter subtracts, and the
+    latter's lights."""
+    from ekf.fast.steps import _run_batch_record
+
+    offset, set_starts, own_flags = None, None, flags
+    if as_set is not None:
+        set_starts, offset = _run_as_set(as_set, t, g, a, m, changes, blocks, flags)
+        own_flags = np.zeros(flags.shape, dtype=np.bool_)
+    starts = []
+    for first, end in blocks:
+        starts.append(est._packed.copy())
+        records.record(_run_batch_record, est._packed, cfg, t[first:end], g[first:end],
+                       a[first:end], _less(m[first:end], offset), own_flags[first:end])
+    return starts, set_starts, offset, own_flags
+
+
 def _forward_backward(est, as_set, t, g, a, m, changes: dict, rejected_stretch_s: float,
-                      block_rows: int) -> tuple[np.ndarray, ...]:
+                      block_rows: int, gate: float | None) -> tuple:
     """The smoother's forward pass (`est`), the backward RTS pass over it, and per row the
     combination with the filter as set (`as_set`; None: `est` is the filter as set): the
     combined states (N, 7), the states of the filter as set (N, 7), the consistency statistic
-    (N,) and the lights of the filter as set (N, 3).
+    (N,) and the lights of the filter as set (N, 3). With a `gate`, the smoothed states (each
+    row the combined state where its statistic is within the gate, else the filter's) and the
+    lights only: the recording's memory then holds one state a row.
 
     Each forward pass runs block by block, keeping only the filter's state at each block's
     start; the backward pass runs the blocks in reverse, each recorded again from its state
@@ -439,22 +461,14 @@ def _forward_backward(est, as_set, t, g, a, m, changes: dict, rejected_stretch_s
     n = t.shape[0]
     flags = np.zeros((n, 3), dtype=np.bool_)
     x_s = np.zeros((n, 7))
-    x_set = np.zeros((n, 7))
-    stat = np.zeros(n)
+    x_set = np.zeros((n, 7)) if gate is None else None
+    stat = np.zeros(n) if gate is None else np.zeros(min(block_rows, n))
     blocks = [(first, min(first + block_rows, n)) for first in range(0, n, block_rows)]
-    offset, set_starts = None, None
-    own_flags = flags
-    if as_set is not None:
-        set_starts, offset = _run_as_set(as_set, t, g, a, m, changes, blocks, flags)
-        own_flags = np.zeros((n, 3), dtype=np.bool_)
     records = _Records(min(block_rows, n) + 1)
-    starts = []
-    for first, end in blocks:
-        starts.append(est._packed.copy())
-        records.record(_run_batch_record, est._packed, cfg, t[first:end], g[first:end],
-                       a[first:end], _less(m[first:end], offset), own_flags[first:end])
+    starts, set_starts, offset, own_flags = _forward_passes(est, as_set, t, g, a, m, changes,
+                                                            blocks, flags, records, cfg)
     if not n:
-        return x_s, x_set, stat, flags
+        return (x_s, x_set, stat, flags) if gate is None else (x_s, flags)
     m_err = 6 if est.settings.estimate_gyro_bias else 3
     bias_fixed = np.asarray(est.settings.gyr_bias, float)
     # the forward pass's own light (a flag row without a reading keeps the latest one)
@@ -494,11 +508,16 @@ def _forward_backward(est, as_set, t, g, a, m, changes: dict, rejected_stretch_s
             forward = set_records
         after, after_smoothed = records.first_row(), x_s[first].copy()
         _combine(records.x_f[:k], records.P_f[:k], x_s[first:end], P_s[:k], forward.x_f[:k],
-                 forward.P_f[:k], m_err, combined[:k], stat[first:end])
-        x_s[first:end] = combined[:k]
-        x_set[first:end] = forward.x_f[:k]
+                 forward.P_f[:k], m_err, combined[:k], stat[:k] if gate is not None else
+                 stat[first:end])
+        if gate is None:
+            x_s[first:end] = combined[:k]
+            x_set[first:end] = forward.x_f[:k]
+        else:
+            x_s[first:end] = np.where((stat[:k] <= gate)[:, None], combined[:k],
+                                      forward.x_f[:k])
         combined_next = x_s[first].copy()
-    return x_s, x_set, stat, flags
+    return (x_s, x_set, stat, flags) if gate is None else (x_s, flags)
 
 
 def smooth_batch(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
@@ -517,23 +536,18 @@ def smooth_batch(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
     by more than `consistency_gate` (chi-square, 3 degrees of freedom; inf: no gate) keeps the
     estimate of the filter as set. `block_rows`: the rows whose records are held at a time (the
     result does not depend on it)."""
-    t, x_s, x_set, stat, flags, settings = smooth_parts(t_s, gyr, acc, mag, settings, sensors,
-                                                        rejected_stretch_s, block_rows)
-    x = np.where((stat <= consistency_gate)[:, None], x_s, x_set)
+    t, g, a, m, settings, est, as_set, changes = _set_up(t_s, gyr, acc, mag, settings, sensors)
+    x, flags = _forward_backward(est, as_set, t, g, a, m, changes, rejected_stretch_s,
+                                 block_rows, consistency_gate)
     bias = x[:, 4:7] if settings.estimate_gyro_bias else np.tile(
         np.asarray(settings.gyr_bias, float), (t.shape[0], 1))
     return BatchResult(t, x[:, :4].copy(), flags[:, 0].copy(), flags[:, 1].copy(),
                        flags[:, 2].copy(), gyro_bias=bias)
 
 
-def smooth_parts(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
-                 mag: ArrayLike | None, settings: EKFSettings | str | None = None,
-                 sensors: tuple[str, ...] | list[str] = SENSORS,
-                 rejected_stretch_s: float = REJECTED_STRETCH_S,
-                 block_rows: int = BLOCK_ROWS) -> tuple:
-    """What :func:`smooth_batch` chooses from, per row: (t, the combined states (N, 7), the
-    states of the filter as set (N, 7), the consistency statistic (N,; NaN: degenerate), the
-    lights (N, 3), the settings resolved). A state is (q w-first, gyro bias)."""
+def _set_up(t_s, gyr, acc, mag, settings, sensors) -> tuple:
+    """The rows, the settings resolved, the RTS pass's forward filter, the filter as set (None:
+    the same) and the settings the former drops."""
     from ekf.fast.filter import FastEKF
 
     t, g, a, m = batch_rows(t_s, gyr, acc, mag)
@@ -545,7 +559,18 @@ def smooth_parts(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
         changes["mag_bias_innovation_limit"] = math.inf
     own = settings.with_changes(**changes) if changes else settings
     as_set = FastEKF(settings, sensors) if changes else None
-    est = FastEKF(own, sensors)
+    return t, g, a, m, settings, FastEKF(own, sensors), as_set, changes
+
+
+def smooth_parts(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
+                 mag: ArrayLike | None, settings: EKFSettings | str | None = None,
+                 sensors: tuple[str, ...] | list[str] = SENSORS,
+                 rejected_stretch_s: float = REJECTED_STRETCH_S,
+                 block_rows: int = BLOCK_ROWS) -> tuple:
+    """What :func:`smooth_batch` chooses from, per row: (t, the combined states (N, 7), the
+    states of the filter as set (N, 7), the consistency statistic (N,; NaN: degenerate), the
+    lights (N, 3), the settings resolved). A state is (q w-first, gyro bias)."""
+    t, g, a, m, settings, est, as_set, changes = _set_up(t_s, gyr, acc, mag, settings, sensors)
     x_s, x_set, stat, flags = _forward_backward(est, as_set, t, g, a, m, changes,
-                                                rejected_stretch_s, block_rows)
+                                                rejected_stretch_s, block_rows, None)
     return t, x_s, x_set, stat, flags, settings
