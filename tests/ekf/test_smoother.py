@@ -269,10 +269,11 @@ def test_a_magnet_the_backward_pass_meets_first_makes_no_row_worse(seed):
     assert np.max(s_tot - f_tot) <= 0.5, np.max(s_tot - f_tot)
     assert np.mean(s_tot) <= np.mean(f_tot)
     # where the gate found the two inconsistent, the forward filter's estimate, bit for bit
-    stat = ekf.smoother.smooth_parts(t, g, a, m)[3]
+    _, combined, _, stat, _, _ = ekf.smoother.smooth_parts(t, g, a, m)
     kept = ~(stat <= ekf.smoother.CHI2_99[3])
     assert 0.01 < kept.mean() < 0.99
     np.testing.assert_array_equal(smoothed.quat[kept], forward.quat[kept])
+    np.testing.assert_array_equal(smoothed.quat[~kept], combined[~kept, :4])
 
 
 @pytest.mark.parametrize("seed", [0, 7])
