@@ -6,10 +6,11 @@ gives the information the rows after each row add; that information is tested ag
 filter as set (its estimate and covariance at the row); where the two are consistent they are
 combined in information form, where they are not the filter's estimate is kept.
 
-The RTS pass. Its forward pass is the compiled EKF (``ekf.fast``) with whatever settings, recording per row k the state
-after the row's time update, x_{k|k-1} and P_{k|k-1}, and after its measurements, x_{k|k} and
-P_{k|k}. The backward pass runs in error-state (multiplicative) form, because a unit quaternion
-lives on a sphere where additive corrections leave the constraint:
+The RTS pass. Its forward pass is the compiled EKF (``ekf.fast``) with whatever settings,
+recording per row k the state after the row's time update, x_{k|k-1} and P_{k|k-1}, and after
+its measurements, x_{k|k} and P_{k|k}. The backward pass runs in error-state (multiplicative)
+form, because a unit quaternion lives on a sphere where additive corrections leave the
+constraint:
 
 * nominal x = (q, b), error delta = (dtheta, db):  q_true = q ⊗ (1, dtheta/2),  b_true = b + db
   (dtheta in the body frame, as the filter's own covariance: P_q = 1/4 S̄(q) P_theta S̄(q)^T);
@@ -64,20 +65,20 @@ forward nominal of the filter as set, :func:`backward_information`):
 (d^s, d^o: x^s and x^o as errors about that nominal). Y_b may be singular: a direction the
 rows after say nothing about (the heading across a rejected stretch, the last row).
 
-The test (``ekf.gaussian.consistency``). The filter as set at row k, N(x^f_k, P^f_k), and the backward
-estimate, N(x^b, P^b) with P^b = Y_b^-1 and x^b = P^b y_b (Y_b made definite by a relative
-1e-9 on its diagonal), are two independent estimates of one state: if both are right, the
-small rotation between their attitudes, d = log(conj(q^f) ⊗ q^b), is Gaussian with the sum of
-their attitude covariances, and d^T (P^f_theta + P^b_theta)^-1 d is chi-square with 3 degrees
-of freedom. Beyond its 99 % point (11.34, ``CHI2_99[3]``, the ``consistency_gate``) one of
-them is wrong (a disturbance a pass took for the field, a heading carried from a field read
+The test (``ekf.gaussian.consistency``). The filter as set at row k, N(x^f_k, P^f_k), and the
+backward estimate, N(x^b, P^b) with P^b = Y_b^-1 and x^b = P^b y_b (Y_b made definite by a
+relative 1e-9 on its diagonal), are two independent estimates of one state: if both are right,
+the small rotation between their attitudes, d = log(conj(q^f) ⊗ q^b), is Gaussian with the sum
+of their attitude covariances, and d^T (P^f_theta + P^b_theta)^-1 d is chi-square with 3 degrees
+of freedom. Beyond its 99 % point (11.34, ``CHI2_99[3]``, the ``consistency_gate``) one of them
+is wrong (a disturbance a pass took for the field, a heading carried from a field read
 elsewhere) and the row keeps the estimate of the filter as set. So do rows where the backward
 information is degenerate (Y_b not positive semi-definite).
 
-The combination (``ekf.gaussian.fuse_information``), where they are consistent: the information-form
-combination of two Gaussian estimates, Y = Y_f + Y_b, y = y_f + y_b, x = Y^-1 y (y_f = 0: the
-filter's own estimate is the origin of its error coordinates), and the smoothed state is
-x^f ⊕ x = (q^f ⊗ exp(x_theta), b^f + x_b).
+The combination (``ekf.gaussian.fuse_information``), where they are consistent: the
+information-form combination of two Gaussian estimates, Y = Y_f + Y_b, y = y_f + y_b, x = Y^-1 y
+(y_f = 0: the filter's own estimate is the origin of its error coordinates), and the smoothed
+state is x^f ⊕ x = (q^f ⊗ exp(x_theta), b^f + x_b).
 
 The gates and lights are the filter's as set (the smoother changes estimates, not decisions).
 
@@ -86,19 +87,19 @@ the filter whose offset, subtracted from every reading, changes along the record
 backward pass cannot smooth it, and carries the late readings' heading (made with a later
 offset) back to rows filtered with an earlier one. With ``smooth_hard_iron`` false (the default
 preset, chosen by ``benchmarks/tune_defaults.py --smoother``) the RTS pass's forward pass runs
-without the fit; the filter as set, which the backward information is combined with, keeps
-it. A raw magnetometer (hundreds of uT of hard
-iron, whose offset the filter acquires: ``ekf.reference_field._check_uncalibrated``) would leave
-that pass without a heading: there the offset the filter as set found by the recording's end is
-subtracted from every reading first, as an offline calibration.
+without the fit; the filter as set, which the backward information is combined with, keeps it. A
+raw magnetometer (hundreds of uT of hard iron, whose offset the filter acquires:
+``ekf.reference_field._check_uncalibrated``) would leave that pass without a heading: there the
+offset the filter as set found by the recording's end is subtracted from every reading first, as
+an offline calibration.
 
 The RTS pass's forward pass also runs without ``mag_bias_innovation_limit`` (always: it is no
-choice of the smoother's; the filter as set keeps it). That limit keeps a live filter from reading a heading far off as a gyroscope bias,
-at the price of a gain below the one its covariance asks for; the backward pass trusts the
-forward covariances, and with the bias held back it spread the heading's corrections wrongly
-(the Nexus 5 recordings smoothed: 4.37° with the limit, 3.39° without; the disturbed swinging
-walk 12.1° against 5.6°). The whole recording already tells the smoother what the limit guards
-the live filter against.
+choice of the smoother's; the filter as set keeps it). That limit keeps a live filter from
+reading a heading far off as a gyroscope bias, at the price of a gain below the one its
+covariance asks for; the backward pass trusts the forward covariances, and with the bias held
+back it spread the heading's corrections wrongly (the Nexus 5 recordings smoothed: 4.37° with
+the limit, 3.39° without; the disturbed swinging walk 12.1° against 5.6°). The whole recording
+already tells the smoother what the limit guards the live filter against.
 
 Memory: each forward pass runs block by block (``BLOCK_ROWS``), keeping only the filter's state
 at each block's start; the backward pass takes the blocks in reverse, each recorded again from
@@ -212,8 +213,9 @@ def _heading_projector(q, m):
 def _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m, rejected, x_s, P_s, Ps_next,
               last):
     """The RTS pass of the module docstring over one block of rows, from its last row down,
-    in place into x_s, the smoothed covariances (error coordinates) into P_s. At a row k of a rejected stretch (``rejected[k]``) the gain is
-    Pi_k C_k Pi_k+1 (the heading rule of the module docstring).
+    in place into x_s, the smoothed covariances (error coordinates) into P_s. At a row k of a
+    rejected stretch (``rejected[k]``) the gain is Pi_k C_k Pi_k+1 (the heading rule of the
+    module docstring).
 
     The last block (`last`) ends the recording: x_s of its last row is x_f's. Any other block's
     arrays hold one row more, the first row of the block after it: its prediction (x_p, P_p,
