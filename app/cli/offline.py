@@ -23,15 +23,15 @@ from pathlib import Path
 import numpy as np
 
 import ekf
-from ekf.simulate import simulate
+from ekf.simulate import MAX_RATE_HZ, simulate
 from app.cli import options
 from app.engine import config, estimates
 from app.engine.offline import evaluate_log, evaluate_phone, filter_log, sibling_truth
-from app.engine.outputs import atomic_output, check_output
+from app.engine.outputs import check_output, open_output
 from app.engine.session import read_session, session_json_for
 from app.engine.userfilter.filter import UserFilterEstimator
 from app.engine.userfilter.template import write_template
-from app.stream.demo import write_session
+from app.stream.demo import write_session_to
 from app.stream.logfile import LogData
 
 
@@ -225,7 +225,7 @@ def _filter(args: argparse.Namespace) -> int:
         check_finite(names[0], rows.quat, rows.t_ms, settings or ekf.PRESETS["default"])
     try:
         if args.output:
-            with atomic_output(args.output, "w", encoding="ascii", newline="\n") as stream:
+            with open_output(args.output, "w", encoding="ascii", newline="\n") as stream:
                 estimates.write_csv(rows, stream)
         else:
             estimates.write_csv(rows, sys.stdout)
@@ -265,6 +265,13 @@ def _row(name: str, s, width: int = 16) -> str:
             f"{s.inclination_rmse_deg:>11.2f}")
 
 
+def _nothing_to_score(log: LogData, where: str, skip: str) -> str:
+    t_ms = log.to_arrays().t_ms
+    span = (f"the log runs {(float(t_ms[-1]) - float(t_ms[0])) / 1000.0:.1f} s, phone time "
+            f"{int(t_ms[0])} to {int(t_ms[-1])} ms") if len(t_ms) else "the log is empty"
+    return f"evaluate: no reference sample to score in the {where}{skip} ({span})"
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     return guarded(args, _evaluate)
 
@@ -297,13 +304,18 @@ def _evaluate(args: argparse.Namespace) -> int:
                 print(f"{label:<{width}}{'stopped: see above':>20}", flush=True)
                 status = 1
                 continue
+            if not s.samples:
+                raise config.ConfigError(_nothing_to_score(log, where, skip))
             if not isinstance(estimator, UserFilterEstimator) and s.samples and not (
                     math.isfinite(s.total_rmse_deg)):
                 raise config.ConfigError(f"the {label} estimate is not finite: the settings "
                                          "are beyond what the filter can compute")
             print(_row(label, s, width), flush=True)
         if truth is not None:
-            print(_row("phone (ORI)", evaluate_phone(log, truth, intervals, args.skip), width))
+            phone = evaluate_phone(log, truth, intervals, args.skip)
+            if not phone.samples:
+                raise config.ConfigError(_nothing_to_score(log, where, skip))
+            print(_row("phone (ORI)", phone, width))
     except ValueError as error:
         raise config.ConfigError(f"evaluate: {error}") from None
     return status
@@ -312,19 +324,27 @@ def _evaluate(args: argparse.Namespace) -> int:
 # ---- simulate -----------------------------------------------------------------------------------
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    if Path(args.output).exists() and not args.force:
-        raise config.ConfigError(f"{args.output} exists already; not overwritten (--force "
-                                 "replaces it)")
+    if args.force:
+        print("orientation-lab: note: --force is no longer needed: -o replaces an output file "
+              "(it is accepted and ignored)", file=sys.stderr)
     check_output(args.output)
     rates = {"gyr": args.rate, "acc": args.rate, "mag": args.mag_rate or args.rate / 2,
              "ori": args.rate}
-    session = simulate(duration_s=args.duration, rates_hz=rates, seed=args.seed,
-                       gyro_bias=tuple(args.gyro_bias))
+    for option, rate in (("--rate", args.rate), ("--mag-rate", rates["mag"])):
+        if rate > MAX_RATE_HZ:
+            raise config.ConfigError(f"simulate: {option} {rate:g} Hz: at most "
+                                     f"{MAX_RATE_HZ:g} Hz (time stamps are whole milliseconds)")
+        if rate * args.duration < 2:
+            raise config.ConfigError(f"simulate: {option} {rate:g} Hz gives fewer than 2 samples "
+                                     f"in {args.duration:g} s; give at least "
+                                     f"{2 / args.duration:.3g} Hz or a longer --duration")
     try:
-        write_session(session, args.output)   # float32 text like the phone's; .gz compresses
-    except OSError as error:
-        raise config.ConfigError(f"cannot write {args.output}: {error.strerror or error}") \
-            from None
+        session = simulate(duration_s=args.duration, rates_hz=rates, seed=args.seed,
+                           gyro_bias=tuple(args.gyro_bias))
+    except ValueError as error:
+        raise config.ConfigError(f"simulate: {error}") from None
+    with open_output(args.output, "wb") as stream:    # float32 text like the phone's
+        write_session_to(session, stream, compress=str(args.output).endswith(".gz"))
     return 0
 
 
@@ -400,12 +420,13 @@ def add_commands(sub) -> None:
                                         "orientation")
     s.add_argument("-o", "--output", required=True, metavar="LOG")
     s.add_argument("--duration", type=options.POSITIVE, default=120.0, metavar="S")
-    s.add_argument("--seed", type=int, default=0, metavar="N")
+    s.add_argument("--seed", type=options.SEED, default=0, metavar="N",
+                   help="random seed, a whole number >= 0 (default 0)")
     s.add_argument("--rate", type=options.POSITIVE, default=100.0, metavar="HZ",
-                   help="GYR/ACC/ORI rate (default 100)")
+                   help="GYR/ACC/ORI rate, at most 1000 (default 100)")
     s.add_argument("--mag-rate", type=options.POSITIVE, default=None, metavar="HZ",
-                   help="MAG rate (default rate/2)")
-    s.add_argument("--gyro-bias", type=float, nargs=3, default=(0.0, 0.0, 0.0),
+                   help="MAG rate, at most 1000 (default rate/2)")
+    s.add_argument("--gyro-bias", type=options.FINITE, nargs=3, default=(0.0, 0.0, 0.0),
                    metavar=("BX", "BY", "BZ"), help="gyroscope bias, rad/s")
-    s.add_argument("--force", action="store_true", help="replace LOG when it exists")
+    s.add_argument("--force", action="store_true", help=argparse.SUPPRESS)
     s.set_defaults(func=cmd_simulate)

@@ -24,6 +24,7 @@ replay's timing) falls in the range.
 
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -31,7 +32,7 @@ import numpy as np
 
 import ekf
 from app.engine.config import ConfigError, open_replay
-from app.engine.outputs import atomic_output, check_output
+from app.engine.outputs import check_output, open_output
 from app.engine.pipeline import Pipeline, Setup
 from app.engine.runner import SENSORS, EstimatorRunner
 from app.engine.session import Marker, SessionInfo, read_session, session_json_for
@@ -181,11 +182,18 @@ def time_range(data: SessionData, from_marker: str | None = None, to_marker: str
     if to_s is not None:
         end = float(to_s)
     if end < start:
-        raise ConfigError(f"the range ends ({end:.3f} s) before it starts ({start:.3f} s)")
+        raise ConfigError(f"the range ends ({_seconds(end)}) before it starts "
+                          f"({_seconds(start)})")
     if len(data) and not ((data.t_s >= start - 1e-9) & (data.t_s <= end + 1e-9)).any():
-        raise ConfigError(f"no samples from {start:.3f} s to {end:.3f} s: the session runs "
-                          f"from {float(data.t_s[0]):.3f} s to {float(data.t_s[-1]):.3f} s")
+        raise ConfigError(f"no samples from {_seconds(start)} to {_seconds(end)}: the session "
+                          f"runs from {_seconds(float(data.t_s[0]))} to "
+                          f"{_seconds(float(data.t_s[-1]))}")
     return start, end
+
+
+def _seconds(value: float) -> str:
+    """"12.345 s"; a time far beyond any session in three significant digits ("1e+308 s")."""
+    return f"{value:.3f} s" if abs(value) < 1e7 else f"{value:.3g} s"
 
 
 # ---- writers -----------------------------------------------------------------------------------
@@ -222,7 +230,7 @@ def write_csv(data: SessionData, out: Path, start: float, end: float, separator:
     text = text.replace("nan", "")
     if decimal_comma:
         text = text.replace(".", ",")
-    with atomic_output(out, "w", encoding="ascii", newline="\n") as stream:
+    with open_output(out, "w", encoding="ascii", newline="\n") as stream:
         stream.write(csv_header(separator) + "\n")
         if lines:
             stream.write(text + "\n")
@@ -236,7 +244,7 @@ def write_log(data: SessionData, out: Path, start: float, end: float) -> int:
     offset = float(data.t_s[0]) if len(data) else 0.0
     first = int(np.searchsorted(pace, start - offset - 1e-9, side="left"))
     last = int(np.searchsorted(pace, end - offset + 1e-9, side="right"))
-    with atomic_output(out, "wb") as stream:
+    with open_output(out, "wb") as stream:
         stream.write(source.lines_between(first, last))
     return max(0, last - first)
 
@@ -254,8 +262,12 @@ def write_mat(data: SessionData, out: Path, start: float, end: float) -> int:
     meas = {"t": t, "acc": data.acc[chosen].T, "gyr": data.gyr[chosen].T,
             "mag": data.mag[chosen].T, "orient": data.ori[chosen].T}
     xhat = {"t": t, "x": data.quat[chosen].T, "P": np.transpose(cov, (1, 2, 0))}
-    with atomic_output(out, "wb") as stream:
-        savemat(stream, {"meas": meas, "xhat": xhat}, oned_as="row", do_compression=True)
+    with open_output(out, "wb") as stream:
+        # a stream that cannot seek (a FIFO) gets the file made in memory first
+        target = stream if stream.seekable() else io.BytesIO()
+        savemat(target, {"meas": meas, "xhat": xhat}, oned_as="row", do_compression=True)
+        if target is not stream:
+            stream.write(target.getbuffer())
     return int(chosen.sum())
 
 
@@ -277,8 +289,6 @@ def export_session(path: str | Path, fmt: str, out: str | Path,
     if sep is None:
         raise ConfigError(f"--separator: expected comma, semicolon or tab, got {separator!r}")
     out = check_output(out, path)
-    if out.is_dir():
-        raise ConfigError(f"{out}: is a folder; give a file name to write")
     data = data if data is not None and (fmt != "mat" or data.cov is not None) \
         else load_session(path, with_cov=fmt == "mat")
     start, end = time_range(data, from_marker, to_marker, from_s, to_s)
@@ -292,4 +302,5 @@ def export_session(path: str | Path, fmt: str, out: str | Path,
             what = f"{write_mat(data, out, start, end)} samples (meas, xhat)"
     except OSError as error:
         raise ConfigError(f"cannot write {out}: {error.strerror or error}") from None
-    return f"{out}: {what} from {start:.1f} s to {end:.1f} s"
+    last = float(data.t_s[-1]) if len(data) else end
+    return f"{out}: {what} from {start:.1f} s to {min(end, last):.1f} s"

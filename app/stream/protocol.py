@@ -220,10 +220,12 @@ def parse_line(line: str, limits: Limits = DEFAULT_LIMITS) -> Sample:
 
 
 def _to_float(text: str) -> float:
-    # float() also accepts "1_0", " 1", "inf", "nan": Java never writes those, and a
-    # non-finite value would poison a filter.
+    # float() also accepts "1_0", " 1", "inf", "nan" and digits of other scripts ("９",
+    # "٣"): Java never writes those, and a non-finite value would poison a filter.
+    if not text.isascii() or "_" in text or text != text.strip():
+        raise ValueError(f"bad number {_preview(text)}")
     value = float(text)
-    if not math.isfinite(value) or "_" in text or text != text.strip():
+    if not math.isfinite(value):
         raise ValueError(f"bad number {_preview(text)}")
     return value
 
