@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -117,9 +118,14 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         check_output(args.output, args.log)
     log = read_log(args.log, args.limits)
     start, end = args.range if args.range else (None, None)
-    rest = rest_from_log(log, start, None if end == float("inf") else end, whole=args.whole)
+    with warnings.catch_warnings(record=True) as caught:     # kept until the data is checked
+        warnings.simplefilter("always")
+        rest = rest_from_log(log, start, None if end == float("inf") else end, whole=args.whole)
     result = rest.analysis.result
     _refuse_constant(result)
+    for warning in caught:
+        warnings.warn_explicit(warning.message, warning.category, warning.filename,
+                               warning.lineno)
     _print_rest(rest, float(log.to_arrays().t_s[0]))
     calibration = {"rest": result.to_dict(), "analysis": rest.analysis.to_dict(),
                    "allan": rest.allan.to_dict() if rest.allan else None}

@@ -194,14 +194,18 @@ def allowed_networks(text: str | Iterable[str] | None) -> tuple[str, ...]:
     return tuple(allowed_network(part) for part in parts if str(part).strip())
 
 
+MAX_MEGABYTES = 1e12          # a million terabytes
+
+
 def megabytes(value: float | str) -> int:
     """A size in MB (>= 0; 0 = no limit) -> bytes."""
     try:
         number = float(value)
     except (TypeError, ValueError):
         raise ConfigError(f"not a size in MB: {value!r}") from None
-    if not 0.0 <= number < math.inf:
-        raise ConfigError(f"expected a size in MB >= 0, got {value}")
+    if not 0.0 <= number <= MAX_MEGABYTES:
+        raise ConfigError(f"expected a size in MB from 0 (no limit) to {MAX_MEGABYTES:.0e}, "
+                          f"got {value}")
     return int(number * 2**20)
 
 
