@@ -3,7 +3,8 @@ incremental byte-stream parser.
 
 A line is ``<time>\\t<TAG>\\t<v1>\\t...\\t<vn>`` ending in LF (CRLF accepted). Fields are split
 on TAB only (Wi-Fi names contain spaces). Numbers are Java float text (``3.2043457E-4``,
-``-0.0``). Times are integer milliseconds on the phone's clock.
+``-0.0``) in ASCII: digits of other scripts (a full-width ``９``) make a line damaged ("bad
+number"). Times are integer milliseconds on the phone's clock.
 
 Bad lines are never fatal: :func:`parse_line` raises :class:`ParseError` with a ``kind``
 ("damaged", "unknown_tag", "empty", "too_long") and :class:`LineParser` counts them; a damaged
