@@ -378,6 +378,11 @@ def _phone_like_stream(rng: random.Random, n: int) -> list[Sample]:
             arrival += 1
             delay = late_by // 10 if tag == late_tag else 0        # arrival in ~10 ms steps
             out.append((arrival + delay, len(out), _s(clocks[tag], tag)))
+            if rng.random() < 0.01:
+                # a bad time stamp or a short burst of them; the clock goes on where it was
+                wild = rng.choice([-clocks[tag], 5000, -30_000, YEAR_MS])
+                for k in range(rng.choice([1, 1, 3])):
+                    out.append((arrival + delay, len(out), _s(clocks[tag] + wild + k, tag)))
     return [sample for *_, sample in sorted(out)]
 
 
