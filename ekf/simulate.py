@@ -393,9 +393,16 @@ def _with_defaults(defaults: Mapping[str, Any], given: Mapping[str, Any] | None,
     return out
 
 
-def _check_size(duration_s: float, rates: Mapping[str, float]) -> None:
-    """ValueError, before anything is allocated, for a rate that is not a number from 0 to
+def _check_arguments(duration_s: float, rates: Mapping[str, float], seed: Any, g: float) -> None:
+    """ValueError, before anything is allocated, for a duration or g that is not a finite
+    number > 0, a seed that is not a whole number >= 0, a rate that is not a number from 0 to
     MAX_RATE_HZ or a session of more than MAX_SAMPLES samples."""
+    if not 0 < duration_s < math.inf:
+        raise ValueError(f"duration {duration_s:g} s: must be a finite number > 0")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed {seed!r}: must be a whole number >= 0")
+    if not 0 < g < math.inf:
+        raise ValueError(f"g {g:g}: must be a finite number > 0")
     for sensor, rate in rates.items():
         if not 0 <= rate <= MAX_RATE_HZ:
             raise ValueError(f"{sensor} rate {rate:g} Hz: must be from 0 to {MAX_RATE_HZ:g} Hz "
@@ -471,21 +478,15 @@ def simulate(
         east.
     g, m0: gravity magnitude [m/s^2] and Earth field (3,) in ENU [uT].
     """
-    if not 0 < duration_s < math.inf:
-        raise ValueError(f"duration {duration_s:g} s: must be a finite number > 0")
     if script not in SCRIPTS:
         raise ValueError(f"unknown script {script!r}; choose one of {', '.join(SCRIPTS)}")
     rates = _with_defaults(DEFAULT_RATES_HZ, {k: float(v) for k, v in (rates_hz or {}).items()},
                            "rates_hz")
-    _check_size(duration_s, rates)
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed {seed!r}: must be a whole number >= 0")
+    _check_arguments(duration_s, rates, seed, g)
     noise_spec = _with_defaults(DEFAULT_NOISE_STD, noise, "noise")
     chol = {k: _noise_cholesky(v) for k, v in noise_spec.items()}
     bias = _finite_vector(gyro_bias, "gyro_bias")
     m0 = _finite_vector(m0, "m0")
-    if not 0 < g < math.inf:
-        raise ValueError(f"g {g:g}: must be a finite number > 0")
     g0 = np.array([0.0, 0.0, float(g)])
     q_initial = normalize(from_euler(np.deg2rad(30.0), 0.0, 0.0) if initial_quat is None
                           else np.asarray(initial_quat, dtype=float))

@@ -231,6 +231,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
         raise config.ConfigError("tune: give one EKF --estimator (ekf or course)")
     base = config.load_settings(args.settings) or ekf.PRESETS["default"]
     parameters = tuning.parse_parameters(args.params, base)
+    if args.output:                                  # before the search, not after it
+        check_output(args.output, args.log, args.check_log)
     prepared = PreparedLog.from_log(read_log(args.log, args.limits))
     if len(prepared.ori_times) == 0:
         raise config.ConfigError(f"tune: {args.log} has no ORI lines to tune against")
