@@ -236,3 +236,18 @@ def test_evaluate_skip_gives_finite_figures_or_one_line(skip, files, capsys):
     row = next(line for line in captured.out.splitlines() if line.startswith("ekf "))
     samples, *figures = row.split()[1:]
     assert int(samples) > 0 and all(np.isfinite(float(f)) for f in figures)
+
+
+def test_measured_values_the_filter_refuses_are_one_line(files, tmp_path, capsys, monkeypatch):
+    """Was: a SettingsError traceback when the measured values made no valid settings."""
+    from ekf.calibration import CalibrationResult
+    from ekf.settings_fields import SettingsError
+
+    def refused(self, base=None, replace_noise=None):
+        raise SettingsError("setting m0 = (0, 0, -48): must have a horizontal part")
+
+    monkeypatch.setattr(CalibrationResult, "to_settings", refused)
+    out = tmp_path / "rest.json"
+    line = _one_line(capsys, ["calibrate", str(files / "rest.txt"), "-o", str(out)])
+    assert "nothing written: the measured values are no settings the filter accepts" in line
+    assert not out.exists()

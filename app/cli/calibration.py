@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -99,6 +100,16 @@ def _print_rest(rest: RestCalibration, t0: float) -> None:
         print(rest.allan.format_table())
 
 
+def _measured(make: Callable[[], ekf.EKFSettings]) -> ekf.EKFSettings:
+    """The settings made from measured values, or a one-line ConfigError when the filter would
+    refuse them (a value outside its setting's declaration)."""
+    try:
+        return make()
+    except ValueError as error:
+        raise config.ConfigError(f"nothing written: the measured values are no settings the "
+                                 f"filter accepts: {error}") from None
+
+
 def _refuse_constant(result: CalibrationResult) -> None:
     """ConfigError (one line) when a sensor axis holds one value over the whole interval: it
     has no noise to measure, so its statistics (and a covariance from them) mean nothing."""
@@ -131,7 +142,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                    "allan": rest.allan.to_dict() if rest.allan else None}
     if args.output:
         base = config.load_settings(args.settings) or ekf.PRESETS["default"]
-        _write_json(args.output, {"settings": result.to_settings(base).to_dict(),
+        settings = _measured(lambda: result.to_settings(base))
+        _write_json(args.output, {"settings": settings.to_dict(),
                                   "calibration": calibration, "source": str(args.log)},
                     args.log)
     if args.profile:
@@ -155,7 +167,7 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
     print(result.format_report())
     if args.output:
         base = config.load_settings(args.settings) or ekf.PRESETS["default"]
-        settings = base.with_changes(**result.settings_changes())
+        settings = _measured(lambda: base.with_changes(**result.settings_changes()))
         _write_json(args.output, {"settings": settings.to_dict(),
                                   "calibration": {"mag": result.to_dict()},
                                   "source": str(args.log)}, args.log)
