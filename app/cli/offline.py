@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 import ekf
+from ekf.metrics import intervals_mask
 from ekf.simulate import MAX_RATE_HZ, simulate
 from app.cli import options
 from app.engine import config, estimates
@@ -265,6 +266,19 @@ def _row(name: str, s, width: int = 16) -> str:
             f"{s.inclination_rmse_deg:>11.2f}")
 
 
+def _references(log: LogData, truth: LogData | None, intervals: list | None,
+                skip_s: float) -> int:
+    """How many reference orientations (the truth's, else the log's ORI) lie in the intervals
+    and after the skip (counted from the log's first sample)."""
+    arrays = log.to_arrays()
+    reference = truth.to_arrays() if truth is not None else arrays
+    t_ms = reference.t_ms[np.isfinite(reference.ori[:, 0])].astype(float)
+    if not len(arrays.t_ms):
+        return 0
+    scored = intervals_mask(t_ms, intervals) & (t_ms >= arrays.t_ms[0] + skip_s * 1000.0)
+    return int(scored.sum())
+
+
 def _nothing_to_score(log: LogData, where: str, skip: str) -> str:
     t_ms = log.to_arrays().t_ms
     span = (f"the log runs {(float(t_ms[-1]) - float(t_ms[0])) / 1000.0:.1f} s, phone time "
@@ -304,12 +318,14 @@ def _evaluate(args: argparse.Namespace) -> int:
                 print(f"{label:<{width}}{'stopped: see above':>20}", flush=True)
                 status = 1
                 continue
-            if not s.samples:
+            if not s.samples and not _references(log, truth, intervals, args.skip):
                 raise config.ConfigError(_nothing_to_score(log, where, skip))
-            if not isinstance(estimator, UserFilterEstimator) and s.samples and not (
-                    math.isfinite(s.total_rmse_deg)):
-                raise config.ConfigError(f"the {label} estimate is not finite: the settings "
-                                         "are beyond what the filter can compute")
+            builtin = not isinstance(estimator, UserFilterEstimator)
+            if not s.samples or (builtin and not math.isfinite(s.total_rmse_deg)):
+                raise config.ConfigError(
+                    f"the {label} estimate is not finite where it is scored"
+                    + (": the settings are beyond what the filter can compute" if builtin
+                       else ""))
             print(_row(label, s, width), flush=True)
         if truth is not None:
             phone = evaluate_phone(log, truth, intervals, args.skip)
