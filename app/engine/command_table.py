@@ -59,7 +59,9 @@ def _reset(engine: Any, command: ResetFilter) -> None:
 
 
 def _start_recording(engine: Any, command: StartRecording) -> None:
-    engine.recording_lane.start(command, engine.source.kind, engine._peer, engine.output.flush)
+    live = engine.source.capabilities.reconnect
+    engine.recording_lane.start(command, engine.source.kind, engine._peer if live else None,
+                                engine.output.flush)
 
 
 def _stop_recording(engine: Any, command: StopRecording) -> None:
@@ -84,7 +86,7 @@ def _set_marker_label(engine: Any, command: SetMarkerLabel) -> None:
 def _set_forward(engine: Any, command: SetForward) -> None:
     """Stop the running forward (if any), start one to the command's target (if given)."""
     engine.forwarder, line, changed = switch_forward(engine.forwarder, command.target,
-                                                     engine.source.kind == "tcp")
+                                                     engine.source.capabilities.forward)
     engine._health.warn("forward", line, force=True)
     if changed:
         forwarder = engine.forwarder

@@ -189,7 +189,7 @@ def stream_health(engine: Any, now: float, info: dict[str, Any]) -> StreamHealth
     """The stream's health: the source's `info`, the parser's and the orderer's counts, the
     connection, the recording and the forward."""
     state = info.get("connection_state", "waiting")
-    if engine.source.kind == "tcp":
+    if engine.source.capabilities.reconnect:
         state = engine._connection_state if state != "waiting" else "waiting"
     pipeline = engine.pipeline
     health = engine._health.health(now, info, pipeline.parser, pipeline.orderer,

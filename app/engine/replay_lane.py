@@ -26,7 +26,7 @@ from app.engine.publisher import Publisher
 from app.engine.recording_lane import RecordingLane
 from app.engine.replay import ReplayManager
 from app.engine.session import SessionInfo
-from app.stream.sources import DemoOrPhoneSource, LineReplaySource, Source
+from app.stream.sources import LineReplaySource, Source
 
 
 class ReplayLane:
@@ -60,10 +60,7 @@ class ReplayLane:
 
     def playing(self) -> LineReplaySource | None:
         """The replay being played (the demo until a phone takes over), else None."""
-        source = self.source
-        if isinstance(source, DemoOrPhoneSource):
-            source = None if source.phone_active else source.demo
-        return source if isinstance(source, LineReplaySource) else None
+        return self.source.played()
 
     @property
     def shown(self) -> ReplayManager | None:

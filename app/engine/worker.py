@@ -353,7 +353,7 @@ class Engine:
         parser = pipeline.parser
         damaged_before = parser.stats.damaged + parser.stats.too_long
         data = chunks[0].data if len(chunks) == 1 else b"".join(c.data for c in chunks)
-        if self.forwarder is not None and self.source.kind == "tcp":
+        if self.forwarder is not None and self.source.capabilities.forward:
             for chunk in chunks:
                 self.forwarder.feed(chunk.data, chunk.connection)
         pipeline.feed_bytes(data)
@@ -372,11 +372,12 @@ class Engine:
             pipeline.cut()
         if kind == "connected":
             self.replay_lane.connected()
-            self._connection_state = "replaying" if self.source.kind != "tcp" else "connected"
+            live = self.source.capabilities.reconnect
+            self._connection_state = "connected" if live else "replaying"
             self._peer = event.peer
             self.recording_lane.event("connected", peer=event.peer)
             self._user.on_restart(kind)
-            if self.source.kind == "tcp":
+            if live:
                 self.recording_lane.set_peer(event.peer)
         elif kind == "disconnected":
             pipeline.end_of_stream(partial_line_damaged=True)
