@@ -245,6 +245,7 @@ COMMANDS = {
     "tune": ["tune", "{motion}", "--params", "acc_noise_cov", "--max-evals", "2", "--no-check",
              "-o", "{out}"],
     "simulate": ["simulate", "--duration", "2", "-o", "{out}"],
+    "phyphox-experiment": ["phyphox-experiment", "-o", "{out}"],
 }
 
 
