@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -15,7 +16,7 @@ from typing import Any
 import ekf
 from ekf.calibration import CalibrationResult
 from app.cli import options
-from app.cli.offline import check_finite, intervals_of, read_log
+from app.cli.offline import FiniteCheck, intervals_of, read_log, warn_absent
 from app.engine import config, profiles, tuning
 from app.engine.calibration import RestCalibration, mag_from_log, rest_from_log
 from app.engine.outputs import check_output, write_output
@@ -229,7 +230,7 @@ def _check_computable(prepared: PreparedLog, result: tuning.TuneResult, estimato
     rows = refilter(prepared, result.best, estimator, sensors).rows
     rows = rows.select(rows.has_sample)
     try:
-        check_finite(estimator, rows.quat, rows.t_ms, result.best)
+        FiniteCheck(estimator, result.best).check(rows.quat, rows.t_ms)
     except config.ConfigError as error:
         ranges = ", ".join(f"{p.name}={p.low:g}:{p.high:g}" for p in result.parameters)
         raise config.ConfigError(f"tune: nothing written: {error} (searched {ranges}; narrow "
@@ -245,9 +246,20 @@ def cmd_tune(args: argparse.Namespace) -> int:
     parameters = tuning.parse_parameters(args.params, base)
     if args.output:                                  # before the search, not after it
         check_output(args.output, args.log, args.check_log)
-    prepared = PreparedLog.from_log(read_log(args.log, args.limits))
+    log = read_log(args.log, args.limits)
+    prepared = PreparedLog.from_log(log)
     if len(prepared.ori_times) == 0:
         raise config.ConfigError(f"tune: {args.log} has no ORI lines to tune against")
+    absent = warn_absent(log, sensors, names, tuple(tuning.sensors_in(prepared)))
+    parameters, left_alone = tuning.split_by_sensor(
+        parameters, [s for s in sensors if s not in absent])
+    if left_alone:
+        names_left = ", ".join(p.name for p in left_alone)
+        if not parameters:
+            raise config.ConfigError(f"tune: nothing to tune: the filter runs without the "
+                                     f"sensor of {names_left}")
+        print(f"orientation-lab: not tuning {names_left}: the filter runs without "
+              f"{'its sensor' if len(left_alone) == 1 else 'their sensors'}", file=sys.stderr)
     target, check = _targets(args, prepared)
     for where, chosen in (("the tuning range", target), ("the check range", check)):
         if chosen is not None and not chosen.evaluate(base, names[0], sensors).samples:
