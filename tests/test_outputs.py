@@ -301,7 +301,7 @@ def test_a_full_disk_is_one_line_and_exit_2_for_every_command(command, logs, ful
     assert _is_full_device(full)
 
 
-@pytest.mark.parametrize("command", ["filter", "export mat", "simulate"])
+@pytest.mark.parametrize("command", ["filter", "export csv", "export mat", "simulate"])
 def test_every_command_writes_into_a_fifo(command, logs, tmp_path, capsys):
     fifo = tmp_path / "pipe"
     os.mkfifo(fifo)

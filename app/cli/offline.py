@@ -283,7 +283,7 @@ def _filter_with(args: argparse.Namespace, names: list[str], settings, which: st
     finite = None if isinstance(estimator, UserFilterEstimator) else FiniteCheck(
         names[0], settings or ekf.PRESETS["default"])
     # The rows are written as they come, to the output's temporary file (or, for stdout, a
-    # spooled one): nothing is written when the run fails on the way.
+    # spooled one): a file is not written when the run fails on the way.
     try:
         with (open_output(args.output, "w", encoding="ascii", newline="\n") if args.output
               else tempfile.SpooledTemporaryFile(1 << 23, "w+", encoding="ascii",
