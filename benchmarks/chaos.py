@@ -168,7 +168,9 @@ class Serve:
 
 
 class PacedPhone(threading.Thread):
-    """The phone: connects and streams its lines with their timing / speed."""
+    """The phone: connects and streams its lines with their timing / speed. Each item of
+    `lines` is due at the time of its first line (an item of several lines goes out whole:
+    phone_variant's bad time stamps ride on the line before them, never pacing the stream)."""
 
     def __init__(self, port: int, lines: list[bytes], speed: float) -> None:
         super().__init__(daemon=True)
@@ -179,9 +181,21 @@ class PacedPhone(threading.Thread):
 
     def run(self) -> None:
         try:
+            pace = pacing_times(self.lines)
             with PhoneEmulator("127.0.0.1", self.port, timeout=30.0) as phone:
                 self.first_sent = time.monotonic()
-                phone.stream_lines(self.lines, self.speed)
+                start = time.perf_counter()
+                index = 0
+                while index < len(self.lines):
+                    now = (time.perf_counter() - start) * self.speed
+                    end = index
+                    while end < len(self.lines) and pace[end] <= now:
+                        end += 1
+                    if end > index:
+                        phone.send(b"".join(self.lines[index:end]))
+                        index = end
+                    else:
+                        time.sleep(min(0.05, (pace[index] - now) / self.speed))
                 self.last_sent = time.monotonic()
         except OSError as error:
             self.error = f"phone: {error}"
