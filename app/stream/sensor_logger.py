@@ -29,6 +29,7 @@ from __future__ import annotations
 import ipaddress
 import json
 import socket
+import sys
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -112,7 +113,7 @@ class SensorLoggerEndpoint:
 
         Handler.endpoint = endpoint
         Handler.timeout = self.body_timeout_s
-        server = _Server((self.host, self.requested_port), Handler, endpoint, self.max_clients)
+        server = PushServer((self.host, self.requested_port), Handler, endpoint, self.max_clients)
         self._server = server
         self.port = server.server_address[1]
         self.state = "waiting"
@@ -262,7 +263,8 @@ class SensorLoggerEndpoint:
                     "without_gravity": converter.without_gravity if converter else 0}
 
 
-class _Server(ThreadingHTTPServer):
+class PushServer(ThreadingHTTPServer):
+    """The HTTP server behind the endpoint: a bounded number of clients, each in its thread."""
     daemon_threads = True
     request_queue_size = 64
 
@@ -287,6 +289,12 @@ class _Server(ThreadingHTTPServer):
 
     def service_actions(self) -> None:
         self.endpoint.housekeeping()
+
+    def handle_error(self, request, client_address) -> None:
+        """Count a request that failed (a client gone before its answer) instead of printing a
+        traceback on the user's terminal; the server serves on."""
+        error = sys.exc_info()[1]
+        self.endpoint.count("closed early" if isinstance(error, OSError) else "failed requests")
 
 
 class _BodyError(Exception):

@@ -8,6 +8,7 @@ import http.client
 import json
 import math
 import socket
+from http.server import BaseHTTPRequestHandler
 
 import numpy as np
 import pytest
@@ -17,7 +18,7 @@ from phone_logs import Collected, by_tag, log_samples, simulated_lines
 from waiting import wait_until
 
 from app.stream.phone_apps import ENU_FROM_NWU
-from app.stream.sensor_logger import SensorLoggerSource
+from app.stream.sensor_logger import PushServer, SensorLoggerSource
 from app.stream.sensor_logger_convert import SensorLoggerConverter
 from app.stream.sensor_logger_emulator import SensorLoggerPhone
 
@@ -269,3 +270,21 @@ def test_silence_is_a_disconnect_and_a_new_recording_a_new_stream(lines):
 def test_urls_to_type(source):
     assert source.urls()[0] == f"http://127.0.0.1:{source.port}/"
     assert math.isfinite(source.port)
+
+
+@pytest.mark.parametrize("error, counted", [(ConnectionResetError(104, "reset by peer"),
+                                             "closed early"),
+                                            (BrokenPipeError(32, "broken pipe"), "closed early"),
+                                            (ValueError("a handler's bug"), "failed requests")])
+def test_a_request_that_fails_is_counted_not_printed(source, capsys, error, counted):
+    """A client gone before its answer (or any request that fails) prints no traceback on the
+    user's terminal: it is counted, and the endpoint goes on taking the phone's batches."""
+    server = PushServer(("127.0.0.1", 0), BaseHTTPRequestHandler, source.endpoint, 4)
+    try:
+        raise error
+    except type(error):
+        server.handle_error(None, ("127.0.0.1", 1))
+    finally:
+        server.server_close()
+    assert capsys.readouterr().err == ""
+    assert source.endpoint.counts[counted] == 1
