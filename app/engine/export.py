@@ -24,6 +24,7 @@ replay's timing) falls in the range.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,7 +33,8 @@ import numpy as np
 import ekf
 from app.engine.config import ConfigError, open_replay
 from app.engine.outputs import atomic_output, check_output
-from app.engine.pipeline import Pipeline, Setup
+from app.engine.configuration import Config, Setup, recorded_setup
+from app.engine.pipeline import Pipeline
 from app.engine.runner import SENSORS, EstimatorRunner
 from app.engine.session import Marker, SessionInfo, read_session, session_json_for
 from app.stream.sources import LogFileSource
@@ -77,21 +79,20 @@ class SessionData:
 
 def session_setup(session: SessionInfo | None, estimator: str = "ekf",
                   settings: ekf.EKFSettings | None = None) -> Setup:
-    """The set-up a replay of this session starts with (its recorded one, timeline included)."""
-    setup = Setup(estimator, SENSORS, settings, comparisons=False)
-    if session is None:
-        return setup
-    sensors = SENSORS
-    if isinstance(session.sensors, dict):
-        sensors = tuple(s for s in SENSORS if session.sensors.get(s, True))
-    return Setup(session.estimator or estimator, sensors, session.settings or settings,
-                 comparisons=False, timeline=tuple(session.filter_events),
-                 start_state=session.start_state, start_state_id=id(session))
+    """The set-up a replay of this session starts with: its recorded configuration over time
+    (app.engine.configuration; the comparisons, which exports do not hold, off)."""
+    setup = recorded_setup(session, Config(estimator, SENSORS, settings or ekf.PRESETS["default"]))
+    return dataclasses.replace(setup, comparisons=False,
+                               timeline=tuple(c for c in setup.timeline
+                                              if c.kind != "comparisons"))
 
 
-def load_session(path: str | Path, with_cov: bool = False) -> SessionData:
+def load_session(path: str | Path, with_cov: bool = False,
+                 setup: Setup | None = None) -> SessionData:
     """Replay a session (folder, raw.txt, session.json) or a phone's log once, as fast as the
-    kernels go, and keep what the exports need. ConfigError for anything else."""
+    kernels go, and keep what the exports need; setup: the configuration over time to replay
+    it with (None: the recorded one; the window passes the one it replays). ConfigError for
+    anything else."""
     source = open_replay(path)
     raw = source.path
     json_path = session_json_for(raw)
@@ -100,11 +101,7 @@ def load_session(path: str | Path, with_cov: bool = False) -> SessionData:
     except ValueError as error:
         raise ConfigError(str(error)) from None
     runner = EstimatorRunner(collect_plot=False, collect_cov=with_cov)
-    pipeline = Pipeline(runner)
-    pipeline.restore(pipeline.initial_checkpoint(session_setup(session)))
-    pipeline.timeline = session_setup(session).timeline
     ordered: list[tuple[np.ndarray, ...]] = []
-    pipeline.on_ordered = lambda t, tag, values: ordered.append((t, tag, values))
     rows, covs = [], []
 
     def collect(*_args) -> None:
@@ -112,7 +109,12 @@ def load_session(path: str | Path, with_cov: bool = False) -> SessionData:
             covs.append(runner.take_covariances())
         rows.append(runner.take_rows())
 
-    pipeline.on_cut = collect
+    pipeline = Pipeline(runner, on_cut=collect,
+                        on_ordered=lambda t, tag, values: ordered.append((t, tag, values)))
+    setup = setup if setup is not None else session_setup(session)
+    setup = dataclasses.replace(setup, comparisons=False, timeline=tuple(
+        c for c in setup.timeline if c.kind != "comparisons"))
+    pipeline.begin(pipeline.initial_checkpoint(setup), setup.timeline)
     step = 1 << 16
     for first in range(0, source.line_count, step):
         pipeline.feed_bytes(source.lines_between(first, min(first + step,
@@ -263,9 +265,10 @@ def export_session(path: str | Path, fmt: str, out: str | Path,
                    from_marker: str | None = None, to_marker: str | None = None,
                    from_s: float | None = None, to_s: float | None = None,
                    separator: str = ",", decimal_comma: bool = False,
-                   data: SessionData | None = None) -> str:
+                   data: SessionData | None = None, setup: Setup | None = None) -> str:
     """Export a session; returns one line saying what was written. ConfigError for bad
-    arguments (a one-line message)."""
+    arguments (a one-line message). setup: the configuration over time its estimates are
+    computed with (None: the recorded one; the window passes the one it replays)."""
     if fmt not in FORMATS:
         raise ConfigError(f"--format: expected one of {', '.join(FORMATS)}, got {fmt!r}")
     if fmt == "mat":
@@ -280,7 +283,7 @@ def export_session(path: str | Path, fmt: str, out: str | Path,
     if out.is_dir():
         raise ConfigError(f"{out}: is a folder; give a file name to write")
     data = data if data is not None and (fmt != "mat" or data.cov is not None) \
-        else load_session(path, with_cov=fmt == "mat")
+        else load_session(path, with_cov=fmt == "mat", setup=setup)
     start, end = time_range(data, from_marker, to_marker, from_s, to_s)
     try:
         if fmt == "csv":

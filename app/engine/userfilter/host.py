@@ -17,8 +17,10 @@ After a seek the same happens: the engine restores a checkpoint of its own estim
 target (app.engine.replay), and your filter, which is not part of a checkpoint (it is your
 object), re-runs the log from the pass's start up to that checkpoint in the background, then the
 re-sync lines, so it is exactly where playing would have brought it and is never decimated by a
-seek. A new pass of a replay (a loop) starts your filter afresh, as it starts ours. Commands
-arriving during a catch-up change only the sensor switches.
+seek. A new pass of a replay (a loop) starts your filter afresh, as it starts ours. A re-run
+applies the configuration over time as the engine does (:mod:`app.engine.configuration`): the
+sensors switched off at a sample reach your filter as None there, new settings restart it,
+resets reset it.
 """
 
 from __future__ import annotations
@@ -33,6 +35,8 @@ import numpy as np
 
 import ekf
 from app.engine.compare import ErrorSums
+from app.engine.configuration import Config, Setup
+from app.engine.pipeline import Pipeline
 from app.engine.runner import EstimatorRunner
 from app.engine.snapshot import Comparison, UserFilterStatus, UserHistory, UserProblem
 from app.engine.userfilter.code import FilterCode, UserFilterError, load_code, unload_code
@@ -46,6 +50,9 @@ from app.stream.sources import DemoOrPhoneSource, Source
 WATCH_INTERVAL_S = 0.3
 RERUN_PIECE = 4096             # samples per piece of a re-run (cancel and progress checks)
 MAX_CATCH_UP_ROWS = 200_000    # a buffer larger than this is skipped: the filter is too slow
+# the changes of the configuration that reach your filter (not OWN's estimator, alignment or
+# comparisons)
+USER_CHANGES = ("sensor", "settings", "reset")
 SLOW_BELOW = 0.99              # used_fraction under this: "slow"
 
 
@@ -86,13 +93,14 @@ def replay_path(source: Source) -> Path | None:
 
 
 class CatchUp:
-    """A background run of a new filter object: the log's first `samples` samples (if any),
-    then the rows the lane buffered meanwhile, then the hand-over."""
+    """A background run of a new filter object: the log's first `samples` samples (if any) with
+    the pass's `setup` (its configuration over time), then the rows the lane buffered
+    meanwhile, then the hand-over."""
 
     def __init__(self, lane: UserLane, estimator: UserFilterEstimator, log: Path | None,
-                 samples: int, settings: ekf.EKFSettings, arrays: Callable[[Path], tuple]) -> None:
+                 samples: int, setup: Setup, arrays: Callable[[Path], tuple]) -> None:
         self.lane, self.estimator, self.log, self.samples = lane, estimator, log, samples
-        self.settings = settings
+        self.setup = setup
         self._arrays = arrays
         self.cancel = threading.Event()
         self.done = threading.Event()
@@ -125,12 +133,20 @@ class CatchUp:
     def _rerun_log(self) -> None:
         t_ms, tag, values = self._arrays(self.log)
         n = min(self.samples, len(t_ms))
-        runner = EstimatorRunner(self.estimator, self.settings)
+        runner = EstimatorRunner(self.estimator, self.setup.settings, self.setup.sensors)
+        start_config = self.setup.start
+        if self.estimator.settings != start_config.settings:
+            self.estimator.set_settings(start_config.settings)
+        for sensor in ekf.SENSORS:
+            runner.set_sensor_enabled(sensor, sensor in start_config.sensors)
+        pipeline = Pipeline(runner)
+        pipeline.continue_with(tuple(c for c in self.setup.until(n).timeline
+                                     if c.kind in USER_CHANGES))
         for start in range(0, n, RERUN_PIECE):
             if self.cancel.is_set() or self.estimator.paused:
                 break
             end = min(n, start + RERUN_PIECE)
-            runner.feed_arrays(t_ms[start:end], tag[start:end], values[start:end])
+            pipeline.feed_samples(t_ms[start:end], tag[start:end], values[start:end])
             self.progress = end / max(n, 1)
         runner.finish()
         rows = runner.take_rows()
@@ -167,15 +183,17 @@ class UserFilterHost:
     record(kind, **data) writes a session timeline entry (the recorder's, through the engine);
     realtime: the lane decimates a filter slower than the stream; position(): the samples fed
     to the estimators in the current pass (a replay's position; default: counted here from the
-    last restart).
+    last restart); setup(): the pass's configuration over time (default: the runner's now).
     """
 
     def __init__(self, runner: EstimatorRunner, source: Source,
                  record: Callable[..., None] | None = None, realtime: bool = True,
                  clock: Callable[[], float] = time.monotonic,
-                 position: Callable[[], int] | None = None) -> None:
+                 position: Callable[[], int] | None = None,
+                 setup: Callable[[], Setup] | None = None) -> None:
         self.runner = runner
         self._position = position
+        self._setup = setup or (lambda: Setup.of(Config.of(self.runner)))
         self.source = source
         self._record = record or (lambda kind, **data: None)
         self.realtime = realtime
@@ -229,7 +247,7 @@ class UserFilterHost:
         log = replay_path(self.source)
         samples = self._samples()
         if log is not None and samples > 0:
-            self.job = CatchUp(self.lane, estimator, log, samples, self.runner.settings,
+            self.job = CatchUp(self.lane, estimator, log, samples, self._setup(),
                                self._log_arrays)
             self.job.start()
             self.message = f"{done}: re-running the replay up to now with the new code"
@@ -276,11 +294,14 @@ class UserFilterHost:
         lane = self.lane
         if kind in ("loop", "seek") and lane is not None and self.job is None:
             lane.reset()
+            estimator = lane.estimator
+            if estimator is not None and estimator.settings != self.runner.settings:
+                estimator.set_settings(self.runner.settings)    # the pass's, from its start
         if kind != "seek" or lane is None or self.job is not None:
             return
         estimator = lane.estimator
         if estimator is not None and not estimator.paused:
-            self.job = CatchUp(lane, estimator, None, 0, self.runner.settings, self._log_arrays)
+            self.job = CatchUp(lane, estimator, None, 0, self._setup(), self._log_arrays)
             self.job.start()
 
     def on_seek(self) -> None:
@@ -299,7 +320,7 @@ class UserFilterHost:
             self.lane.replace(estimator)
             self.lane.reset_errors()
             return
-        self.job = CatchUp(self.lane, estimator, log, samples, self.runner.settings,
+        self.job = CatchUp(self.lane, estimator, log, samples, self._setup(),
                            self._log_arrays)
         self.job.start()
         self._done = "after the seek"

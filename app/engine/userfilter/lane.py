@@ -22,7 +22,6 @@ from typing import Callable
 
 import numpy as np
 
-from ekf import SENSORS
 from app.engine.compare import ErrorSums, SameInstant
 from app.engine.userfilter.filter import UserFilterEstimator
 
@@ -47,7 +46,6 @@ class UserLane:
         self._buffer: list[tuple[np.ndarray, ...]] | None = None
         self._token = 0                  # of the current catch-up
         self.buffered_rows = 0
-        self.enabled = {s: True for s in SENSORS}
         self.latest = _NAN4.copy()        # the quaternion of the latest row
         self.rows_given = 0
         self.rows_run = 0
@@ -82,11 +80,6 @@ class UserLane:
         given = sum(g for _, g, _ in self._recent)
         return 1.0 if not given else sum(r for _, _, r in self._recent) / given
 
-    def set_enabled(self, sensor: str, enabled: bool) -> None:
-        self.enabled[sensor] = bool(enabled)
-        if self.estimator is not None:
-            self.estimator.set_enabled(**{sensor: enabled})
-
     def reset(self) -> None:
         """Start the user's filter afresh (ResetFilter, a new stream)."""
         if self.estimator is not None:
@@ -102,8 +95,6 @@ class UserLane:
             self._install(estimator)
 
     def _install(self, estimator: UserFilterEstimator | None) -> None:
-        if estimator is not None:
-            estimator.set_enabled(**self.enabled)
         self.estimator = estimator
         self.latest = _NAN4.copy()
         self._budget = 0.0
@@ -144,7 +135,9 @@ class UserLane:
 
     def run_rows(self, t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
                  mag: np.ndarray) -> np.ndarray:
-        """The user's quaternion after each row (R, 4); NaN where there is none."""
+        """The user's quaternion after each row (R, 4); NaN where there is none. The columns
+        are the runner's with a switched-off sensor as NaN (app.engine.runner): the user's step
+        gets None for it."""
         n = len(t_s)
         with self.lock:
             if self._buffer is not None:
