@@ -31,8 +31,10 @@ from __future__ import annotations
 
 import bisect
 import dataclasses
+import os
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import ekf
@@ -487,3 +489,29 @@ def changes_due(changes: tuple[Change, ...], applied: tuple[Change, ...], fed: i
 def first_after(changes: tuple[Change, ...], sample: int) -> int:
     """The index of the first change after `sample`."""
     return bisect.bisect_right([c.sample for c in changes], sample)
+
+
+def setup_for_log(view: ConfigurationView | None, log: str | Path | None,
+                  settings: ekf.EKFSettings | None = None) -> Setup:
+    """The configuration a re-run of `log` applies (Tune's A/B run and the auto-tune): the
+    replayed pass's, its changes at their positions, when `log` is the log the engine replays;
+    otherwise the configuration running now, over the whole log. Without a view (a test
+    double) the settings given, the rest the defaults."""
+    if view is None:
+        return Setup(settings=settings)
+    return replayed_setup(view, log) or Setup.of(view.current)
+
+
+def replayed_setup(view: ConfigurationView | None, log: str | Path | None) -> Setup | None:
+    """The view's configuration over time when `log` is the log the engine replays (an export
+    of it holds what the replay shows), else None."""
+    if view is None or log is None or view.path is None or not _same_file(log, view.path):
+        return None
+    return view.setup
+
+
+def _same_file(a: str | Path, b: str | Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False

@@ -18,6 +18,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.engine.commands import AddMarker, SetMarkerLabel
 from app.engine.config import ConfigError, open_replay
+from app.engine.configuration import replayed_setup
 from app.engine.session import sessions_dir
 from app.engine.snapshot import Snapshot
 
@@ -336,7 +337,9 @@ class SessionControls(QtCore.QObject):
         out, _ = QtWidgets.QFileDialog.getSaveFileName(self.window, dialog.windowTitle(),
                                                        str(base.parent / name))
         if out:
-            self.export(source, fmt, out, **dialog.options())
+            # the replayed session holds what the replay shows: its configuration over time
+            setup = replayed_setup(self.window.configuration, source)
+            self.export(source, fmt, out, setup=setup, **dialog.options())
 
     def export(self, source: str, fmt: str, out: str, **options: Any) -> None:
         """Export in a background thread; the status bar says what was written."""
