@@ -288,3 +288,30 @@ def _replayed_rows(folder) -> list[str]:
         wait_for_snapshot(engine, lambda s: s.health.connection_state == "finished", 60,
                           "the replay's end")
     return csv_lines(Rows.concatenate(engine.rows_log))
+
+
+def test_the_auto_tune_and_an_export_run_the_replays_configuration(session, tmp_path):
+    from app.engine import tuning
+    from app.engine.export import export_session
+    raw = session / "raw.txt"
+    view = Configuration(Config(), read_session(session / "session.json"), replaying=True,
+                         path=str(raw)).view(0)
+    setup = setup_for_log(view, raw)
+    assert [c.kind for c in setup.timeline] == ["sensor", "sensor"]
+    prepared = prepare_path(session)
+    # a candidate of the auto-tune is the replay with those settings (the switches recorded)
+    target = tuning.Target(prepared, None, 1.0, setup=setup)
+    want = refilter(prepared, None, setup=setup.overridden("settings", TUNED), skip_s=1.0)
+    assert target.evaluate(TUNED) == want.summary
+    assert tuning.Target(prepared, None, 1.0).evaluate(TUNED) != want.summary   # every sensor
+    # the window's export of the session it replays: what the replay shows
+    from app.engine.export import load_session
+    data = load_session(session, setup=setup.overridden("settings", TUNED))
+    rows = want.rows
+    index = np.searchsorted(rows.t_ms, data.t_ms)
+    assert np.array_equal(rows.t_ms[index], data.t_ms) and len(data) > 2000
+    assert np.array_equal(data.quat, rows.quat[index])
+    recorded = load_session(session)                     # the command line's: as recorded
+    assert not np.array_equal(recorded.quat, data.quat)
+    out = tmp_path / "export.csv"
+    assert "rows" in export_session(session, "csv", out, setup=setup)

@@ -332,8 +332,10 @@ def summary_line(overridden: Iterable[str], added: int) -> str:
         parts.append(f"{', '.join(mine)}: yours")
     if theirs:
         parts.append(f"{', '.join(theirs)}: recorded")
-    if added:
-        parts.append(f"{added} change{'s' if added != 1 else ''} of yours at {'their' if added != 1 else 'its'} moment")
+    if added == 1:
+        parts.append("1 change of yours at its moment")
+    elif added:
+        parts.append(f"{added} changes of yours at their moment")
     return "; ".join(parts) if mine or added else "everything as recorded"
 
 
@@ -356,7 +358,7 @@ class Configuration:
         self._overrides: dict[str, Any] = {}
         self._added: list[Change] = []
         self._view: ConfigurationView | None = None
-        self._view_key: tuple | None = None
+        self._steps: tuple[list[int], list[Config]] = ([], [])
 
     # -- what it says ------------------------------------------------------------------------------
 
@@ -404,22 +406,20 @@ class Configuration:
     def view(self, position: int) -> ConfigurationView:
         """The snapshot's view at the engine's position (the same object while nothing
         changed)."""
-        setup = None
-        key = (self.version, position)
-        if self._view is not None and self._view_key == key:
-            return self._view
-        if self._view is not None and self._view_key[0] == self.version:
-            setup = self._view.setup
-        setup = setup or self.setup()
-        current = setup.at(position)
-        if self._view is not None and self._view_key[0] == self.version \
-                and self._view.current == current:
-            self._view_key = key
-            return self._view
+        view = self._view
+        if view is None or view.version != self.version:
+            setup = self.setup()
+            self._steps = _steps(setup)
+            view = None
+        else:
+            setup = view.setup
+        samples, configs = self._steps
+        current = configs[bisect.bisect_right(samples, position)]
+        if view is not None and view.current == current:
+            return view
         self._view = ConfigurationView(self.version, self._replaying, self._recorded, setup,
                                        current, self.overridden, len(self._added),
                                        self.summary(), self._path)
-        self._view_key = key
         return self._view
 
     # -- changes -----------------------------------------------------------------------------------
@@ -473,6 +473,16 @@ class Configuration:
         self.version += 1
 
 
+def _steps(setup: Setup) -> tuple[list[int], list[Config]]:
+    """The positions where the configuration changes and the configuration before the first
+    and after each (configs[bisect_right(samples, k)] is the one at sample k)."""
+    samples, configs = [], [setup.start]
+    for change in setup.timeline:
+        samples.append(change.sample)
+        configs.append(configs[-1].apply(change))
+    return samples, configs
+
+
 def changes_due(changes: tuple[Change, ...], applied: tuple[Change, ...], fed: int) -> int:
     """How many of `changes` (a new list for a pass at position `fed`) count as applied: those
     before the position, and those at it that were applied already (`applied`: the old list's
@@ -484,11 +494,6 @@ def changes_due(changes: tuple[Change, ...], applied: tuple[Change, ...], fed: i
         else:
             break
     return count
-
-
-def first_after(changes: tuple[Change, ...], sample: int) -> int:
-    """The index of the first change after `sample`."""
-    return bisect.bisect_right([c.sample for c in changes], sample)
 
 
 def setup_for_log(view: ConfigurationView | None, log: str | Path | None,

@@ -7,8 +7,9 @@ and the Replay menu.)
 Recording works whatever the source (the phone, a replay, the demo); the replay controls are
 greyed out (saying why) when the source is not a replay. The bar only forwards intent
 (commands) and follows the engine's state from the snapshots: Snapshot.replay (position_s,
-duration_s, speed, paused, loop, finished, indexed, index_progress), Snapshot.recording and Snapshot.markers. The window's keys (Space, ←/→ 1 s,
-Shift+←/→ 10 s, Ctrl+←/→ one sample, Home/End) call :meth:`TransportBar.jump_by`,
+duration_s, speed, paused, loop, finished, indexed, index_progress), Snapshot.recording and
+Snapshot.markers. The window's keys (Space, ←/→ 1 s, Shift+←/→ 10 s, Ctrl+←/→ one sample,
+Home/End) call :meth:`TransportBar.jump_by`,
 :meth:`step`, :meth:`seek_to`.
 """
 
