@@ -220,11 +220,10 @@ class ReplayLane:
         configuration, pipeline = self.configuration, self.pipeline
         replaying = self.playing() is not None
         kind = change.kind_overridden
+        if kind == "comparisons" and change.name is None:      # None: the one running now
+            change = dataclasses.replace(change, name=pipeline.runner.comparison_estimator)
         if replaying and kind is not None and not self.recordings.active:
-            value = change.value
-            if kind == "comparisons" and value[1] is None:
-                value = (value[0], configuration.at(pipeline.fed).comparison_estimator)
-            configuration.override(kind, value)
+            configuration.override(kind, change.value)
             self._follow_configuration(resync=True)
             return
         configuration.add(change.at(pipeline.fed))
