@@ -391,6 +391,6 @@ def test_every_consumer_follows_one_configuration_through_random_user_actions(se
     prepared = prepare_path(session.folder)
     run_state_machine_as_test(
         lambda: ConfigurationMachine(session, prepared),
-        settings=settings(max_examples=6, stateful_step_count=12, deadline=None,
+        settings=settings(max_examples=5, stateful_step_count=10, deadline=None,
                           derandomize=True, database=None,
                           suppress_health_check=[HealthCheck.too_slow]))
