@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from app.engine.commands import (AddMarker, ReplayControl, SetFollowTimeline, SetMarkerLabel,
-                                 StartRecording, StopRecording)
+from app.engine.commands import (AddMarker, ReplayControl, SetMarkerLabel, StartRecording,
+                                 StopRecording)
 from app.engine.session import Marker
 from app.engine.session_index import SessionPlot
 from app.ui.transport import TransportBar
