@@ -315,3 +315,11 @@ def test_the_auto_tune_and_an_export_run_the_replays_configuration(session, tmp_
     assert not np.array_equal(recorded.quat, data.quat)
     out = tmp_path / "export.csv"
     assert "rows" in export_session(session, "csv", out, setup=setup)
+
+
+def test_a_log_without_a_recording_says_what_is_yours_without_a_recording():
+    configuration = Configuration(Config(), replaying=True)
+    assert configuration.summary() == "the set-up it started with"
+    configuration.override("gyr", False)
+    configuration.override("settings", TUNED)
+    assert configuration.summary() == "gyroscope switch, settings: yours, over the whole replay"

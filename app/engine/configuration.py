@@ -401,7 +401,13 @@ class Configuration:
         return self.setup().at(sample)
 
     def summary(self) -> str:
-        return summary_line(self._overrides, len(self._added))
+        """One line: what of the recording is yours (a log without a recording: what of the
+        set-up it started with)."""
+        if self._recorded:
+            return summary_line(self._overrides, len(self._added))
+        mine = [KIND_NAMES[k] + (" switch" if k in SENSORS else "") for k in self.overridden]
+        return f"{', '.join(mine)}: yours, over the whole replay" if mine else \
+            "the set-up it started with"
 
     def view(self, position: int) -> ConfigurationView:
         """The snapshot's view at the engine's position (the same object while nothing
