@@ -506,6 +506,80 @@ SCENARIOS = [
 QUICK = ["baseline", "absurd", "stranger-during", "flood-before", "disk-full"]
 
 
+# ---- a stranger's trickle (issue 46, item 4) ---------------------------------------------------
+
+TRICKLE_T0 = STRANGER_T0 + 10**9           # the trickle's own clock: its lines are told apart
+TRICKLE_LINE = b"%d\tACC\t0.0\t9.81\t0.0\n"
+
+
+def trickle(port: int, every_s: float = 2.0, lifetime_s: float = 180.0) -> threading.Thread:
+    """A stranger that sends one valid line every `every_s` seconds for as long as the server
+    keeps it (at most lifetime_s): never silent, never at a phone's rate."""
+    sock = connect(port)
+
+    def run() -> None:
+        deadline = time.monotonic() + lifetime_s
+        with sock:
+            for k in range(10**6):
+                try:
+                    sock.sendall(TRICKLE_LINE % (TRICKLE_T0 + 2000 * k))
+                except OSError:
+                    return                               # closed by the server
+                if time.monotonic() + every_s > deadline:
+                    return
+                time.sleep(every_s)
+    return in_thread(run)
+
+
+def _trickle_before(port: int) -> None:
+    trickle(port)
+    time.sleep(1.0)                                  # its first line before the phone's
+
+
+FIRST_CONNECTION_S = 1.5
+
+
+def _first_connection() -> list[bytes]:
+    return phone_lines(FIRST_CONNECTION_S, seed=17)
+
+
+def _trickle_at_reconnect(port: int) -> None:
+    """The phone streams 1.5 s; a trickle connects while it does (it waits); the phone hangs
+    up. The scenario's phone is its reconnection."""
+    with PhoneEmulator("127.0.0.1", port, timeout=30.0) as phone:
+        lines = _first_connection()
+        half = len(lines) // 3
+        phone.stream_lines(lines[:half], 1.0)
+        trickle(port)
+        phone.stream_lines(lines[half:], 1.0)
+    time.sleep(0.3)
+
+
+def check_trickle(result) -> str:
+    """None of the trickle's lines recorded; for the reconnect, the phone's first connection
+    all recorded too."""
+    data = Counter()
+    for path in _raw_files(result.record_dir):
+        data.update(path.read_bytes().splitlines(keepends=True))
+    stamp = str(TRICKLE_T0)[:9].encode()
+    trickled = sum(count for line, count in data.items() if line.startswith(stamp))
+    text = f"trickle lines recorded: {trickled}" + (" NO" if trickled else "")
+    if result.scenario.before is _trickle_at_reconnect:
+        first = _first_connection()
+        missing = sum(max(0, count - data[line]) for line, count in Counter(first).items())
+        text += f"; first connection's lines recorded: {len(first) - missing} / {len(first)}" \
+            + (" NO" if missing else "")
+    return text
+
+
+SCENARIOS += [
+    Scenario("trickle-before", "a stranger sends a valid line every 2 s, from before the phone",
+             before=_trickle_before, check=check_trickle),
+    Scenario("trickle-reconnect", "the phone streams 1.5 s (a trickle connects meanwhile), hangs "
+             "up and reconnects", before=_trickle_at_reconnect, check=check_trickle),
+]
+
+
 
 # ---- running --------------------------------------------------------------------------------
 

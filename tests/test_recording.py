@@ -5,6 +5,7 @@ session.json, and determinism: replaying a recording gives exactly the estimates
 from __future__ import annotations
 
 import json
+import socket
 from pathlib import Path
 
 import pytest
@@ -270,3 +271,54 @@ def test_raw_txt_and_session_json_are_written_on_the_recorders_clock(tmp_path):
     assert [e["kind"] for e in json.loads(session.read_text())["timeline"]] == ["marker"]
     assert recorder.elapsed_s == pytest.approx(JSON_INTERVAL_S + 0.01)
     recorder.close()
+
+
+def _taken_port() -> socket.socket:
+    taken = socket.socket()
+    taken.bind(("127.0.0.1", 0))
+    taken.listen(1)
+    return taken
+
+
+@pytest.mark.parametrize("refusal", ["free space", "port in use"])
+def test_serve_refused_at_its_start_leaves_no_session(tmp_path, capsys, refusal):
+    """Was: `serve --record DIR` refused at its start (too little free space, the port in use)
+    left a stub session (empty raw.txt, session.json, estimates.csv): the next recording went
+    to DIR-2 and `filter DIR` said "empty file". Now nothing is made: one line, exit 2, and
+    the next recording goes into DIR."""
+    folder = tmp_path / "sessions" / "rec"
+    taken = _taken_port()
+    try:
+        port = str(taken.getsockname()[1])
+        extra = ["--record-min-free-mb", "1e9"] if refusal == "free space" else []
+        if refusal == "free space":
+            taken.close()
+        capsys.readouterr()
+        assert main(["serve", "--host", "127.0.0.1", "--port", port, "--quiet",
+                     "--record", str(folder), *extra]) == 2
+    finally:
+        taken.close()
+    error = capsys.readouterr().err.strip().splitlines()
+    wanted = "less than" if refusal == "free space" else "cannot listen on"
+    assert len(error) == 1 and wanted in error[0]
+    assert list(tmp_path.iterdir()) == []
+    assert main(["serve", "--host", "127.0.0.1", "--port", "0", "--quiet", "--exit-after", "0",
+                 "--no-comparisons", "--record", str(folder)]) == 0
+    assert "already holds" not in capsys.readouterr().err
+    assert sorted(p.name for p in folder.iterdir()) == ["estimates.csv", "raw.txt",
+                                                         "session.json"]
+
+
+def test_a_recording_the_window_starts_without_free_space_leaves_no_folder(lines, tmp_path):
+    engine = Engine(LogFileSource(_write(tmp_path / "log.txt", lines[:800]), speed=0),
+                    index=False)
+    folder = tmp_path / "new" / "rec"
+    with engine:
+        engine.send(StartRecording(str(folder), min_free_mb=1e9))
+        wait_for(lambda: engine.snapshot_now().health.connection_state == "finished",
+                 what="the end")
+        snapshot = engine.snapshot_now()
+    assert any(w.startswith("cannot record") and "less than" in w
+               for w in snapshot.health.warnings)
+    assert snapshot.recording["active"] is False and "less than" in snapshot.recording["error"]
+    assert not (tmp_path / "new").exists()

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
 import threading
 import time
@@ -17,6 +16,7 @@ import ekf
 from app.cli import options
 from app.engine import config
 from app.engine.estimates import EstimatesWriter
+from app.engine.shutdown import on_finishing_signals
 from app.engine.snapshot import Snapshot, lag_text
 from app.engine.worker import Engine
 from app.stream.emulator import PhoneEmulator
@@ -95,26 +95,25 @@ def user_line(user) -> str:
 def _recording(args: argparse.Namespace, settings: ekf.EKFSettings | None,
                estimator: str) -> tuple[Recorder | None, EstimatesWriter | None]:
     """The recorder and estimates file of a session folder (None, None without --record). A
-    folder that holds a session already is left alone: the recording goes to DIR-2, ..."""
+    folder that holds a session already is left alone: the recording goes to DIR-2, ...; a
+    recording refused at its start leaves no folder behind."""
     if not args.record:
         return None, None
-    folder, note = config.recording_folder(args.record)
-    if note:
-        print(f"orientation-lab: {note}", file=sys.stderr, flush=True)
     try:
-        recorder = Recorder(folder, settings or ekf.PRESETS["default"],
+        recorder = Recorder(args.record, settings or ekf.PRESETS["default"],
                             info={"source": "tcp", "estimator": estimator},
                             max_bytes=args.record_max_mb,
                             min_free_bytes=args.record_min_free_mb)
     except OSError as error:
         raise config.ConfigError(str(error)) from None
-    if recorder.error:
-        recorder.close()
-        raise config.ConfigError(f"cannot record into {folder}: {recorder.error}")
+    folder = recorder.directory
+    note = config.recording_note(args.record, folder)
+    if note:
+        print(f"orientation-lab: {note}", file=sys.stderr, flush=True)
     try:
         writer = EstimatesWriter(folder / "estimates.csv")
     except OSError as error:
-        recorder.close()
+        recorder.discard()
         raise config.ConfigError(f"cannot write {folder / 'estimates.csv'}: "
                                  f"{error.strerror or error}") from None
     return recorder, writer
@@ -126,17 +125,21 @@ def _start_engine(args: argparse.Namespace) -> Engine:
         raise config.ConfigError("serve: give exactly one --estimator")
     settings = config.load_settings(args.settings)
     source = config.make_source(options.source_options(args))
-    recorder, writer = _recording(args, settings, names[0])
+    try:
+        source.start()               # the port first: a port in use makes no session folder
+        recorder, writer = _recording(args, settings, names[0])
+    except OSError as error:
+        source.stop()
+        raise config.ConfigError(f"cannot listen on {args.host}:{args.port}: "
+                                 f"{error.strerror or error}") from None
+    except BaseException:
+        source.stop()
+        raise
     forwarder = LineForwarder(*args.forward) if args.forward else None
     engine = Engine(source, settings, names[0], comparisons=not args.no_comparisons,
                     recorder=recorder, estimates=writer, limits=args.limits,
                     user_filter=args.filter, forwarder=forwarder)
-    try:
-        engine.start()
-    except OSError as error:
-        engine.stop()
-        raise config.ConfigError(f"cannot listen on {args.host}:{args.port}: "
-                                 f"{error.strerror or error}") from None
+    engine.start()                   # the source listens already
     return engine
 
 
@@ -197,11 +200,14 @@ class _Watch:
 
 def cmd_serve(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
-    engine = _start_engine(args)
     stop = threading.Event()
-    previous_handler = None
-    if threading.current_thread() is threading.main_thread():
-        previous_handler = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    # SIGTERM and SIGHUP (the terminal closed) finish the recording as Ctrl-C does
+    restore_signals = on_finishing_signals(stop.set)
+    try:
+        engine = _start_engine(args)
+    except BaseException:
+        restore_signals()
+        raise
     source = engine.source
     addresses = ", ".join(source.info()["listen_addresses"] or [args.host])
     print(f"listening on port {source.port}; type one of these into the phone app: {addresses}",
@@ -222,8 +228,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         pass
     finally:
         engine.stop()
-        if previous_handler is not None:
-            signal.signal(signal.SIGTERM, previous_handler)
+        restore_signals()
     final = engine.snapshot_now()
     watch.done(engine, final)
     print("final: " + health_line(final), flush=True)

@@ -88,7 +88,8 @@ def add_listen(parser: argparse.ArgumentParser) -> None:
                         default=config.DEFAULT_TAKEOVER_S,
                         help="a new connection waits while the phone streams; it takes over "
                              "once the stream has been silent S seconds (default "
-                             f"{config.DEFAULT_TAKEOVER_S:g}) or has closed")
+                             f"{config.DEFAULT_TAKEOVER_S:g}) or has closed, or at once when "
+                             "it streams at a phone's rate and the stream does not")
 
 
 def add_limits(parser: argparse.ArgumentParser) -> None:

@@ -28,7 +28,6 @@ from app.stream.fastparse import FastLineParser
 from app.stream.lines import LogError
 from app.stream.logfile import LogData, read_log
 from app.stream.protocol import DEFAULT_LIMITS, Limits
-from app.stream.recorder import new_session_folder
 from app.stream.sources import DemoOrPhoneSource, LogFileSource, Source, TcpSource, demo_source
 from app.stream.tcp_server import DEFAULT_PORT, parse_networks
 
@@ -38,7 +37,7 @@ DEFAULT_TAKEOVER_S = 3.0
 __all__ = ["ConfigError", "DEFAULT_HOST", "DEFAULT_PORT", "SENSORS", "SourceOptions",
            "load_settings", "estimator_names", "sensor_list", "port_number", "replay_speed",
            "make_source", "open_log", "open_replay", "resolve_log_path", "read_intervals",
-           "sensor_limits", "allowed_network", "allowed_networks", "recording_folder",
+           "sensor_limits", "allowed_network", "allowed_networks", "recording_note",
            "megabytes", "filter_file", "forward_target", "make_estimator"]
 
 
@@ -205,14 +204,12 @@ def megabytes(value: float | str) -> int:
     return int(number * 2**20)
 
 
-def recording_folder(directory: str | Path) -> tuple[Path, str | None]:
-    """Where a recording into `directory` goes: the folder itself, or DIR-2, DIR-3, ... when it
-    already holds a session (never appended to); the second item says so (None otherwise)."""
-    directory = Path(directory)
-    folder = new_session_folder(directory)
-    if folder == directory:
-        return folder, None
-    return folder, f"{directory} already holds a recorded session: recording into {folder}"
+def recording_note(requested: str | Path, folder: Path) -> str | None:
+    """What to say when a recording asked for `requested` went to `folder` (DIR-2, DIR-3, ...:
+    the folder held a session, or another recorder claimed it first); None when it did not."""
+    if Path(requested) == folder:
+        return None
+    return f"{requested} already holds a recorded session: recording into {folder}"
 
 
 # ---- logs and sessions -------------------------------------------------------------------------

@@ -7,9 +7,10 @@ engine: the parser's sinks write every line that parses, the timeline entries ca
 sample positions, a recording that starts while a stream runs keeps the engine's state then
 (session.json's start_state, see :mod:`app.engine.session`).
 
-Faults never stop the stream: a folder that cannot be made raises ConfigError at the start (the
-window shows it, the engine goes on); a write error later stops the recording with a one-line
-reason (:attr:`error`).
+Faults never stop the stream: a recording refused at its start (a folder that cannot be made,
+too little free space) raises ConfigError and leaves no folder behind (the window shows it, the
+engine goes on); a write error later stops the recording with a one-line reason
+(:attr:`error`).
 """
 
 from __future__ import annotations
@@ -46,9 +47,10 @@ def setup_info(runner: Any) -> dict[str, Any]:
 
 
 class SessionRecording:
-    """Record into `folder` (made if needed). fed_at_start: the engine's sample count now
-    (timeline positions count from it); start_state: the engine's state when a stream is
-    already running (None: the recording starts with the stream)."""
+    """Record into `folder` (made if needed; DIR-2, DIR-3, ... when it holds a session:
+    :attr:`folder` is where it went). fed_at_start: the engine's sample count now (timeline
+    positions count from it); start_state: the engine's state when a stream is already running
+    (None: the recording starts with the stream)."""
 
     def __init__(self, folder: str | Path, runner: Any, fed_at_start: int = 0,
                  start_state: dict[str, Any] | None = None, source: str = "",
@@ -66,19 +68,17 @@ class SessionRecording:
                                     min_free_bytes=min_free_bytes)
             except OSError as error:
                 raise ConfigError(str(error)) from None
-            if recorder.error:
-                recorder.close()
-                raise ConfigError(f"cannot record into {self.folder}: {recorder.error}")
         else:
             for key, value in info.items():
                 recorder.session.setdefault(key, value)
             recorder.session.setdefault("phone", peer)
         self.recorder = recorder
+        self.folder = recorder.directory
         if estimates is None:
             try:
                 estimates = EstimatesWriter(self.folder / "estimates.csv")
             except OSError as error:
-                recorder.close()
+                recorder.discard()
                 raise ConfigError(f"cannot write {self.folder / 'estimates.csv'}: "
                                   f"{error.strerror or error}") from None
         self.estimates: EstimatesWriter | None = estimates

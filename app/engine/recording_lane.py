@@ -25,7 +25,7 @@ from app.engine.pipeline import Pipeline
 from app.engine.recording import SessionRecording
 from app.engine.session import default_session_folder
 from app.engine.snapshot import StreamHealth
-from app.stream.recorder import DEFAULT_MAX_BYTES, DEFAULT_MIN_FREE_BYTES, new_session_folder
+from app.stream.recorder import DEFAULT_MAX_BYTES, DEFAULT_MIN_FREE_BYTES
 
 log = logging.getLogger("orientation_lab.engine")
 
@@ -68,7 +68,7 @@ class RecordingLane:
             return
         folder = Path(command.folder) if command.folder else None
         try:
-            folder = new_session_folder(folder or default_session_folder())
+            folder = folder or default_session_folder()
             max_bytes = DEFAULT_MAX_BYTES if command.max_mb is None else megabytes(command.max_mb)
             min_free = DEFAULT_MIN_FREE_BYTES if command.min_free_mb is None \
                 else megabytes(command.min_free_mb)
@@ -87,8 +87,8 @@ class RecordingLane:
                                 "active": False, "at": time.time()}
             return
         self.attach(recording)
-        self.event("recording", folder=str(folder))
-        self._say(f"recording into {folder}")
+        self.event("recording", folder=str(recording.folder))
+        self._say(f"recording into {recording.folder}")
 
     def stop(self, flush: Callable[[], None], health: StreamHealth) -> bool:
         """StopRecording: flush() hands the rows up to now to estimates.csv, then the recording

@@ -38,7 +38,7 @@ import numpy as np
 import ekf
 from app import paths
 from ekf.settings import read_json, shown_value
-from app.stream.recorder import new_session_folder, write_json_atomic
+from app.stream.recorder import write_json_atomic
 
 SESSION_FORMAT = 2
 FILTER_EVENTS = ("sensor", "estimator", "settings", "reset", "align_heading", "comparisons")
@@ -86,10 +86,10 @@ def sessions_dir() -> Path:
 
 
 def default_session_folder(now: datetime | None = None) -> Path:
-    """A new folder for a recording, named by the local date and time (never an existing
-    session: DIR-2, DIR-3, ... then)."""
+    """The folder a recording goes to by default, named by the local date and time (the
+    recorder goes on to DIR-2, DIR-3, ... when it holds a session)."""
     now = now or datetime.now()
-    return new_session_folder(sessions_dir() / now.strftime("%Y-%m-%d_%H-%M-%S"))
+    return sessions_dir() / now.strftime("%Y-%m-%d_%H-%M-%S")
 
 
 # ---- the set-up a replay starts with ------------------------------------------------------------

@@ -294,13 +294,15 @@ def _scan(buf, max_line_bytes, pow10, bounds, out_t, out_tag, out_v, out_kind, o
 
 
 @jit
-def _first_good(buf, max_line_bytes, pow10, bounds, candidates):
-    """True when buf holds a complete line the sample path parses within bounds; else False,
-    with the spans of up to len(candidates) lines only Python can judge in candidates."""
+def _count_good(buf, max_line_bytes, pow10, bounds, at_most, candidates):
+    """The complete lines of buf the sample path parses within bounds, counted up to at_most;
+    with the spans of up to len(candidates) lines only Python can judge in candidates (the
+    count, the candidates found)."""
     out_t = np.empty(1, np.int64)
     out_tag = np.empty(1, np.int64)
     out_v = np.empty((1, MAX_WIDTH))
     slow = np.empty((MAX_WIDTH, 4), np.int64)
+    n_good = 0
     n_candidates = 0
     line_start = 0
     for p in range(buf.shape[0]):
@@ -310,35 +312,40 @@ def _first_good(buf, max_line_bytes, pow10, bounds, candidates):
             kind, _, _ = _parse_line(buf, line_start, p, max_line_bytes, pow10, bounds,
                                      out_t, out_tag, out_v, 0, slow, 0)
             if kind == _FAST:
-                return True, 0
-            if kind == _FAST_SLOW or (kind == _PYTHON and _classify(
+                n_good += 1
+                if n_good >= at_most:
+                    return n_good, n_candidates
+            elif kind == _FAST_SLOW or (kind == _PYTHON and _classify(
                     buf, line_start, p, max_line_bytes)[0] == _PYTHON):
                 if n_candidates < candidates.shape[0]:
                     candidates[n_candidates, 0] = line_start
                     candidates[n_candidates, 1] = p
                     n_candidates += 1
         line_start = p + 1
-    return False, n_candidates
+    return n_good, n_candidates
 
 
-def has_good_line(data: bytes, limits: Limits = DEFAULT_LIMITS, max_candidates: int = 8) -> bool:
-    """Does `data` hold at least one complete line that parses to a sample within `limits`?
-    The TCP server's test for "this connection streams valid lines": compiled, stops at the
-    first good line; at most `max_candidates` lines the kernel cannot judge go to parse_line."""
+def count_good_lines(data: bytes, limits: Limits = DEFAULT_LIMITS, at_most: int = 1,
+                     max_candidates: int = 8) -> int:
+    """How many complete lines of `data` parse to a sample within `limits`, counted up to
+    `at_most` (the count stops there). The TCP server's measure of "this connection streams
+    valid lines, at this rate": compiled; of the lines the kernel cannot judge, at most
+    `max_candidates` go to parse_line."""
     if b"\n" not in data:
-        return False
+        return 0
+    at_most = max(1, int(at_most))
     candidates = np.empty((max_candidates, 2), np.int64)
-    found, count = _first_good(np.frombuffer(data, np.uint8), MAX_LINE_BYTES, _POW10,
-                               np.array(limits.squared), candidates)
-    if found:
-        return True
+    good, count = _count_good(np.frombuffer(data, np.uint8), MAX_LINE_BYTES, _POW10,
+                              np.array(limits.squared), at_most, candidates)
     for start, end in candidates[:count].tolist():
+        if good >= at_most:
+            break
         try:
             parse_line(data[start:end].decode("utf-8", "replace"), limits)
         except ParseError:
             continue
-        return True
-    return False
+        good += 1
+    return good
 
 
 @dataclass
@@ -598,4 +605,4 @@ check_cache(_table_key, globals())
 def warm_up() -> None:
     """Compile (or load from numba's cache) the kernel before the first chunk arrives."""
     FastLineParser().feed_arrays(b"1\tGYR\t1.0\t-2.5E-3\t0\n2\tORI\t-1.0\t0.0\t0.0\t0.0\n")
-    has_good_line(b"x\n1\tGYR\t1.0\t-2.5E-3\t0\n")       # the TCP server's test
+    count_good_lines(b"x\n1\tGYR\t1.0\t-2.5E-3\t0\n")    # the TCP server's measure

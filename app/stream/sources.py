@@ -76,6 +76,7 @@ class TcpSource(Source):
         self._addresses: list[str] = []
 
     def start(self) -> None:
+        """Bind and listen (OSError when the port is taken); again: nothing more."""
         self.server.start()
         if self.server.host in ("0.0.0.0", ""):
             self._addresses = lan_ipv4_addresses()

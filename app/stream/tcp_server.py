@@ -4,17 +4,27 @@ It listens on every interface (the phone needs that), so whatever any machine on
 is input. A background thread (plain ``threading`` + ``selectors``, no Qt) keeps the phone's
 stream whatever else connects:
 
-- **One stream.** The first connection streams. While it streams valid lines, a new connection
-  *waits* (queued, not closed; up to ``max_waiting``; its first ``PROBE_BYTES`` are read and
-  held). A waiting connection that has sent a valid line takes over only when the current one
-  has been silent (no valid line) for ``takeover_after_s``, has closed, sent nothing valid
-  since it connected (after a short grace), or when the user accepts it
-  (:class:`~app.stream.events.AcceptConnection`; :class:`~app.stream.events.IgnoreConnection`
-  closes it). The consumer sees "connected" / "disconnected" for the stream only.
+- **One stream, for the phone.** A phone sends hundreds of valid lines a second; a stranger's
+  trickle does not keep the stream from it. A new connection is a *candidate*: its first
+  ``PROBE_BYTES`` are read and held (not streamed, not recorded) and judged by their rate: it
+  *shows a phone's rate* when it sent at least ``PHONE_LINES`` lines that parse within the
+  latest ``RATE_WINDOW_S`` (a candidate whose held bytes are full is judged on how fast they
+  came). While no one streams, the stream goes at once to a candidate at a phone's rate (the
+  first of them); a slower one gets it when it has been the only kind for
+  ``slow_stream_after_s`` since the stream was free, or when it hangs up (its lines then go
+  out). The connection that streams keeps it against candidates (up to ``max_waiting``; they
+  wait, they are not closed) until its own rate falls below a phone's while a candidate shows
+  one, it has been silent (no valid line) for ``takeover_after_s`` while a candidate has sent a
+  valid line, it never sent a valid line (after a short grace), it closes, or the user accepts
+  a candidate (:class:`~app.stream.events.AcceptConnection`: the rate rule no longer applies
+  to it; :class:`~app.stream.events.IgnoreConnection` closes one). The consumer sees
+  "connected" / "disconnected" for the stream only.
 - **Who may connect**: ``allow`` (addresses or networks, :class:`SetAllowedNetworks` changes
   it); others are closed at once and counted.
 - **Junk is closed**: a connection that sends nothing valid within ``junk_bytes`` bytes or
   ``junk_after_s`` seconds is closed and counted (a newline flood costs its first 64 KiB).
+  When ``max_waiting`` candidates wait, the longest-waiting one that sent nothing valid makes
+  room for a newcomer (else the newcomer is closed).
 - **Bounded buffers, per connection**: the stream's chunks wait for the consumer in a queue of
   at most ``max_buffered_bytes``; when it is full the server stops reading that socket (TCP
   flow control slows the phone, nothing is lost). A waiting connection holds at most
@@ -39,7 +49,7 @@ from typing import Any
 
 from app.stream.events import (AcceptConnection, Chunk, IgnoreConnection, SetAllowedNetworks,
                                SourceEvent)
-from app.stream.fastparse import has_good_line
+from app.stream.fastparse import count_good_lines
 from app.stream.protocol import DEFAULT_LIMITS, MAX_LINE_BYTES, Limits
 
 DEFAULT_PORT = 3400
@@ -49,6 +59,9 @@ LISTEN_BACKLOG = 128
 HOUSEKEEPING_S = 0.1
 NEVER_VALID_GRACE_S = 0.5    # a stream that never sent a valid line yields after this long
 NOTE_INTERVAL_S = 1.0
+PHONE_LINES = 10             # valid lines within RATE_WINDOW_S: a phone's rate (phones: 100-300/s)
+RATE_WINDOW_S = 2.0
+SLOW_STREAM_AFTER_S = 10.0   # a slower candidate streams once the stream has been free this long
 
 
 def _peer_text(address) -> str:
@@ -78,6 +91,12 @@ class _Connection:
     held: list[bytes] = field(default_factory=list)   # a waiting connection's first bytes
     held_bytes: int = 0
     reading: bool = True              # registered with the selector
+    reading_since: float = 0.0        # monotonic: read since then (set when reading resumes)
+    # (monotonic time, valid lines) of its chunks within the latest RATE_WINDOW_S, and their sum
+    good: collections.deque = field(default_factory=collections.deque)
+    good_in_window: int = 0
+    judged_at: float | None = None    # a candidate no longer read (its held bytes are full)
+    accepted: bool = False            # the user chose it: the rate rule does not apply
 
 
 class TcpServer:
@@ -91,7 +110,8 @@ class TcpServer:
     def __init__(self, host: str = "0.0.0.0", port: int = DEFAULT_PORT,
                  max_queued: int = 256, allow=(), takeover_after_s: float = 3.0,
                  junk_bytes: int = 65536, junk_after_s: float = 10.0, max_waiting: int = 8,
-                 limits: Limits = DEFAULT_LIMITS) -> None:
+                 limits: Limits = DEFAULT_LIMITS,
+                 slow_stream_after_s: float = SLOW_STREAM_AFTER_S) -> None:
         self.host = host
         self.requested_port = port
         self.port: int | None = None
@@ -104,6 +124,7 @@ class TcpServer:
         self.junk_bytes = int(junk_bytes)
         self.junk_after_s = float(junk_after_s)
         self.max_waiting = int(max_waiting)
+        self.slow_stream_after_s = float(slow_stream_after_s)
         self.limits = limits
         self._allowed = parse_networks(allow)
         self._cond = threading.Condition()
@@ -114,7 +135,8 @@ class TcpServer:
         self._waiting_peers: list[str] = []
         self._note_times: dict[str, float] = {}
         self._active: _Connection | None = None
-        self._waiting: list[_Connection] = []
+        self._waiting: list[_Connection] = []      # the candidates, oldest first
+        self._free_since = 0.0                     # monotonic: since when no one streams
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._listener: socket.socket | None = None
@@ -146,6 +168,7 @@ class TcpServer:
         self._selector.register(listener, selectors.EVENT_READ, "listen")
         self._selector.register(self._wake_reader, selectors.EVENT_READ, "wake")
         self.state = "waiting"
+        self._free_since = time.monotonic()
         self._put(SourceEvent("listening", detail=f"{self.host}:{self.port}",
                               t_host=time.perf_counter()))
         self._thread = threading.Thread(target=self._run, name="tcp-server", daemon=True)
@@ -281,7 +304,7 @@ class TcpServer:
                 _close(sock)
                 self._count_closed("not allowed", peer)
                 continue
-            if self._active is not None and len(self._waiting) >= self.max_waiting:
+            if len(self._waiting) >= self.max_waiting and not self._make_room():
                 _close(sock)
                 self._count_closed("too many waiting", peer)
                 continue
@@ -291,16 +314,24 @@ class TcpServer:
             except OSError:
                 pass
             self.connections += 1
-            connection = _Connection(self.connections, sock, peer, str(address[0]),
-                                     time.monotonic())
+            now = time.monotonic()
+            connection = _Connection(self.connections, sock, peer, str(address[0]), now,
+                                     reading_since=now)
             self._selector.register(sock, selectors.EVENT_READ, connection)
-            if self._active is None:
-                self._activate(connection, "")
-            else:
-                self._waiting.append(connection)
-                self._publish_waiting()
+            self._waiting.append(connection)
+            self._publish_waiting()
+            if self._active is not None:
                 self._note("waiting", f"a new device at {connection.address} wants to stream "
                                       "(waiting)", peer)
+
+    def _make_room(self) -> bool:
+        """Close the longest-waiting candidate that sent nothing valid (a slow-loris): True when
+        there was one."""
+        idle = next((c for c in self._waiting if not c.valid), None)
+        if idle is None:
+            return False
+        self._drop(idle, "made room for a new connection", "too many waiting")
+        return True
 
     def _receive(self, connection: _Connection) -> None:
         active = connection is self._active
@@ -316,6 +347,11 @@ class TcpServer:
             self._drop(connection, f"connection error: {error}")
             return
         if not data:
+            if not active and self._active is None and connection.valid \
+                    and not self._at_phone_rate_other(connection):
+                # it hung up before it was chosen and no one else streams: its lines go out
+                self._activate(connection, "sent its lines and closed")
+                active = True
             self._drop(connection, "closed by the phone" if active else "closed while waiting")
             return
         connection.received += len(data)
@@ -330,15 +366,21 @@ class TcpServer:
             connection.held_bytes += len(data)
             if connection.held_bytes >= PROBE_BYTES:
                 self._pause(connection)
+                connection.judged_at = time.monotonic()
         if not connection.valid and connection.received >= self.junk_bytes:
             self._drop(connection, f"sent nothing valid in its first {self.junk_bytes} bytes",
                        "nothing valid")
 
     def _check_valid(self, connection: _Connection, data: bytes) -> None:
         probe = connection.tail + data if connection.tail else data
-        if has_good_line(probe, self.limits):
+        good = count_good_lines(probe, self.limits, PHONE_LINES)
+        if good:
+            now = time.monotonic()
             connection.valid = True
-            connection.last_valid = time.monotonic()
+            connection.last_valid = now
+            connection.good.append((now, good))
+            connection.good_in_window += good
+            self._rate_lines(connection, now)         # forget what left the window
         newline = probe.rfind(b"\n")
         tail = probe[newline + 1:] if newline >= 0 else probe
         connection.tail = tail if len(tail) <= MAX_LINE_BYTES else b""
@@ -352,10 +394,31 @@ class TcpServer:
         if not connection.reading:
             self._selector.register(connection.sock, selectors.EVENT_READ, connection)
             connection.reading = True
+            connection.reading_since = time.monotonic()
+
+    def _rate_lines(self, connection: _Connection, now: float) -> int:
+        """Valid lines the connection sent within the latest RATE_WINDOW_S (up to when it was
+        no longer read, for a candidate whose held bytes are full); at most PHONE_LINES are
+        counted a chunk."""
+        until = connection.judged_at if connection.judged_at is not None else now
+        good = connection.good
+        while good and good[0][0] <= until - RATE_WINDOW_S:
+            connection.good_in_window -= good.popleft()[1]
+        return connection.good_in_window
+
+    def _at_phone_rate(self, now: float) -> _Connection | None:
+        """The first candidate that shows a phone's rate."""
+        return next((c for c in self._waiting if self._rate_lines(c, now) >= PHONE_LINES), None)
+
+    def _at_phone_rate_other(self, connection: _Connection) -> bool:
+        now = time.monotonic()
+        return any(c is not connection and self._rate_lines(c, now) >= PHONE_LINES
+                   for c in self._waiting)
 
     def _activate(self, connection: _Connection, detail: str) -> None:
         if connection in self._waiting:
             self._waiting.remove(connection)
+        connection.judged_at = None
         self._active = connection
         self.peer = connection.peer
         self.state = "connected"
@@ -377,21 +440,34 @@ class TcpServer:
         _close(connection.sock)
         if connection is self._active:
             self._active = None
+            self._free_since = time.monotonic()
             self.state = "disconnected"
             self._put(SourceEvent("disconnected", connection.number, connection.peer, reason,
                                   time.perf_counter()))
             if promote:
-                self._promote("the previous stream ended")
+                self._fill(self._free_since)
         elif connection in self._waiting:
             self._waiting.remove(connection)
         if counted_as is not None:
             self._count_closed(counted_as, connection.peer)
         self._publish_waiting()
 
-    def _promote(self, detail: str) -> None:
-        if self._active is None and self._waiting:
-            chosen = next((c for c in self._waiting if c.valid), self._waiting[0])
-            self._activate(chosen, f"took over: {detail}")
+    def _fill(self, now: float) -> None:
+        """No one streams: a candidate at a phone's rate streams now; a slower one that sent a
+        valid line once the stream has been free for slow_stream_after_s (and it has waited
+        that long)."""
+        if self._active is not None or not self._waiting:
+            return
+        chosen = self._at_phone_rate(now)
+        if chosen is not None:
+            self._activate(chosen, "streams at a phone's rate")
+            return
+        patience = self.slow_stream_after_s
+        if now - self._free_since < patience:
+            return
+        chosen = next((c for c in self._waiting if c.valid and now - c.since >= patience), None)
+        if chosen is not None:
+            self._activate(chosen, f"no phone streamed for {patience:g} s")
 
     def _housekeeping(self) -> None:
         now = time.monotonic()
@@ -402,7 +478,7 @@ class TcpServer:
                            "nothing valid")
         active = self._active
         if active is None:
-            self._promote("the previous stream ended")
+            self._fill(now)
             return
         candidate = next((c for c in self._waiting if c.valid), None)
         if candidate is None:
@@ -411,6 +487,13 @@ class TcpServer:
             why = "it sent nothing valid"
         elif active.valid and now - active.last_valid >= self.takeover_after_s:
             why = f"it sent nothing valid for {self.takeover_after_s:g} s"
+        elif not active.accepted and active.reading \
+                and now - active.reading_since >= RATE_WINDOW_S \
+                and (lines := self._rate_lines(active, now)) < PHONE_LINES \
+                and (phone := self._at_phone_rate(now)) is not None:
+            # a stranger's trickle: a phone streams at its rate beside it
+            candidate = phone
+            why = f"{lines} valid lines in {RATE_WINDOW_S:g} s, below a phone's rate"
         else:
             return
         self._drop(active, f"replaced by {candidate.peer}: {why}", "replaced", promote=False)
@@ -426,6 +509,7 @@ class TcpServer:
             if self._active is not None:
                 self._drop(self._active, f"replaced by {chosen.peer}: accepted by the user",
                            "replaced", promote=False)
+            chosen.accepted = True
             self._activate(chosen, "accepted by the user")
         elif isinstance(command, IgnoreConnection):
             for connection in list(self._waiting):

@@ -20,6 +20,7 @@ from typing import Any
 
 from app import paths
 from app.engine.config import ConfigError, SourceOptions, load_settings, make_source, open_replay
+from app.engine.shutdown import on_finishing_signals
 from app.engine.worker import Engine
 from app.stream.forwarder import LineForwarder
 from app.stream.sources import DEMO_SESSION
@@ -174,9 +175,12 @@ def run_gui(options: WindowOptions) -> int:
         temporary_settings = tempfile.TemporaryDirectory(prefix="orientation-lab-")
         settings = QtCore.QSettings(str(Path(temporary_settings.name) / "settings.ini"),
                                     QtCore.QSettings.Format.IniFormat)
+    finishing: list[bool] = []          # SIGTERM or SIGHUP came: the window closes
+    restore_signals = on_finishing_signals(lambda: finishing.append(True))
     try:
         engine.start()
     except OSError as error:            # e.g. the port is taken
+        restore_signals()
         engine.stop()
         given = options.source
         where = "" if given.replay else f" (listening on {given.host}:{given.port})"
@@ -200,7 +204,7 @@ def run_gui(options: WindowOptions) -> int:
             window.resize(1600, 1000)
             window.arrange_default_layout()
         window.show()
-        return _run_event_loop(app, window, options)
+        return _run_event_loop(app, window, options, finishing)
     finally:
         # The window stops the engine when it closes; stop it here when it never opened.
         if window is not None:
@@ -210,9 +214,11 @@ def run_gui(options: WindowOptions) -> int:
         if temporary_settings is not None:
             temporary_settings.cleanup()
         signal.signal(signal.SIGINT, signal.default_int_handler)
+        restore_signals()
 
 
-def _run_event_loop(app: Any, window: Any, options: WindowOptions) -> int:
+def _run_event_loop(app: Any, window: Any, options: WindowOptions,
+                    finishing: list[bool]) -> int:
     from PySide6 import QtCore
     status = {"code": 0}
 
@@ -228,10 +234,11 @@ def _run_event_loop(app: Any, window: Any, options: WindowOptions) -> int:
 
     if options.exit_after is not None:
         QtCore.QTimer.singleShot(int(options.exit_after * 1000), finish)
-    # Ctrl+C in the terminal closes the window cleanly; the timer lets Python see it.
+    # Ctrl+C in the terminal closes the window cleanly; the timer lets Python see it, and
+    # closes the window after a SIGTERM or SIGHUP (also one that came while it opened).
     signal.signal(signal.SIGINT, lambda *_: window.close())
     wake = QtCore.QTimer()
-    wake.timeout.connect(lambda: None)
+    wake.timeout.connect(lambda: finishing and window.close())
     wake.start(250)
     app.exec()
     wake.stop()

@@ -81,9 +81,12 @@ def test_megabyte_line_without_newline_is_discarded_with_bounded_memory(engine):
 def test_silent_client_then_disconnect_mid_line(engine):
     port = engine.source.port
     silent = socket.create_connection(("127.0.0.1", port))
-    _wait(lambda: _health(engine).connection_state == "connected")
+    host, own_port = silent.getsockname()[:2]
+    # a candidate, not the stream: it sent nothing
+    _wait(lambda: _health(engine).waiting_peers == [f"{host}:{own_port}"])
+    assert _health(engine).connection_state == "waiting"
     silent.close()
-    _wait(lambda: _health(engine).connection_state == "disconnected")
+    _wait(lambda: _health(engine).waiting_peers == [])
     with PhoneEmulator("127.0.0.1", port) as phone:
         phone.send(_lines(10) + b"1100\tACC\t0.0\t0.")   # cut in the middle of a line
     health = _wait(lambda: (h := _health(engine)).connection_state == "disconnected"
@@ -93,7 +96,8 @@ def test_silent_client_then_disconnect_mid_line(engine):
 
 def test_two_clients_in_a_row_and_at_once(engine):
     """The phone keeps its stream: a second connection while it streams waits (it is not
-    closed, and neither is the phone), then takes over when the phone hangs up."""
+    closed, and neither is the phone), then takes over when the phone hangs up and it streams
+    (its held lines first)."""
     port = engine.source.port
     with PhoneEmulator("127.0.0.1", port) as first:
         first.send(_lines(10))
@@ -102,7 +106,7 @@ def test_two_clients_in_a_row_and_at_once(engine):
     old.send(_lines(10, t0=1100))
     _wait(lambda: _health(engine).lines_total == 60)
     new = PhoneEmulator("127.0.0.1", port).connect()
-    new.send(_lines(10, t0=1200))
+    new.send(_lines(3, t0=1200))                  # 9 lines: below a phone's rate, it waits
     _wait(lambda: _health(engine).waiting_peers == [_peer(new)])
     old.send(_lines(10, t0=1300))                 # the phone goes on streaming
     health = _wait(lambda: (h := _health(engine)).lines_total == 90 and h)
@@ -110,7 +114,9 @@ def test_two_clients_in_a_row_and_at_once(engine):
     old.sock.settimeout(0.2)
     assert not _closed(old.sock)                  # nobody cut the phone off
     old.close()
-    health = _wait(lambda: (h := _health(engine)).lines_total == 120 and h)
+    _wait(lambda: _health(engine).connection_state == "disconnected")
+    new.send(_lines(10, t0=1400))
+    health = _wait(lambda: (h := _health(engine)).lines_total == 129 and h)
     assert health.peer == _peer(new) and health.waiting_peers == []
     new.close()
     assert health.damaged == 0 and engine.running
