@@ -234,6 +234,7 @@ def test_a_tune_edit_keeps_the_recorded_gyroscope_and_applies_the_settings_every
         # your filter: no gyroscope exactly where OWN runs without it
         steps = given_steps(given_log)
         last = list(steps)[-1]                          # the object that played the pass
+        assert steps[last][-1][0] - steps[last][0][0] > 15_000       # it played the replay
         expected = expected_given(prepared, setup)
         assert check_given(steps[last], expected) > 100      # (live, it may skip rows)
         assert any(given[0] == "0" for _, given in steps[last]) and \

@@ -11,7 +11,8 @@ of one kind each, the user's changes at a moment while recording) and checks aft
   is that of a run of the model's configuration from the start (an independent reference run);
 * every consumer sees the same configuration: the snapshot's, the replay's index, Tune's;
 * Tune's re-run of the session is the model's run, row for row (so it is the replay's);
-* your filter gets None exactly for the sensors switched off where it steps;
+* your filter gets None exactly for the sensors switched off where it steps (every object of it
+  since the latest change of the whole replay);
 * a recording made during the sequence replays to the estimates it recorded.
 """
 
@@ -66,6 +67,8 @@ LOG = {log!r}
 class Filter:
     def __init__(self, settings=None):
         self.name = os.urandom(6).hex()
+        with open(LOG, "a") as out:
+            out.write(f"{{self.name}} new\\n")
     def step(self, t, gyr, acc, mag):
         with open(LOG, "a") as out:
             out.write(f"{{self.name}} {{round(t * 1000)}} {{int(gyr is not None)}}"
@@ -207,6 +210,7 @@ class ConfigurationMachine(RuleBasedStateMachine):
         self.recording: Path | None = None
         self.recordings = 0
         self.filter_loaded = False
+        self.retired: set[str] = set()          # your filter's objects from before a change
         self.given_log = self.scratch / "given.txt"
         self.filter_path = self.scratch / "given_filter.py"
         self.filter_path.write_text(GIVEN_LOG_FILTER.format(log=str(self.given_log)))
@@ -226,9 +230,24 @@ class ConfigurationMachine(RuleBasedStateMachine):
     def position(self) -> int:
         return self.engine.pipeline.fed
 
-    def send(self, command) -> None:
+    def send(self, command, whole_replay: bool = False) -> None:
+        """The command, applied; whole_replay: it changes the whole replay (or starts your
+        filter afresh): your filter's objects so far belong to what was before."""
+        before = set(self.filter_steps()) if whole_replay else set()
         self.engine.send(command)
         self.settle()
+        self.retired |= before
+
+    def filter_steps(self) -> dict[str, list[tuple[int, str]]]:
+        """Your filter's steps, by filter object: (t_ms, "101": gyr, acc, mag given)."""
+        steps: dict[str, list[tuple[int, str]]] = {}
+        if self.given_log.exists():
+            for line in self.given_log.read_text().splitlines():
+                name, t_ms, *given = line.split()
+                entry = steps.setdefault(name, [])
+                if given:
+                    entry.append((int(t_ms), given[0]))
+        return steps
 
     def settle(self) -> None:
         """Every command applied, a change of the whole replay indexed and re-synchronised,
@@ -240,7 +259,8 @@ class ConfigurationMachine(RuleBasedStateMachine):
                        and engine.snapshot_now().replay.get("indexed"), 60, what="indexed")
             assert engine.wait_idle(60)
         if self.filter_loaded:
-            wait_until(lambda: engine.snapshot_now().user.state == "running", 60,
+            wait_until(lambda: engine.snapshot_now().user.state == "running"
+                       and not engine.snapshot_now().user.backlog_rows, 60,
                        what="your filter caught up")
 
     def change(self, kind: str, value: object, command) -> None:
@@ -249,7 +269,7 @@ class ConfigurationMachine(RuleBasedStateMachine):
             self.model.override(kind, value)
         else:
             self.model.added.append((self.position, kind, value))
-        self.send(command)
+        self.send(command, whole_replay=self.recording is None)
 
     # -- the user's actions ------------------------------------------------------------------------
 
@@ -269,7 +289,7 @@ class ConfigurationMachine(RuleBasedStateMachine):
 
     @rule(fraction=st.floats(0.0, 1.0))
     def seek(self, fraction: float) -> None:
-        self.send(ReplayControl(seek_s=fraction * self.source.duration_s))
+        self.send(ReplayControl(seek_s=fraction * self.source.duration_s), whole_replay=True)
 
     @rule(lines=st.integers(1, 2500))
     def play_a_stretch(self, lines: int) -> None:
@@ -299,20 +319,20 @@ class ConfigurationMachine(RuleBasedStateMachine):
     @rule()
     def load_your_filter(self) -> None:
         self.filter_loaded = True
-        self.send(LoadUserFilter(str(self.filter_path)))
+        self.send(LoadUserFilter(str(self.filter_path)), whole_replay=True)
 
     @precondition(lambda self: self.filter_loaded)
     @rule()
     def unload_your_filter(self) -> None:
         self.filter_loaded = False
-        self.send(UnloadUserFilter())
+        self.send(UnloadUserFilter(), whole_replay=True)
 
     @rule()
     def back_to_the_recording(self) -> None:
         if self.recording is None:
             self.model.overrides.clear()
             self.model.added.clear()
-        self.send(SetFollowTimeline(True))
+        self.send(SetFollowTimeline(True), whole_replay=True)
 
     @rule()
     def all_of_it_yours(self) -> None:
@@ -320,7 +340,7 @@ class ConfigurationMachine(RuleBasedStateMachine):
             now = self.model.at(self.position)
             for kind in (*SENSORS, "estimator", "settings"):
                 self.model.override(kind, now[kind])
-        self.send(SetFollowTimeline(False))
+        self.send(SetFollowTimeline(False), whole_replay=True)
 
     # -- what must hold after every step -----------------------------------------------------------
 
@@ -362,24 +382,17 @@ class ConfigurationMachine(RuleBasedStateMachine):
 
     @invariant()
     def your_filter_gets_none_exactly_for_the_sensors_switched_off(self) -> None:
-        if not self.filter_loaded or not self.given_log.exists():
-            return
-        names: list[str] = []
-        steps: dict[str, list[tuple[int, str]]] = {}
-        for line in self.given_log.read_text().splitlines():
-            name, t_ms, given = line.split()
-            if name not in steps:
-                names.append(name)
-                steps[name] = []
-            steps[name].append((int(t_ms), given))
-        if not names:
+        """Every step of your filter's objects since the latest change of the whole replay."""
+        if not self.filter_loaded:
             return
         expected = expected_given(self.session, self.model)
-        current = steps[names[-1]]                  # the object now running, from its start
-        wrong = [(t, given, sorted(expected.get(t, ()))) for t, given in current
-                 if {s for s, flag in zip(SENSORS, given) if flag == "1"}
-                 != expected.get(t, set())]
-        assert wrong[:3] == []
+        for name, steps in self.filter_steps().items():
+            if name in self.retired:
+                continue
+            wrong = [(t, given, sorted(expected.get(t, ()))) for t, given in steps
+                     if {s for s, flag in zip(SENSORS, given) if flag == "1"}
+                     != expected.get(t, set())]
+            assert wrong[:3] == []
 
 
 @pytest.fixture(scope="module")

@@ -1,10 +1,14 @@
 """Your own filter as an estimator: the contract, the template, and every way it can go wrong
-(each gives a message naming the file and line, or what was wrong, and pauses only that filter)."""
+(each gives a message naming the file and line, or what was wrong, and pauses only that filter).
+
+UserFilterEstimator runs the filter in a process of its own; a few tests look at the user's
+object itself through FilterInstance, the part of that process that holds it."""
 
 from __future__ import annotations
 
 import math
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +17,8 @@ import ekf
 from app.engine.offline import run_offline
 from app.engine.userfilter.code import UserFilterError, load_code
 from app.engine.userfilter.filter import UserFilterEstimator, filter_settings, make_estimator
+from app.engine.userfilter.instance import FilterInstance
+from app.engine.userfilter.protocol import settings_from_wire, settings_to_wire
 from app.engine.userfilter.template import template_text, write_template
 from app.stream.protocol import parse_line
 from user_filters import FILTERS, log_lines, write_filter
@@ -67,16 +73,30 @@ def test_the_constructor_gets_the_active_settings(tmp_path):
         class Filter:
             def __init__(self, settings):
                 self.settings = settings
+                print("g0", settings["g0"].tolist(), "Ra", settings["Ra"].tolist(),
+                      "m0", settings["m0"], "gates", settings["acc_gate"], settings["mag_gate"])
             def step(self, t, gyr, acc, mag):
                 return [1.0, 0.0, 0.0, 0.0]
     """)
-    estimator = UserFilterEstimator(path, ekf.PRESETS["course"])
-    got = estimator.filter.settings
-    assert got["g0"].tolist() == [0.0, 0.0, 9.81]
-    assert got["Ra"].tolist() == ekf.PRESETS["course"].acc_noise_cov
-    assert got["m0"] is None and got["acc_gate"] == 1.0 and got["mag_gate"] == 5.0
+    printed = []
+    with UserFilterEstimator(path, ekf.PRESETS["course"], on_output=printed.append):
+        pass                        # (closing it: what it printed has been read)
+    course = ekf.PRESETS["course"]
+    assert printed == [f"g0 [0.0, 0.0, 9.81] Ra {course.acc_noise_cov} m0 None gates 1.0 5.0"]
     assert set(filter_settings(ekf.PRESETS["default"])) >= {"g", "g0", "m0", "Rw", "Ra", "Rm",
                                                             "gyr_bias"}
+
+
+@pytest.mark.parametrize("preset", sorted(ekf.PRESETS))
+def test_the_settings_reach_the_filters_process_bit_for_bit(preset):
+    settings = filter_settings(ekf.PRESETS[preset])
+    back = settings_from_wire(settings_to_wire(settings))
+    assert set(back) == set(settings)
+    for key, value in settings.items():
+        if isinstance(value, np.ndarray):
+            assert back[key].dtype == value.dtype and np.array_equal(back[key], value)
+        else:
+            assert back[key] == value and type(back[key]) is type(value)
 
 
 # ---- what step may return ------------------------------------------------------------------
@@ -110,16 +130,16 @@ def test_a_dict_with_P_lights_and_innovations(tmp_path):
 def test_switched_off_sensors_reach_the_filter_as_none(tmp_path):
     path = write_filter(tmp_path, "records", """
         class Filter:
-            seen = []
             def step(self, t, gyr, acc, mag):
-                Filter.seen.append((gyr is None, acc is None, mag is None))
+                print(gyr is None, acc is None, mag is None)
                 return [1.0, 0.0, 0.0, 0.0]
     """)
-    estimator = UserFilterEstimator(path, sensors=("gyr", "mag"))
-    estimator.step(0.0, [0, 0, 0], [0, 0, 9.8], [0, 20, -40])
-    estimator.set_enabled(acc=True, mag=False)
-    estimator.step(0.01, [0, 0, 0], [0, 0, 9.8], [0, 20, -40])
-    assert estimator.filter.seen == [(False, True, False), (False, False, True)]
+    printed = []
+    with UserFilterEstimator(path, sensors=("gyr", "mag"), on_output=printed.append) as estimator:
+        estimator.step(0.0, [0, 0, 0], [0, 0, 9.8], [0, 20, -40])
+        estimator.set_enabled(acc=True, mag=False)
+        estimator.step(0.01, [0, 0, 0], [0, 0, 9.8], [0, 20, -40])
+    assert printed == ["False True False", "False False True"]
 
 
 def test_unknown_keys_are_a_note_not_a_pause(tmp_path):
@@ -146,19 +166,15 @@ def test_an_exception_pauses_the_filter_with_file_line_and_message(tmp_path):
     assert problem.t_s == pytest.approx(1.51)
     assert "return self.update(acc)" in problem.details            # the user's frames
     assert "app/engine/userfilter" not in problem.details           # not ours
-    calls = estimator.filter.calls
+    calls = estimator.calls
     estimator.step(5.0, None, [0, 0, 9.8], None)                    # paused: not called again
-    assert estimator.filter.calls == calls
+    assert estimator.calls == calls == 52
     assert len(rows) == 300 and np.all(rows.quat[-1] == [1.0, 0, 0, 0])
 
 
-def test_an_endless_loop_is_stopped_at_its_line_and_nothing_else_is_hit(tmp_path):
+def test_an_endless_loop_is_stopped_at_its_line(tmp_path):
     import time
-
-    from app.engine.userfilter.watchdog import times_fired
-    fired = times_fired()
-    estimator = UserFilterEstimator(write_filter(tmp_path, "endless"))
-    estimator.step_limit_s = 0.2
+    estimator = UserFilterEstimator(write_filter(tmp_path, "endless"), step_limit_s=0.2)
     started = time.monotonic()
     rows = run_offline(_samples(3.0), estimator)
     assert time.monotonic() - started < 5.0
@@ -167,9 +183,22 @@ def test_an_endless_loop_is_stopped_at_its_line_and_nothing_else_is_hit(tmp_path
     assert problem.message.startswith(f"endless.py:{problem.line} in step: UserCodeTimeout: "
                                       "step() ran for more than 0.2 s and was stopped")
     assert problem.t_s == pytest.approx(1.51) and len(rows) == 300
+
+
+def test_the_watchdog_stops_the_call_and_nothing_else(tmp_path):
+    """In your filter's process: the watchdog fires once into the endless call, and not again
+    into the same thread once the call is over."""
+    import time
+
+    from app.engine.userfilter.watchdog import times_fired
+    fired = times_fired()
+    instance = FilterInstance(load_code(write_filter(tmp_path, "endless")), {}, step_limit_s=0.2)
+    assert instance.step(1.0, None, None, None) is not None
+    assert instance.step(1.6, None, None, None) is None
+    assert "UserCodeTimeout" in instance.problem.message
     assert times_fired() == fired + 1
-    # the watchdog does not fire again into this thread once the call is over: a negative wait,
-    # three limits' time of Python code running where a late UserCodeTimeout would land
+    # a negative wait, three limits' time of Python code running where a late
+    # UserCodeTimeout would land
     deadline = time.monotonic() + 0.6
     while time.monotonic() < deadline:
         sum(range(1000))
@@ -178,7 +207,7 @@ def test_an_endless_loop_is_stopped_at_its_line_and_nothing_else_is_hit(tmp_path
 
 def test_a_file_or_constructor_that_never_returns_is_stopped(tmp_path, monkeypatch):
     import app.engine.userfilter.code as user_code
-    monkeypatch.setattr(user_code, "LOAD_LIMIT_S", 0.2)
+    monkeypatch.setattr(user_code, "LOAD_LIMIT_S", 0.2)   # (the filter's process is told too)
     body = """
         while True:
             pass
@@ -279,8 +308,9 @@ def test_snapshot_restore_and_align_heading(tmp_path):
     estimator.align_heading(ekf.quaternion.IDENTITY)
     assert estimator.quat == pytest.approx([1.0, 0.0, 0.0, 0.0])
     estimator.reset()
-    estimator.step(0.03)
-    assert estimator.filter.angle == pytest.approx(0.1)        # a new Filter object
+    estimator.step(0.03)                                        # a new Filter object: 0.1
+    # ... shown still turned by the alignment (-0.2)
+    assert 2 * math.atan2(estimator.quat[3], estimator.quat[0]) == pytest.approx(-0.1)
 
 
 def test_make_estimator_takes_names_files_and_objects(tmp_path):
@@ -305,3 +335,39 @@ def test_an_object_that_misbehaves_when_read_is_a_problem_not_a_crash(tmp_path):
     estimator.step(0.0)
     assert estimator.paused and "no array for you" in estimator.problem.message
     assert estimator.problem.message.startswith("weird.py:4 in __array__: RuntimeError")
+
+
+# ---- its process -----------------------------------------------------------------------------
+
+def test_tunes_re_run_runs_your_filter_on_every_row(tmp_path):
+    from app.engine.config import open_log
+    from app.engine.offline import filter_log
+    from app.engine.refilter import refilter
+    log_path = tmp_path / "log.txt"
+    log_path.write_bytes(b"".join(log_lines(3.0)))
+    log = open_log(log_path)
+    course = Path(__file__).resolve().parents[1] / "examples" / "course_ekf.py"
+    result = refilter(log, ekf.PRESETS["course"], str(course))
+    with UserFilterEstimator(course, ekf.PRESETS["course"]) as estimator:
+        rows = filter_log(log, estimator, ekf.PRESETS["course"])
+    assert np.array_equal(result.rows.quat, rows.quat) and len(rows) == 300
+
+
+def test_a_dropped_estimator_ends_its_process(tmp_path):
+    import gc
+    import os
+
+    from waiting import wait_until
+    estimator = UserFilterEstimator(write_filter(tmp_path, "flat"))
+    pid = estimator.remote.process.pid
+    os.kill(pid, 0)                                     # running
+    del estimator
+    gc.collect()
+
+    def gone() -> bool:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        return False
+    wait_until(gone, 10, "the filter's process to end")

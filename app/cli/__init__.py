@@ -13,7 +13,7 @@ import sys
 from collections.abc import Sequence
 
 from app import __version__, paths
-from app.cli import calibration, live, offline
+from app.cli import calibration, live, offline, phones
 from app.cli.options import EXIT_USAGE, Parser, add_window, source_options
 from app.engine.config import ConfigError
 
@@ -29,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     offline.add_commands(sub)
     calibration.add_commands(sub)
     live.add_commands(sub)
+    phones.add_commands(sub)
     return parser
 
 

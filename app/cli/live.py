@@ -13,7 +13,7 @@ import threading
 import time
 
 import ekf
-from app.cli import options
+from app.cli import options, phones
 from app.engine import config
 from app.engine.estimates import EstimatesWriter
 from app.engine.shutdown import on_finishing_signals
@@ -33,6 +33,10 @@ def cmd_send(args: argparse.Namespace) -> int:
         lines = read_lines(config.resolve_log_path(args.log))
     except LogError as error:
         raise config.ConfigError(str(error)) from None
+    if args.as_app != "sensor-fusion":
+        return phones.send_as_app(args, lines)
+    if args.gone:
+        raise config.ConfigError("--gone: only with --as phyphox or --as sensor-logger")
     stop = threading.Event()
     try:
         with PhoneEmulator(args.host, args.port) as phone:
@@ -81,10 +85,13 @@ def health_line(snapshot: Snapshot) -> str:
 
 
 def user_line(user) -> str:
-    """The user's filter in a few words: "yours my_filter.py running, 12 us/sample"."""
+    """The user's filter in a few words: "yours my_filter.py running, 12 us/sample, 9 ms
+    behind"."""
     text = f"yours {user.name} {user.state}"
     if user.time_per_sample_s == user.time_per_sample_s:
         text += f", {user.time_per_sample_s * 1e6:.0f} us/sample"
+    if user.state == "running" and user.lag_s == user.lag_s:
+        text += f", {user.lag_s * 1e3:.0f} ms behind"
     if user.slow:
         text += f", too slow: {user.used_fraction:.0%} of the samples used"
     if user.missing_steps:
@@ -93,7 +100,8 @@ def user_line(user) -> str:
 
 
 def _recording(args: argparse.Namespace, settings: ekf.EKFSettings | None,
-               estimator: str) -> tuple[Recorder | None, EstimatesWriter | None]:
+               estimator: str, source_kind: str = "tcp") \
+        -> tuple[Recorder | None, EstimatesWriter | None]:
     """The recorder and estimates file of a session folder (None, None without --record). A
     folder that holds a session already is left alone: the recording goes to DIR-2, ...; a
     recording refused at its start leaves no folder behind."""
@@ -101,7 +109,7 @@ def _recording(args: argparse.Namespace, settings: ekf.EKFSettings | None,
         return None, None
     try:
         recorder = Recorder(args.record, settings or ekf.PRESETS["default"],
-                            info={"source": "tcp", "estimator": estimator},
+                            info={"source": source_kind, "estimator": estimator},
                             max_bytes=args.record_max_mb,
                             min_free_bytes=args.record_min_free_mb)
     except OSError as error:
@@ -127,10 +135,11 @@ def _start_engine(args: argparse.Namespace) -> Engine:
     source = config.make_source(options.source_options(args))
     try:
         source.start()               # the port first: a port in use makes no session folder
-        recorder, writer = _recording(args, settings, names[0])
+        recorder, writer = _recording(args, settings, names[0], source.kind)
     except OSError as error:
         source.stop()
-        raise config.ConfigError(f"cannot listen on {args.host}:{args.port}: "
+        where = args.sensor_logger or f"{args.host}:{args.port}"
+        raise config.ConfigError(f"cannot listen on {where}: "
                                  f"{error.strerror or error}") from None
     except BaseException:
         source.stop()
@@ -154,12 +163,24 @@ class _Watch:
         self.failures_shown = 0
         self.recording_shown = False
         self.user_said = ""
+        self.user_printed = (0, 0)         # (generation, lines) of what your filter printed
 
     def _user_news(self, snapshot: Snapshot) -> None:
-        """The user's filter's problems and reloads, each once, on stderr."""
+        """The user's filter's problems and reloads, each once, and what it printed, on
+        stderr."""
         user = snapshot.user
         if user is None:
             return
+        generation, shown = self.user_printed
+        if user.generation != generation:
+            shown = 0
+        new = user.printed_total - shown
+        if new > len(user.printed):
+            print(f"orientation-lab: your filter printed {new - len(user.printed)} lines more",
+                  file=sys.stderr)
+        for line in user.printed[len(user.printed) - min(new, len(user.printed)):]:
+            print(f"{user.name}: {line}", file=sys.stderr, flush=True)
+        self.user_printed = (user.generation, user.printed_total)
         news = user.problem.message if user.problem is not None else user.message
         if news and news != self.user_said:
             self.user_said = news
@@ -208,10 +229,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     except BaseException:
         restore_signals()
         raise
-    source = engine.source
-    addresses = ", ".join(source.info()["listen_addresses"] or [args.host])
-    print(f"listening on port {source.port}; type one of these into the phone app: {addresses}",
-          flush=True)
+    print(engine.source.connect_hint(), flush=True)
     snapshot = engine.snapshot_now()
     watch = _Watch(args)
     last_print = time.monotonic()
@@ -239,13 +257,16 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 def add_commands(sub) -> None:
     send = sub.add_parser(
-        "send", help="phone emulator: stream a log to a server like the Sensor Fusion app",
-        description="Connect to HOST:PORT like the phone app and stream LOG with its original "
-                    "timing.")
+        "send", help="phone emulator: stream a log like the Sensor Fusion app, phyphox or "
+                     "Sensor Logger",
+        description="Connect to HOST:PORT like the Sensor Fusion app and stream LOG with its "
+                    "original timing; --as phyphox serves it through phyphox's remote "
+                    "interface on HOST:PORT, --as sensor-logger pushes it to --url.")
     send.add_argument("log", help="log file (.txt or .txt.gz) in the phone's format, or a "
                                   "recorded session folder")
     options.add_connect(send)
     options.add_speed_loop(send)
+    phones.add_send_options(send)
     send.set_defaults(func=cmd_send)
 
     serve = sub.add_parser(
@@ -253,6 +274,7 @@ def add_commands(sub) -> None:
         description="Listen for the phone, run the estimators and print stream health once a "
                     "second. Ctrl-C stops.")
     options.add_listen(serve)
+    options.add_phone_apps(serve)
     options.add_record(serve)
     options.add_estimator(serve)
     options.add_settings(serve)

@@ -3,9 +3,10 @@ tune are in app.cli.calibration). Headless: they never import Qt.
 
 filter and evaluate run the engine's runner (app.engine.offline), the same path as the live
 engine, so a file gives the estimates its live replay gives. Either takes the user's own filter
-(``--estimator FILE.py``): what it prints goes to stderr (stdout may be the CSV); steps not
-written yet are listed; if it fails, its file:line and message are printed (``--traceback``: the
-whole traceback of its code) and the status is 1.
+(``--estimator FILE.py``), which runs in a process of its own: what it prints goes to stderr
+(stdout may be the CSV); a long run says how far it is; steps not written yet are listed; if it
+fails (an error in its code, a call that does not return, its process ending), its file:line and
+message are printed (``--traceback``: the whole traceback of its code) and the status is 1.
 """
 
 from __future__ import annotations
@@ -16,8 +17,7 @@ import dataclasses
 import math
 import os
 import sys
-import traceback
-from collections.abc import Callable
+import time
 from pathlib import Path
 
 import numpy as np
@@ -97,6 +97,39 @@ def settings_of(args: argparse.Namespace, names: list[str]) -> tuple[object, str
 
 # ---- your own filter ------------------------------------------------------------------------
 
+PROGRESS_EVERY_S = 5.0
+
+
+class _Progress:
+    """on_progress of a user's filter on a long run: a line on stderr every PROGRESS_EVERY_S."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.started = self.said = time.monotonic()
+
+    def __call__(self, done: int, total: int) -> None:
+        now = time.monotonic()
+        if now - self.said >= PROGRESS_EVERY_S and done < total:
+            self.said = now
+            print(f"{self.name}: {done / total:.0%} of {total} rows ({now - self.started:.0f} s)",
+                  file=sys.stderr, flush=True)
+
+
+def user_filters(estimators: list) -> list[UserFilterEstimator]:
+    """The user's filters among estimators, each saying how far a long run is."""
+    mine = [e for e in estimators if isinstance(e, UserFilterEstimator)]
+    for estimator in mine:
+        estimator.on_progress = _Progress(estimator.name)
+    return mine
+
+
+def close_all(estimators: list) -> None:
+    """End the user's filters' processes (what they printed is on stderr once this returns)."""
+    for estimator in estimators:
+        if isinstance(estimator, UserFilterEstimator):
+            estimator.close()
+
+
 def report_user_filter(estimator: object, show_traceback: bool = False) -> bool:
     """What a user's filter left to say, on stderr; False when it failed (paused)."""
     if not isinstance(estimator, UserFilterEstimator):
@@ -143,59 +176,8 @@ def _check_smooth(args: argparse.Namespace, names: list[str]) -> None:
 
 # ---- filter -------------------------------------------------------------------------------------
 
-def _real_streams() -> bool:
-    try:
-        return sys.stdout.fileno() == 1 and sys.stderr.fileno() == 2
-    except (AttributeError, ValueError, OSError):
-        return False
-
-
-def guarded(args: argparse.Namespace, work: Callable[[argparse.Namespace], int]) -> int:
-    """Run a command; with a user's filter among its estimators, in a child process (POSIX,
-    output to real files): os._exit() or a crash in the user's code ends the child, and the
-    command says so with status 1 instead of ending with status 0 and nothing written."""
-    names = config.estimator_names(args.estimator)
-    if not any(config.is_filter_file(n) for n in names) or not hasattr(os, "fork") \
-            or not _real_streams():
-        return work(args)
-    sys.stdout.flush()
-    sys.stderr.flush()
-    read, write = os.pipe()
-    pid = os.fork()
-    if pid == 0:                                    # the child: the command itself
-        os.close(read)
-        code = 1
-        try:
-            code = int(work(args) or 0)
-        except config.ConfigError as error:
-            print(f"orientation-lab: error: {error}", file=sys.stderr)
-            code = options.EXIT_USAGE
-        except BrokenPipeError:
-            code = 0
-        except BaseException:                       # noqa: BLE001 (ours: shown as Python would)
-            traceback.print_exc()
-        finally:
-            with contextlib.suppress(Exception):
-                sys.stdout.flush()
-                sys.stderr.flush()
-            os.write(write, b"done")
-            os._exit(code)
-    os.close(write)
-    _, status = os.waitpid(pid, 0)
-    with os.fdopen(read, "rb") as pipe:
-        finished = pipe.read() == b"done"
-    code = os.waitstatus_to_exitcode(status)
-    if finished:
-        return code
-    how = f"signal {-code}" if code < 0 else f"exit status {code}"
-    print(f"orientation-lab: error: your filter ended the process ({how}: os._exit() or a "
-          "crash in its code) before the command finished",
-          file=sys.stderr)
-    return 1
-
-
 def cmd_filter(args: argparse.Namespace) -> int:
-    return guarded(args, _filter)
+    return _filter(args)
 
 
 def _filter(args: argparse.Namespace) -> int:
@@ -206,6 +188,15 @@ def _filter(args: argparse.Namespace) -> int:
     settings, which = settings_of(args, names)
     _check_smooth(args, names)
     estimator = config.make_estimator(names[0], settings, sensors)   # before a long read
+    try:
+        return _filter_with(args, names, settings, which, sensors, estimator)
+    finally:
+        close_all([estimator])
+
+
+def _filter_with(args: argparse.Namespace, names: list[str], settings, which: str,
+                 sensors: tuple[str, ...], estimator) -> int:
+    user_filters([estimator])
     if args.output:
         check_output(args.output, args.log, args.settings if args.settings
                      and args.settings.endswith(".json") else None)
@@ -218,6 +209,7 @@ def _filter(args: argparse.Namespace) -> int:
                               smooth=args.smooth)
     except ValueError as error:
         raise config.ConfigError(f"filter: {error}") from None
+    close_all([estimator])
     if not report_user_filter(estimator, args.traceback):
         print("orientation-lab: no estimates written", file=sys.stderr)
         return 1
@@ -266,16 +258,22 @@ def _row(name: str, s, width: int = 16) -> str:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    return guarded(args, _evaluate)
+    estimators: list = []
+    try:
+        return _evaluate(args, estimators)
+    finally:
+        close_all(estimators)
 
 
-def _evaluate(args: argparse.Namespace) -> int:
+def _evaluate(args: argparse.Namespace, estimators: list) -> int:
     sensors = config.sensor_list(args.sensors)
     names = config.estimator_names(args.estimator)
     settings, which = settings_of(args, names)
     _check_smooth(args, names)
     intervals, where = intervals_of(args)
-    estimators = [config.make_estimator(name, settings, sensors) for name in names]
+    for name in names:
+        estimators.append(config.make_estimator(name, settings, sensors))
+    user_filters(estimators)
     log = read_log(args.log, args.limits)
     check_estimable(log, sensors)
     truth, against = _truth(args)
@@ -293,6 +291,7 @@ def _evaluate(args: argparse.Namespace) -> int:
             with contextlib.redirect_stdout(sys.stderr):
                 s = evaluate_log(log, name if args.smooth else estimator, settings, sensors,
                                  intervals, args.skip, truth, smooth=args.smooth)
+            close_all([estimator])
             if not report_user_filter(estimator, args.traceback):
                 print(f"{label:<{width}}{'stopped: see above':>20}", flush=True)
                 status = 1

@@ -73,6 +73,7 @@ POSITIVE = _checked(positive)
 ALLOW = _checked(config.allowed_network)
 LIMITS = _checked(config.sensor_limits)
 MEGABYTES = _checked(config.megabytes)
+SENSOR_LOGGER_FRAMES = _checked(config.sensor_logger_frames)
 
 
 def add_listen(parser: argparse.ArgumentParser) -> None:
@@ -90,6 +91,21 @@ def add_listen(parser: argparse.ArgumentParser) -> None:
                              "once the stream has been silent S seconds (default "
                              f"{config.DEFAULT_TAKEOVER_S:g}) or has closed, or at once when "
                              "it streams at a phone's rate and the stream does not")
+
+
+def add_phone_apps(parser: argparse.ArgumentParser) -> None:
+    """--phyphox, --sensor-logger: the phone through phyphox or Sensor Logger instead."""
+    parser.add_argument("--phyphox", metavar="URL",
+                        help="poll phyphox's remote interface at the address it shows (e.g. "
+                             "http://192.168.1.5:8080) instead of listening for the Sensor "
+                             "Fusion app")
+    parser.add_argument("--sensor-logger", metavar="[HOST:]PORT",
+                        help="take Sensor Logger's HTTP Push on PORT (type http://THIS-PC:PORT/ "
+                             "into Sensor Logger) instead of listening for the Sensor Fusion app")
+    parser.add_argument("--sensor-logger-frames", type=SENSOR_LOGGER_FRAMES, default="auto",
+                        metavar="auto|standardised|not-standardised",
+                        help="Sensor Logger's Standardise Units & Frames setting (default auto: "
+                             "told from its gravity and orientation)")
 
 
 def add_limits(parser: argparse.ArgumentParser) -> None:
@@ -189,6 +205,7 @@ def add_window(parser: argparse.ArgumentParser) -> None:
     """The window's options (no command): source, settings, screenshot."""
     group = parser.add_argument_group("window")
     add_listen(group)
+    add_phone_apps(group)
     group.add_argument("--demo", action="store_true",
                        help="play the built-in demo session (still listening for the phone)")
     group.add_argument("--replay", metavar="PATH",
@@ -220,7 +237,11 @@ def source_options(args: argparse.Namespace) -> config.SourceOptions:
                                 takeover_after_s=getattr(args, "takeover_after",
                                                          config.DEFAULT_TAKEOVER_S),
                                 limits=getattr(args, "limits", None)
-                                or config.sensor_limits(""))
+                                or config.sensor_limits(""),
+                                phyphox=getattr(args, "phyphox", None),
+                                sensor_logger=getattr(args, "sensor_logger", None),
+                                sensor_logger_frames=getattr(args, "sensor_logger_frames",
+                                                             "auto"))
 
 
 def add_intervals(parser: argparse.ArgumentParser, flag: str = "--intervals",

@@ -2,18 +2,43 @@
 background thread, commands, snapshots and the one configuration module shared by the command
 line and the window.
 
-Submodules import each other directly (never this package), so this file only gathers names.
+Submodules import each other directly (never this package), so this file only gathers names,
+and it imports a submodule only when one of its names is asked for: importing one small module
+of the engine (your filter's process imports only ``app.engine.userfilter``'s lean modules)
+does not load the whole engine.
 """
 
-from app.engine.commands import (AlignHeading, ReplayControl, ResetFilter, SetComparisonsEnabled,
-                                 SetEstimator, SetSensorEnabled, SetSettings)
-from app.engine.config import ConfigError, SourceOptions, load_settings, make_source
-from app.engine.offline import evaluate_log, filter_log, run_offline
-from app.engine.runner import EstimatorRunner, Rows
-from app.engine.snapshot import Snapshot
-from app.engine.worker import Engine
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_WHERE = {
+    "AlignHeading": "commands", "ReplayControl": "commands", "ResetFilter": "commands",
+    "SetComparisonsEnabled": "commands", "SetEstimator": "commands",
+    "SetSensorEnabled": "commands", "SetSettings": "commands",
+    "ConfigError": "config", "SourceOptions": "config", "load_settings": "config",
+    "make_source": "config",
+    "evaluate_log": "offline", "filter_log": "offline", "run_offline": "offline",
+    "EstimatorRunner": "runner", "Rows": "runner",
+    "Snapshot": "snapshot",
+    "Engine": "worker",
+}
 
 __all__ = ["Engine", "EstimatorRunner", "Rows", "Snapshot", "ConfigError", "SourceOptions",
            "load_settings", "make_source", "run_offline", "filter_log", "evaluate_log",
            "AlignHeading", "ReplayControl", "ResetFilter", "SetComparisonsEnabled", "SetEstimator",
            "SetSensorEnabled", "SetSettings"]
+
+
+def __getattr__(name: str) -> Any:
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

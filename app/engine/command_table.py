@@ -41,7 +41,8 @@ def _setup(parts: EngineParts, command: Any) -> bool:
 
 
 def _start_recording(parts: EngineParts, command: StartRecording) -> None:
-    parts.recordings.start(command, parts.source.kind, parts.connection.peer,
+    live = parts.source.capabilities.reconnect
+    parts.recordings.start(command, parts.source.kind, parts.connection.peer if live else None,
                            parts.output.flush)
 
 
@@ -65,7 +66,7 @@ def _set_marker_label(parts: EngineParts, command: SetMarkerLabel) -> None:
 
 def _set_forward(parts: EngineParts, command: SetForward) -> None:
     """Stop the running forward (if any), start one to the command's target (if given)."""
-    line, changed = parts.forward.switch(command.target, parts.source.kind == "tcp")
+    line, changed = parts.forward.switch(command.target, parts.source.capabilities.forward)
     parts.say("forward", line)
     if changed:
         parts.recordings.event("forward", target=parts.forward.target())

@@ -28,6 +28,11 @@ from app.stream.fastparse import FastLineParser
 from app.stream.lines import LogError
 from app.stream.logfile import LogData, read_log
 from app.stream.protocol import DEFAULT_LIMITS, Limits
+from app.stream.phyphox import PhyphoxSource
+from app.stream.phyphox_api import parse_address as _phyphox_address
+from app.stream.sensor_logger import DEFAULT_PORT as SENSOR_LOGGER_PORT
+from app.stream.sensor_logger import SensorLoggerSource
+from app.stream.sensor_logger_convert import FRAMES as SENSOR_LOGGER_FRAMES
 from app.stream.sources import DemoOrPhoneSource, LogFileSource, Source, TcpSource, demo_source
 from app.stream.tcp_server import DEFAULT_PORT, parse_networks
 
@@ -38,7 +43,8 @@ __all__ = ["ConfigError", "DEFAULT_HOST", "DEFAULT_PORT", "SENSORS", "SourceOpti
            "load_settings", "estimator_names", "sensor_list", "port_number", "replay_speed",
            "make_source", "open_log", "open_replay", "resolve_log_path", "read_intervals",
            "sensor_limits", "allowed_network", "allowed_networks", "recording_note",
-           "megabytes", "filter_file", "forward_target", "make_estimator"]
+           "megabytes", "filter_file", "forward_target", "make_estimator", "phyphox_url",
+           "sensor_logger_listen", "sensor_logger_frames"]
 
 
 # ---- filter settings, estimators, sensors ------------------------------------------------------
@@ -212,6 +218,35 @@ def recording_note(requested: str | Path, folder: Path) -> str | None:
     return f"{requested} already holds a recorded session: recording into {folder}"
 
 
+def phyphox_url(text: str) -> str:
+    """The address phyphox shows ("http://192.168.1.5:8080", "192.168.1.5:8080", an iPhone's
+    "192.168.1.5") -> its normal form "http://HOST:PORT"."""
+    try:
+        return _phyphox_address(text).url
+    except ValueError as error:
+        raise ConfigError(f"--phyphox: {error}") from None
+
+
+def sensor_logger_listen(text: str | int) -> tuple[str, int]:
+    """"[HOST:]PORT" where Sensor Logger pushes to -> (host, port); HOST defaults to every
+    interface (the phone must reach it)."""
+    host, sep, port = str(text).strip().rpartition(":")
+    if not sep:
+        host, port = "", str(text).strip()
+    number = port_number(port) if port else SENSOR_LOGGER_PORT
+    return host.strip("[]") or DEFAULT_HOST, number
+
+
+def sensor_logger_frames(text: str) -> str:
+    """auto | standardised | not-standardised: what Sensor Logger's Standardise Units & Frames
+    setting is (auto: told from its gravity and orientation)."""
+    value = str(text).strip().lower()
+    if value not in SENSOR_LOGGER_FRAMES:
+        raise ConfigError(f"--sensor-logger-frames: one of {', '.join(SENSOR_LOGGER_FRAMES)}, "
+                          f"got {text!r}")
+    return value
+
+
 # ---- logs and sessions -------------------------------------------------------------------------
 
 def resolve_log_path(path: str | Path) -> Path:
@@ -315,6 +350,9 @@ class SourceOptions:
     allow: tuple[str, ...] = ()
     takeover_after_s: float = DEFAULT_TAKEOVER_S
     limits: Limits = field(default_factory=lambda: DEFAULT_LIMITS)
+    phyphox: str | None = None          # the address phyphox shows: poll the phone there
+    sensor_logger: str | None = None    # [HOST:]PORT: take Sensor Logger's pushes there
+    sensor_logger_frames: str = "auto"
 
 
 def make_source(options: SourceOptions) -> Source:
@@ -332,6 +370,18 @@ def make_source(options: SourceOptions) -> Source:
         return TcpSource(options.host, port, allow=allow, takeover_after_s=takeover,
                          limits=options.limits)
 
+    chosen = [name for name, given in (("--replay", options.replay), ("--demo", options.demo),
+                                       ("--phyphox", options.phyphox),
+                                       ("--sensor-logger", options.sensor_logger)) if given]
+    if len(chosen) > 1:
+        raise ConfigError(f"{' and '.join(chosen)}: give one source at a time")
+    if options.phyphox:
+        return PhyphoxSource(phyphox_url(options.phyphox))
+    if options.sensor_logger:
+        host, listen_port = sensor_logger_listen(options.sensor_logger)
+        return SensorLoggerSource(host, listen_port,
+                                  sensor_logger_frames(options.sensor_logger_frames),
+                                  takeover_after_s=takeover, allow=allow)
     try:
         if options.replay:
             return open_replay(options.replay, speed, bool(options.loop),

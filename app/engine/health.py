@@ -116,7 +116,9 @@ class HealthTracker:
             reorder_window_ms=order.window_ms, lags_ms=dict(order.lags_ms),
             waiting_peers=list(info.get("waiting_peers") or []),
             connections_closed=dict(info.get("connections_closed") or {}),
-            allowed=list(info.get("allowed") or []), recording=recording)
+            allowed=list(info.get("allowed") or []), recording=recording,
+            connect_to=list(info.get("connect_to") or []),
+            connect_hint=str(info.get("connect_hint") or ""))
 
 
 def stats_dict(health: StreamHealth) -> dict[str, Any]:

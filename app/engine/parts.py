@@ -100,7 +100,7 @@ def stream_health(parts: EngineParts, now: float, info: dict[str, Any]) -> Strea
     connection, the recording and the forward."""
     state = info.get("connection_state", "waiting")
     connection = parts.connection
-    if parts.source.kind == "tcp":
+    if parts.source.capabilities.reconnect:
         state = connection.state if state != "waiting" else "waiting"
     pipeline = parts.pipeline
     health = parts.health.health(now, info, pipeline.parser, pipeline.orderer,

@@ -228,7 +228,7 @@ class Pipeline:
         if "t_innovation" in innovations:
             innovations["t_innovation"] = seconds(np.asarray(innovations["t_innovation"]) * 1000.0)
         return PlotChunk(
-            **self._user_plot(rows, seconds), **innovations,
+            **self._user_plot(seconds), **innovations,
             t_acc=seconds(plot["t_acc"]), acc=plot["acc"], acc_rejected=plot["acc_rejected"],
             t_gyr=seconds(plot["t_gyr"]), gyr=plot["gyr"],
             t_mag=seconds(plot["t_mag"]), mag=plot["mag"], mag_rejected=plot["mag_rejected"],
@@ -236,18 +236,20 @@ class Pipeline:
             t_ori=seconds(ori_t), phone_euler_deg=euler[count:],
             t_err=seconds(errors.t_ms), error_deg=errors.error_deg)
 
-    def _user_plot(self, rows: Rows, seconds) -> dict[str, np.ndarray]:
-        """YOURS for the plots: its Euler angles (wrapped, at our estimate times, NaN where it
-        has none) and its errors against PHONE at PHONE's times."""
+    def _user_plot(self, seconds) -> dict[str, np.ndarray]:
+        """YOURS for the plots, as its rows came back from your filter's process: its Euler
+        angles (wrapped, at our estimate times, NaN where it has none) and its errors against
+        PHONE at PHONE's times."""
         errors = self.runner.take_user_errors()
         out = {"t_user_err": seconds(errors.t_ms), "user_error_deg": errors.error_deg}
-        if rows.user_quat is None or not len(rows):
+        t_ms, quat = self.runner.take_user_rows()
+        if not len(t_ms):
             return out
-        euler = np.full((len(rows), 3), np.nan)
-        finite = np.isfinite(rows.user_quat).all(axis=1)
+        euler = np.full((len(t_ms), 3), np.nan)
+        finite = np.isfinite(quat).all(axis=1)
         if finite.any():
-            euler[finite] = np.degrees(ekf.quaternion.to_euler(rows.user_quat[finite]))
-        return {**out, "t_user": seconds(rows.t_ms), "user_euler_deg": euler}
+            euler[finite] = np.degrees(ekf.quaternion.to_euler(quat[finite]))
+        return {**out, "t_user": seconds(t_ms), "user_euler_deg": euler}
 
     # -- state -------------------------------------------------------------------------------
 

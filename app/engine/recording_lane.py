@@ -78,7 +78,7 @@ class RecordingLane:
             recording = SessionRecording(
                 folder, pipeline.runner, fed_at_start=pipeline.fed_total,
                 start_state=pipeline.start_state() if running else None,
-                source=source_kind, peer=peer if source_kind == "tcp" else None,
+                source=source_kind, peer=peer,
                 max_bytes=max_bytes, min_free_bytes=min_free)
         except (ConfigError, OSError) as error:
             self._say(f"cannot record: {error}")

@@ -24,7 +24,7 @@ from app.engine.configuration import Configuration, Setup
 from app.engine.pipeline import Pipeline
 from app.engine.session import Marker, SessionInfo, read_session, session_json_for, write_markers
 from app.engine.session_index import SessionIndex, SessionPlot
-from app.stream.sources import DemoOrPhoneSource, Source
+from app.stream.sources import Source
 
 log = logging.getLogger("orientation_lab.engine")
 
@@ -138,9 +138,7 @@ class ReplayManager:
 def session_for_source(source: Source) -> SessionInfo | None:
     """The session.json of a replayed recording (None for a phone's own log, or when it is
     unreadable: then the replay simply does not follow a timeline)."""
-    path = getattr(source, "path", None)
-    if isinstance(source, DemoOrPhoneSource):
-        path = getattr(source.demo, "path", None)
+    path = getattr(source.played(), "path", None)
     found = session_json_for(path) if path is not None else None
     if found is None:
         return None

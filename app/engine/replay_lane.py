@@ -31,14 +31,7 @@ from app.engine.pipeline import Pipeline
 from app.engine.recording_lane import RecordingLane
 from app.engine.replay import ReplayManager
 from app.engine.session import SessionInfo
-from app.stream.sources import DemoOrPhoneSource, LineReplaySource, Source
-
-
-def playing_source(source: Source) -> LineReplaySource | None:
-    """The replay `source` plays (the demo until a phone takes over), else None."""
-    if isinstance(source, DemoOrPhoneSource):
-        source = None if source.phone_active else source.demo
-    return source if isinstance(source, LineReplaySource) else None
+from app.stream.sources import LineReplaySource, Source
 
 
 class ReplayEvents(Protocol):
@@ -81,7 +74,7 @@ class ReplayLane:
 
     def playing(self) -> LineReplaySource | None:
         """The replay being played (the demo until a phone takes over), else None."""
-        return playing_source(self.source)
+        return self.source.played()
 
     @property
     def shown(self) -> ReplayManager | None:

@@ -83,10 +83,12 @@ class EstimatorRunner:
     stamps (app.engine.compare): the main one's errors per ORI sample come out of
     :meth:`take_errors`, the comparisons keep running RMSEs.
 
-    Beside the main estimator: your filter (:meth:`set_user_lane`, YOURS: its quaternion per row
-    in Rows.user_quat, its errors against PHONE, at PHONE's times, from :meth:`take_user_errors`
-    and in the lane's running RMSEs) and, on request, our EKF's innovations
-    (:meth:`set_consistency_enabled`); both go to :meth:`take_innovations`.
+    Beside the main estimator: your filter (:meth:`set_user_lane`, YOURS: every row and every
+    ORI sample is handed to its lane, which runs it in your filter's own process and never
+    waits for it; its rows, as they come back, from :meth:`take_user_rows`, its errors against
+    PHONE, at PHONE's times, from :meth:`take_user_errors` and in the lane's running RMSEs)
+    and, on request, our EKF's innovations (:meth:`set_consistency_enabled`); both go to
+    :meth:`take_innovations`.
     """
 
     def __init__(self, estimator: str | ekf.Estimator = "ekf",
@@ -121,7 +123,6 @@ class EstimatorRunner:
         self._row_has_sample = False             # ... and whether it has a sensor sample
         self._main_same_instant = SameInstant()
         self._errors: list[ErrorRows] = []
-        self._user_errors: list[ErrorRows] = []
         self._phone_samples: list[tuple[np.ndarray, np.ndarray]] = []   # (t_ms, quat) ORI
         self._reset_rows()
         self._reset_plot()
@@ -158,8 +159,8 @@ class EstimatorRunner:
         self._mag_correction = magcal.settings_correction(settings)
         for estimator in [self.main] + [c.estimator for c in self.comparisons]:
             estimator.set_settings(settings)
-        if self.user is not None and self.user.estimator is not None:
-            self.user.estimator.set_settings(settings)   # restarts it: its constructor reads them
+        if self.user is not None:
+            self.user.set_settings(settings)   # restarts it: its constructor reads them
 
     def new_session(self) -> None:
         """A stream whose clock does not continue the previous one (another phone, a reboot,
@@ -326,13 +327,13 @@ class EstimatorRunner:
         compared = np.stack([c.estimator.run_batch(t_s, gyr, acc, mag).quat if layout.n_rows
                              else np.empty((0, 4)) for c in self.comparisons]) \
             if self.comparisons else None
-        users = None if self.user is None else self.user.run_rows(
-            t_s, *self._switched(gyr, acc, mag))
         ori = np.flatnonzero(tag == REFERENCE_CODE)
         if len(ori):
             self._add_phone(t_ms[ori], values[ori])
             self.phone_quat = tuple(values[ori[-1]].tolist())
-        self._commit_groups(layout, result, compared, before, users)
+        if self.user is not None:       # after the chunk's ORI samples, as they are compared
+            self.user.give(layout.row_t, t_s, *self._switched(gyr, acc, mag))
+        self._commit_groups(layout, result, compared, before)
         if self.collect_cov:
             self._commit_covariances(layout, result, cov_before)
         if self.collect_plot:
@@ -356,7 +357,7 @@ class EstimatorRunner:
         if self.comparisons:
             self._comparisons_same_instant.add_phone(t_ms, quat)
         if self.user is not None:
-            self.user.same_instant.add_phone(t_ms, quat)
+            self.user.add_phone(t_ms, quat)
         if self.collect_plot:
             self._phone_samples.append((np.asarray(t_ms, np.int64), quat))
 
@@ -366,18 +367,16 @@ class EstimatorRunner:
         phone = self.phone_quat if self.phone_quat is not None else _NAN4
         compare = np.stack([c.estimator.quat for c in self.comparisons]) \
             if self.comparisons else None
-        user = None if self.user is None else self.user.latest.copy()
-        return self.main.quat, flags, compare, phone, user
+        return self.main.quat, flags, compare, phone
 
     def _commit_groups(self, layout: ChunkLayout, result: RowsResult,
-                       compared: np.ndarray | None, before: tuple,
-                       users: np.ndarray | None = None) -> None:
+                       compared: np.ndarray | None, before: tuple) -> None:
         """Rows of the distinct times completed in this chunk (the last one stays open until a
         later time arrives)."""
         done = len(layout.group_last) - 1
         if done <= 0:
             return
-        quat_before, flags_before, compare_before, phone_before, user_before = before
+        quat_before, flags_before, compare_before, phone_before = before
         has_row = layout.group_row[:done] >= 0
         index = np.where(has_row, layout.group_row[:done], 0)
         empty = not layout.n_rows
@@ -396,13 +395,8 @@ class EstimatorRunner:
             rows_compared = np.where(has_row[None, chosen, None],
                                      0.0 if empty else compared[:, index[chosen]],
                                      compare_before[:, None, :])
-        user = None
-        if users is not None:
-            user = np.where(has_row[:, None], np.nan if empty else users[index],
-                            np.asarray(user_before if user_before is not None else _NAN4))
-        self._compare(t_rows[own], quat[own], rows_compared,
-                      None if user is None else user[own])
-        self._add_rows(t_rows, quat, phone, flags, own, user)
+        self._compare(t_rows[own], quat[own], rows_compared)
+        self._add_rows(t_rows, quat, phone, flags, own)
 
     def _main_cov(self) -> np.ndarray:
         cov = self.main.cov
@@ -427,8 +421,7 @@ class EstimatorRunner:
         covs, self._covs = self._covs, []
         return np.concatenate(covs) if covs else np.empty((0, 4, 4))
 
-    def _compare(self, t_ms: np.ndarray, quat: np.ndarray, compared: np.ndarray | None,
-                 user: np.ndarray | None = None) -> None:
+    def _compare(self, t_ms: np.ndarray, quat: np.ndarray, compared: np.ndarray | None) -> None:
         """Committed estimates (sensor times only) against the ORI samples they bracket."""
         if not len(t_ms):
             return
@@ -440,12 +433,6 @@ class EstimatorRunner:
             if len(resolved):
                 for comparison, error_deg in zip(self.comparisons, resolved.error_deg):
                     comparison.errors.add_errors(error_deg)
-        if user is not None and self.user is not None:
-            finite = np.isfinite(user).all(axis=1)      # NaN: your filter has no estimate there
-            user_errors = self.user.same_instant.add_estimates(t_ms[finite], user[finite])
-            self.user.errors.add(user_errors)
-            if len(user_errors):
-                self._user_errors.append(user_errors)
 
     def _collect_plot(self, layout: ChunkLayout, result: RowsResult) -> None:
         rejected = {1: result.acc_rejected, 2: result.mag_rejected}
@@ -464,6 +451,8 @@ class EstimatorRunner:
         if self._row_t is not None:
             self._commit_row()
             self._row_t = None
+        if self.user is not None:
+            self.user.finish()
 
     @property
     def flags(self) -> ekf.Flags:
@@ -481,16 +470,8 @@ class EstimatorRunner:
         self._covs: list[np.ndarray] = []
 
     def _add_rows(self, t_ms: np.ndarray, quat: np.ndarray, phone: np.ndarray,
-                  flags: np.ndarray, has_sample: np.ndarray,
-                  user: np.ndarray | None = None) -> None:
-        self._rows.append((t_ms, quat, phone, flags, has_sample, user))
-
-    def _merged_rows(self) -> tuple:
-        merged = [np.concatenate(parts) for parts in zip(*(r[:5] for r in self._rows))]
-        if all(r[5] is None for r in self._rows):
-            return (*merged, None)
-        return (*merged, np.concatenate([np.full((len(r[0]), 4), np.nan) if r[5] is None
-                                         else r[5] for r in self._rows]))
+                  flags: np.ndarray, has_sample: np.ndarray) -> None:
+        self._rows.append((t_ms, quat, phone, flags, has_sample))
 
     def _commit_row(self) -> None:
         """The row of the pending time, from the estimators' state now."""
@@ -498,28 +479,27 @@ class EstimatorRunner:
         phone = self.phone_quat
         status = self.main.flags
         t = np.array([self._row_t], np.int64)
-        user = None if self.user is None else self.user.latest.copy().reshape(1, 4)
         if self._row_has_sample:
             self._compare(t, q.reshape(1, 4),
                           np.stack([c.estimator.quat.reshape(1, 4) for c in self.comparisons])
-                          if self.comparisons else None, user)
+                          if self.comparisons else None)
         if self.collect_cov:
             self._covs.append(self._main_cov()[None])
         self._add_rows(t, q.reshape(1, 4),
                        np.array([phone if phone is not None else _NAN4], np.float64),
                        np.array([[status.acc_rejected, status.mag_rejected, status.at_rest]],
-                                bool), np.array([self._row_has_sample]), user)
+                                bool), np.array([self._row_has_sample]))
 
     def take_rows(self) -> Rows:
         """The rows committed since the previous call (the row of the latest time is committed
         when a later time arrives or at finish())."""
         if not self._rows:
             return Rows.empty()
-        t_ms, quat, phone, flags, has_sample, user = self._merged_rows()
+        t_ms, quat, phone, flags, has_sample = (np.concatenate(parts)
+                                                for parts in zip(*self._rows))
         rows = Rows(np.asarray(t_ms, dtype=np.int64), np.ascontiguousarray(quat, np.float64),
                     np.ascontiguousarray(phone, np.float64), flags[:, 0].copy(),
-                    flags[:, 1].copy(), flags[:, 2].copy(), np.asarray(has_sample, dtype=bool),
-                    None if user is None else np.ascontiguousarray(user, dtype=np.float64))
+                    flags[:, 1].copy(), flags[:, 2].copy(), np.asarray(has_sample, dtype=bool))
         self._reset_rows()
         return rows
 
@@ -533,12 +513,16 @@ class EstimatorRunner:
                          np.concatenate([e.error_deg for e in errors]))
 
     def take_user_errors(self) -> ErrorRows:
-        """Your filter's errors against ORI resolved since the previous call (as take_errors)."""
-        errors, self._user_errors = self._user_errors, []
-        if not errors:
-            return ErrorRows.empty()
-        return ErrorRows(np.concatenate([e.t_ms for e in errors]),
-                         np.concatenate([e.error_deg for e in errors]))
+        """Your filter's errors against ORI resolved since the previous call (as take_errors;
+        they come later than OWN's: when your filter's results come back)."""
+        return ErrorRows.empty() if self.user is None else self.user.take_errors()
+
+    def take_user_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """YOURS' rows that came back since the previous call: t_ms (N,), quat (N, 4) (NaN
+        where your filter has none)."""
+        if self.user is None:
+            return np.empty(0, np.int64), np.empty((0, 4))
+        return self.user.take_rows()
 
     def take_phone_samples(self) -> tuple[np.ndarray, np.ndarray]:
         """ORI samples fed since the previous call (with collect_plot): t_ms (n,), quat (n, 4)."""

@@ -40,9 +40,8 @@ class Rows:
     t_ms (N,) int64; quat (N, 4) the main estimate after every sample at that time; phone_quat
     (N, 4) the latest ORI at or before that time (NaN before the first); acc_rejected,
     mag_rejected, at_rest (N,) bool: the main estimator's lights;
-    has_sample (N,) bool: a GYR, ACC or MAG sample has this time (False: ORI only);
-    user_quat (N, 4): your filter's quaternion (YOURS; NaN where it has none), None when no
-    user filter runs beside the main estimator.
+    has_sample (N,) bool: a GYR, ACC or MAG sample has this time (False: ORI only). (Your
+    filter's rows come back later, on their own: EstimatorRunner.take_user_rows.)
     """
 
     t_ms: np.ndarray
@@ -52,7 +51,6 @@ class Rows:
     mag_rejected: np.ndarray
     at_rest: np.ndarray
     has_sample: np.ndarray
-    user_quat: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t_ms)
@@ -68,21 +66,15 @@ class Rows:
 
     def select(self, mask: np.ndarray) -> Rows:
         """The rows where `mask` is true."""
-        return Rows(*(None if getattr(self, name) is None else getattr(self, name)[mask]
-                      for name in self.__dataclass_fields__))
+        return Rows(*(getattr(self, name)[mask] for name in self.__dataclass_fields__))
 
     @staticmethod
     def concatenate(parts: list[Rows]) -> Rows:
-        """Rows of several pieces, in order (user_quat NaN for pieces without one)."""
+        """Rows of several pieces, in order."""
         if not parts:
             return Rows.empty()
-        user = None
-        if any(part.user_quat is not None for part in parts):
-            user = np.concatenate([np.full((len(part), 4), np.nan) if part.user_quat is None
-                                   else part.user_quat for part in parts])
         return Rows(*(np.concatenate([getattr(part, name) for part in parts])
-                      for name in Rows.__dataclass_fields__ if name != "user_quat"),
-                    user_quat=user)
+                      for name in Rows.__dataclass_fields__))
 
 
 @jit

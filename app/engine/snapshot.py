@@ -17,6 +17,7 @@ import numpy as np
 
 import ekf
 from app.engine.configuration import ConfigurationView
+from app.engine.user_problem import UserProblem
 from app.stream.forwarder import ForwardStatus
 
 
@@ -73,6 +74,8 @@ class StreamHealth:
     connections_closed: dict[str, int] = field(default_factory=dict)  # reason -> count
     allowed: list[str] = field(default_factory=list)          # who may connect (empty: anyone)
     recording: str | None = None             # "recording into DIR (1.2 MB)" / "recording stopped: ..."
+    connect_to: list[str] = field(default_factory=list)   # what to type into the phone's app
+    connect_hint: str = ""                   # how the phone reaches the source, one line
 
 
 def lag_text(health: StreamHealth) -> str:
@@ -146,24 +149,6 @@ class EngineFailure:
     fatal: bool = False
 
 
-@dataclass(frozen=True)
-class UserProblem:
-    """Why your filter is paused: an exception in your code, a return value that breaks the
-    contract, or a file that does not load.
-
-    kind: "load" | "exception" | "output"; message: one line with your file, line and what went
-    wrong ("my_filter.py:42 in mu_g: ValueError: ..."); details: the traceback of your code (the
-    "show details" text) or the full explanation; t_s: the phone time of the sample [s]."""
-
-    kind: str
-    message: str
-    details: str = ""
-    file: str | None = None
-    line: int | None = None
-    function: str | None = None
-    t_s: float | None = None
-
-
 @dataclass
 class UserHistory:
     """YOURS over the session so far, recomputed after a reload by re-running the replay's log
@@ -181,15 +166,18 @@ class UserHistory:
 class UserFilterStatus:
     """Your filter ("YOURS", a Python file you wrote) as the engine runs it beside ours.
 
-    state: "running" | "paused" (a problem: fix the file and save it) | "catching up" (re-running
-    after a reload or seek, in the background) | "failed to load". quat: its latest output
+    state: "loading" (its process loads the file) | "running" | "paused" (a problem: fix the
+    file and save it) | "catching up" (re-running after a reload or seek, in the background) |
+    "failed to load". quat: its latest output
     (w >= 0, sensor -> ENU; the last good one while paused); cov: P's quaternion block when the
     filter returns P. The lights are None when the filter does not report them. missing_steps:
     course steps still raising NotImplementedError (skipped), e.g. "mu_g (my_filter.py:61)".
     time_per_sample_s: recent time in your step() per call; slow: it could not keep up with the
     stream and got only used_fraction of the samples (decimated) instead of holding up the
-    engine. generation counts loads and reloads; history is set after a re-run (see
-    UserHistory)."""
+    engine. lag_s: how long its results take to come back from its process (95th percentile
+    of the last seconds; YOURS lags OWN by that much); backlog_rows: rows handed to it and not
+    answered yet. printed: the last lines it printed (printed_total: how many so far).
+    generation counts loads and reloads; history is set after a re-run (see UserHistory)."""
 
     name: str = ""
     path: str = ""
@@ -213,6 +201,10 @@ class UserFilterStatus:
     generation: int = 0
     history: UserHistory | None = None
     progress: float | None = None            # of a catch-up, 0..1
+    lag_s: float = float("nan")
+    backlog_rows: int = 0
+    printed: list[str] = field(default_factory=list)
+    printed_total: int = 0
 
 
 @dataclass

@@ -49,7 +49,7 @@ from app.engine.publisher import Output, Publisher
 from app.engine.recording import SessionRecording
 from app.engine.recording_lane import RecordingLane
 from app.engine.replay import session_for_source
-from app.engine.replay_lane import ReplayLane, playing_source
+from app.engine.replay_lane import ReplayLane
 from app.engine.runner import SENSORS, EstimatorRunner, Rows
 from app.engine.session import SessionInfo
 from app.engine.snapshot import EngineFailure, Snapshot
@@ -110,7 +110,7 @@ class Engine:
                                  on_cut=self._on_cut, on_event=self._on_session_event,
                                  on_parsed=self._on_parsed, on_applied=self._on_applied)
         session = session if session is not None else session_for_source(source)
-        replayed = playing_source(source)
+        replayed = source.played()
         path = getattr(replayed, "path", None)
         self.configuration = Configuration(Config.of(runner), session,
                                            replaying=replayed is not None,
@@ -372,7 +372,7 @@ class Engine:
         damaged_before = parser.stats.damaged + parser.stats.too_long
         data = chunks[0].data if len(chunks) == 1 else b"".join(c.data for c in chunks)
         forwarder = self.forwarder
-        if forwarder is not None and self.source.kind == "tcp":
+        if forwarder is not None and self.source.capabilities.forward:
             for chunk in chunks:
                 forwarder.feed(chunk.data, chunk.connection)
         pipeline.feed_bytes(data)
@@ -391,11 +391,12 @@ class Engine:
             pipeline.cut()
         if kind == "connected":
             self.replay_lane.connected()
-            self._connection.state = "replaying" if self.source.kind != "tcp" else "connected"
+            live = self.source.capabilities.reconnect
+            self._connection.state = "connected" if live else "replaying"
             self._connection.peer = event.peer
             self.recording_lane.event("connected", peer=event.peer)
             self._user.on_restart(kind)
-            if self.source.kind == "tcp":
+            if live:
                 self.recording_lane.set_peer(event.peer)
         elif kind == "disconnected":
             pipeline.end_of_stream(partial_line_damaged=True)

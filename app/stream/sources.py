@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -32,10 +33,33 @@ _MAX_LINES_PER_CHUNK = 4096
 REPLAY_MIN_INTERVAL_S = 0.01
 
 
+@dataclass(frozen=True)
+class Capabilities:
+    """What a source can do; the engine asks these, never the source's kind.
+
+    pause: be paused and stepped (ReplayControl paused / step); seek: be sought (seek_s, a
+    checkpoint's jump); pace: play at a speed, loop; reconnect: a live phone that connects,
+    goes away and comes back (its connection state and peer come from its events); forward:
+    its lines are a live phone's stream, which ``--forward`` hands on."""
+
+    pause: bool = False
+    seek: bool = False
+    pace: bool = False
+    reconnect: bool = False
+    forward: bool = False
+
+
+LIVE_PHONE = Capabilities(reconnect=True, forward=True)
+REPLAY = Capabilities(pause=True, seek=True, pace=True)
+
+
 class Source:
-    """Interface of every sample source. ``kind``: "tcp" | "replay" | "simulator"."""
+    """Interface of every sample source. ``kind`` names it for people (session.json's
+    "source", logs): "tcp" | "phyphox" | "sensor-logger" | "replay" | "simulator";
+    :attr:`capabilities` says what it can do."""
 
     kind = "source"
+    capabilities = Capabilities()
 
     def start(self) -> None:
         """Begin producing (bind the port, open the file...). May raise OSError/LogError."""
@@ -54,6 +78,16 @@ class Source:
     def control(self, command: Any) -> None:
         """Apply a ReplayControl (replays) or a connection command (TCP); others ignore it."""
 
+    def connect_hint(self) -> str:
+        """One line for the user: how the phone reaches this source ("" when it plays a
+        file)."""
+        return ""
+
+    def played(self) -> LineReplaySource | None:
+        """The replay this source plays now (its lines, seeks and file), None while a live
+        phone streams."""
+        return None
+
     def info(self) -> dict[str, Any]:
         """Health fields: connection_state, peer, port, listen_addresses, replay (dict or None);
         TCP also waiting_peers, connections_closed, allowed."""
@@ -66,6 +100,7 @@ class TcpSource(Source):
     policy: one stream, newcomers wait, `allow`, junk closed)."""
 
     kind = "tcp"
+    capabilities = LIVE_PHONE
 
     def __init__(self, host: str = "0.0.0.0", port: int = DEFAULT_PORT,
                  max_queued: int = 256, allow=(), takeover_after_s: float = 3.0,
@@ -97,12 +132,18 @@ class TcpSource(Source):
         if isinstance(command, CONNECTION_COMMANDS):
             self.server.control(command)
 
+    def connect_hint(self) -> str:
+        addresses = ", ".join(self._addresses or [self.server.host])
+        return (f"listening on port {self.port}; type one of these into the phone app: "
+                f"{addresses}")
+
     def info(self) -> dict[str, Any]:
         state = self.server.state
         return {"connection_state": "waiting" if state == "stopped" else state,
                 "peer": self.server.peer, "port": self.server.port,
                 "listen_addresses": list(self._addresses), "replay": None,
-                **self.server.info()}
+                "connect_to": [f"{address}:{self.server.port}" for address in self._addresses],
+                "connect_hint": self.connect_hint(), **self.server.info()}
 
 
 class LineReplaySource(Source):
@@ -121,6 +162,7 @@ class LineReplaySource(Source):
     """
 
     kind = "replay"
+    capabilities = REPLAY
 
     def __init__(self, lines: list[bytes] | bytes, name: str, speed: float = 1.0,
                  loop: bool = False, paused: bool = False) -> None:
@@ -160,6 +202,9 @@ class LineReplaySource(Source):
     def lines_out(self) -> int:
         """The lines gone out so far (a seek's re-sync lines included)."""
         return self._index
+
+    def played(self) -> LineReplaySource:
+        return self
 
     def line(self, index: int) -> bytes:
         return self.data[self.starts[index]:self.starts[index + 1]]
@@ -355,7 +400,11 @@ class DemoOrPhoneSource(Source):
 
     @property
     def kind(self) -> str:  # type: ignore[override]
-        return "tcp" if self.phone_active else self.demo.kind
+        return self.phone.kind if self.phone_active else self.demo.kind
+
+    @property
+    def capabilities(self) -> Capabilities:  # type: ignore[override]
+        return self.phone.capabilities if self.phone_active else self.demo.capabilities
 
     def start(self) -> None:
         self.phone.start()
@@ -385,12 +434,18 @@ class DemoOrPhoneSource(Source):
         elif not self.phone_active:
             self.demo.control(command)
 
+    def connect_hint(self) -> str:
+        return self.phone.connect_hint()
+
+    def played(self) -> LineReplaySource | None:
+        return None if self.phone_active else self.demo.played()
+
     def info(self) -> dict[str, Any]:
         if self.phone_active:
             return self.phone.info()
         info = dict(self.demo.info())
         phone = self.phone.info()
         for key in ("port", "listen_addresses", "waiting_peers", "connections_closed",
-                    "allowed"):
+                    "allowed", "connect_to", "connect_hint"):
             info[key] = phone.get(key)
         return info

@@ -57,6 +57,7 @@ class ConnectionPanel(QtWidgets.QWidget):
     """Stream health and who may connect. `send(command)` forwards connection commands."""
 
     def __init__(self, send: Callable[[object], None],
+                 phone_apps: QtWidgets.QWidget | None = None,
                  parent: QtWidgets.QWidget | None = None) -> None:
         super().__init__(parent)
         self._send = send
@@ -64,17 +65,25 @@ class ConnectionPanel(QtWidgets.QWidget):
         layout.setContentsMargins(0, 0, 0, 0)
 
         listen_box = QtWidgets.QGroupBox("Phone connects to")
-        listen_layout = QtWidgets.QHBoxLayout(listen_box)
+        listen_grid = QtWidgets.QGridLayout(listen_box)
         self.address_field = QtWidgets.QLineEdit()
         self.address_field.setReadOnly(True)
         self.address_field.setPlaceholderText("not listening")
-        self.address_field.setToolTip("Type one of these addresses and the port into the "
-                                      "Sensor Fusion app")
+        self.address_field.setToolTip("Type one of these into the phone's app (the Sensor "
+                                      "Fusion app: address and port; Sensor Logger: its push "
+                                      "URL)")
         self.copy_button = QtWidgets.QPushButton("Copy")
         self.copy_button.clicked.connect(self.copy_address)
-        listen_layout.addWidget(self.address_field, 1)
-        listen_layout.addWidget(self.copy_button)
+        self.hint_label = QtWidgets.QLabel("")
+        self.hint_label.setWordWrap(True)
+        self.hint_label.setStyleSheet("color: #555555")
+        listen_grid.addWidget(self.address_field, 0, 0)
+        listen_grid.addWidget(self.copy_button, 0, 1)
+        listen_grid.addWidget(self.hint_label, 1, 0, 1, 2)
+        listen_grid.setColumnStretch(0, 1)
         layout.addWidget(listen_box)
+        if phone_apps is not None:
+            layout.addWidget(phone_apps)
         layout.addWidget(self._build_waiting_box())
         layout.addWidget(self._build_allow_box())
         layout.addWidget(self._build_forward_box())
@@ -175,11 +184,14 @@ class ConnectionPanel(QtWidgets.QWidget):
     # ---- snapshot -> widgets --------------------------------------------------------------
 
     def update_health(self, health: StreamHealth) -> None:
-        if health.port is not None:
+        if health.connect_to:
+            text = ", ".join(health.connect_to)
+        elif health.port is not None:
             addresses = health.listen_addresses or ["127.0.0.1"]
             text = ", ".join(f"{address}:{health.port}" for address in addresses)
         else:
             text = ""
+        self._set_text(self.hint_label, health.connect_hint)
         if text != self.address_field.text():
             self.address_field.setText(text)
         color = STATE_COLORS.get(health.connection_state, "#333333")

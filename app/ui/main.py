@@ -14,7 +14,7 @@ import os
 import signal
 import sys
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -69,6 +69,25 @@ def replay_engine_factory(options: WindowOptions):
     def build(path: str) -> Engine:
         return Engine(open_replay(path, limits=options.source.limits),
                       settings=load_settings(options.settings), limits=options.source.limits)
+    return build
+
+
+def phone_engine_factory(options: WindowOptions):
+    """The connection panel and File → Connect a phone: an engine on another phone app
+    ("sensor-fusion" PORT, "phyphox" URL, "sensor-logger" PORT) with the window's settings,
+    bounds, who may connect and forward target."""
+    def build(app: str, where: str) -> Engine:
+        source = replace(options.source, replay=None, demo=False, phyphox=None,
+                         sensor_logger=None)
+        if app == "phyphox":
+            source = replace(source, phyphox=where)
+        elif app == "sensor-logger":
+            source = replace(source, sensor_logger=where)
+        else:
+            source = replace(source, port=where)
+        forwarder = LineForwarder(*options.forward) if options.forward else None
+        return Engine(make_source(source), settings=load_settings(options.settings),
+                      limits=options.source.limits, forwarder=forwarder)
     return build
 
 
@@ -183,7 +202,8 @@ def run_gui(options: WindowOptions) -> int:
         restore_signals()
         engine.stop()
         given = options.source
-        where = "" if given.replay else f" (listening on {given.host}:{given.port})"
+        where = ("" if given.replay else f" (listening on {given.sensor_logger})"
+                 if given.sensor_logger else f" (listening on {given.host}:{given.port})")
         raise ConfigError(f"cannot start the source{where}: {error.strerror or error}"
                           + ("; another program (or Orientation Lab) uses that port: choose "
                              "another with --port" if error.errno == errno.EADDRINUSE else "")) \
@@ -196,7 +216,8 @@ def run_gui(options: WindowOptions) -> int:
     try:
         window = MainWindow(engine, settings=settings, log_path=log_path,
                             tune_log=session_to_tune(options.source),
-                            engine_factory=replay_engine_factory(options))
+                            engine_factory=replay_engine_factory(options),
+                            phone_factory=phone_engine_factory(options))
         if options.size is not None:
             window.resize(*options.size)
             window.arrange_default_layout()

@@ -35,9 +35,11 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 import ekf
 from app.engine.commands import LoadUserFilter
+from app.engine.config import ConfigError
 from app.engine.profiles import ProfileStore
 from app.engine.snapshot import SENSOR_NAMES, Snapshot, absent_sensors, absent_text
 from app.ui.calibration import CalibrationWorkspace
+from app.ui.connect_phone import ConnectPhoneDialog, PhoneAppsBox
 from app.ui.connection import ConnectionPanel, connection_text
 from app.ui.consistency import ConsistencyView
 from app.ui.controls import ComparisonPanel, FilterPanel
@@ -109,15 +111,19 @@ class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWi
         profiles: where calibration and tuning profiles are kept (None: the data folder).
         engine_factory: path -> a new (unstarted) engine replaying it, for File → Open and
             drops (default: app.engine.config.open_replay with default settings).
+        phone_factory: (app, where) -> a new (unstarted) engine on another phone app, for
+            File → Connect a phone and the connection panel (None: they say it cannot).
     """
 
     def __init__(self, engine: EngineLike, settings: QtCore.QSettings | None = None,
                  use_gl: bool | None = None, frame_interval_ms: int | None = None,
                  log_path: Path | None = None, tune_log: str | Path | None = None,
-                 profiles: ProfileStore | None = None, engine_factory=None) -> None:
+                 profiles: ProfileStore | None = None, engine_factory=None,
+                 phone_factory=None) -> None:
         super().__init__()
         self.engine = engine
         self._engine_factory = engine_factory
+        self._phone_factory = phone_factory
         self.settings = settings if settings is not None else default_settings()
         self.failure_dialog = FailureDialog(self, log_path)
         self._failures_shown = 0
@@ -248,7 +254,8 @@ class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWi
         self.lights = LightsPanel()
         self.controls = FilterPanel(self.send)
         self.comparison = ComparisonPanel(self.send)
-        self.connection = ConnectionPanel(self.send)
+        self.connection = ConnectionPanel(self.send, PhoneAppsBox(self.connect_phone,
+                                                                  self.show_connect_dialog))
         filter_widget = QtWidgets.QWidget()
         filter_layout = QtWidgets.QVBoxLayout(filter_widget)
         filter_layout.setContentsMargins(4, 4, 4, 4)
@@ -391,6 +398,31 @@ class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWi
                                             (history.t_err_ms - t0) / 1000.0, history.error_deg)
 
     # ---- sessions ---------------------------------------------------------------------------
+
+    def connect_phone(self, app: str, where: str) -> bool:
+        """Switch to another phone app (see connect_phone.py); a one-line message when it
+        cannot be."""
+        if self._phone_factory is None:
+            QtWidgets.QMessageBox.warning(self, "Cannot connect", "this window cannot switch "
+                                          "its source")
+            return False
+        try:
+            engine = self._phone_factory(app, where)
+        except ConfigError as error:
+            QtWidgets.QMessageBox.warning(self, "Cannot connect", str(error))
+            return False
+        self.swap_engine(engine)
+        hint = engine.source.connect_hint()
+        self.statusBar().showMessage(hint, 10000)
+        return True
+
+    def show_connect_dialog(self) -> None:
+        """File → Connect a phone…: the steps per app, phyphox's QR code."""
+        dialog = ConnectPhoneDialog(self.connect_phone, self)
+        dialog.setAttribute(QtCore.Qt.WidgetAttribute.WA_DeleteOnClose)
+        dialog.resize(860, 560)
+        dialog.show()
+        self.connect_dialog = dialog
 
     def swap_engine(self, engine: EngineLike) -> None:
         """Replace the engine (File → Open, a drop): the old one stops (its recording is

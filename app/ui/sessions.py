@@ -312,9 +312,8 @@ class SessionControls(QtCore.QObject):
         """What File → Export exports: the replayed file, else the latest recording."""
         engine = self.window.engine
         source = getattr(engine, "source", None)
-        path = getattr(source, "path", None) or getattr(getattr(source, "demo", None), "path",
-                                                         None)
-        if path is not None and source is not None and getattr(source, "kind", "") != "tcp":
+        path = getattr(source.played(), "path", None) if source is not None else None
+        if path is not None:
             return str(path)
         snapshot = self.window.last_snapshot
         if snapshot is not None and snapshot.recording and snapshot.recording.get("folder"):

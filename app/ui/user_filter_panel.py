@@ -27,7 +27,8 @@ from app.ui.lights import Light
 Send = Callable[[object], None]
 FILE_FILTER = "Python filter (*.py)"
 STATE_COLOURS = {"running": "#2a9d4a", "paused": "#d9412e", "catching up": "#c98a00",
-                 "failed to load": "#d9412e"}
+                 "failed to load": "#d9412e", "loading": "#c98a00"}
+PRINTED_LINES = 3              # of what your filter printed, under its numbers
 
 
 def load_filter_dialog(parent: QtWidgets.QWidget | None, send: Send,
@@ -105,6 +106,13 @@ class UserFilterPanel(QtWidgets.QGroupBox):
                       self.action_label):
             label.setWordWrap(True)
             layout.addWidget(label)
+        self.printed_label = QtWidgets.QLabel("")     # the last lines your filter printed
+        self.printed_label.setFont(QtGui.QFontDatabase.systemFont(
+            QtGui.QFontDatabase.SystemFont.FixedFont))
+        self.printed_label.setTextFormat(QtCore.Qt.TextFormat.PlainText)
+        self.printed_label.setTextInteractionFlags(
+            QtCore.Qt.TextInteractionFlag.TextSelectableByMouse)
+        layout.addWidget(self.printed_label)
         layout.addWidget(self._problem_box())
         layout.addStretch(1)
         self.update_status(None)
@@ -182,7 +190,8 @@ class UserFilterPanel(QtWidgets.QGroupBox):
             self._set(self.file_label, "no filter loaded: Load… one of yours, or start from "
                                        "the course template with New…")
             self._set(self.state_label, "")
-            for label in (self.speed_label, self.error_label, self.missing_label):
+            for label in (self.speed_label, self.error_label, self.missing_label,
+                          self.printed_label):
                 self._set(label, "")
             for light in self.lights.values():
                 light.set_state("off", "no filter loaded")
@@ -214,6 +223,9 @@ class UserFilterPanel(QtWidgets.QGroupBox):
         per = status.time_per_sample_s
         speed = "" if not math.isfinite(per) else (
             f"{per * 1e6:.0f} µs per sample" if per < 1e-3 else f"{per * 1e3:.1f} ms per sample")
+        lag = status.lag_s
+        if speed and math.isfinite(lag) and status.state == "running":
+            speed += f", {lag * 1e3:.0f} ms behind OWN"
         if status.slow:
             speed = (f"<span style='color:#d9412e'>too slow for the stream: {speed}, so only "
                      f"{status.used_fraction:.0%} of the samples are used (decimated)</span>")
@@ -225,6 +237,8 @@ class UserFilterPanel(QtWidgets.QGroupBox):
         lines += status.notes
         self._set(self.missing_label, "\n".join(lines))
         self._set(self.message_label, status.message)
+        self._set(self.printed_label, "\n".join(status.printed[-PRINTED_LINES:]))
+        self.printed_label.setToolTip("\n".join(status.printed))
 
     def _update_problem(self, status: UserFilterStatus) -> None:
         problem = status.problem

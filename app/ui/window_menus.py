@@ -50,6 +50,8 @@ class WindowMenus:
     def _build_actions(self) -> None:
         menus = self.menuBar()
         self.file_menu = menus.addMenu("&File")
+        self.connect_action = self._action(self.file_menu, "&Connect a phone…", None,
+                                           self.show_connect_dialog)
         self.sessions.build_file_menu(self.file_menu)
         self.load_filter_action = self._action(
             self.file_menu, "&Load your filter…", None, lambda: load_filter_dialog(self, self.send))

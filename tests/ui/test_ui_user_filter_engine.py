@@ -30,8 +30,8 @@ def _log(tmp_path: Path) -> Path:
 
 
 def test_the_widgets_draw_a_real_engine_s_snapshots(qtbot, tmp_path):
-    # speed 2, not 8: live, your filter gets a share of the elapsed time (app.engine.userfilter.lane)
-    # and is thinned to what fits; at 8x a slow machine ran course_ekf.py on 142 of 400 rows
+    # speed 2, not 8: live, your filter's process gets what it can answer within a budget of its
+    # time (app.engine.userfilter.lane) and is thinned to what fits
     engine = Engine(LogFileSource(_log(tmp_path), speed=2), comparisons=False,
                     user_filter=str(REPO / "examples" / "course_ekf.py"))
     panel = UserFilterPanel(engine.send)
@@ -51,7 +51,9 @@ def test_the_widgets_draw_a_real_engine_s_snapshots(qtbot, tmp_path):
         panel.update_status(snapshot.user)
         if snapshot.user is not None:
             yours.set_orientation(snapshot.user.quat, snapshot.user.cov)
-        return snapshot.health.connection_state == "finished"
+        user = snapshot.user       # YOURS answers later than OWN: every row answered
+        return (snapshot.health.connection_state == "finished" and user is not None
+                and user.state == "running" and user.backlog_rows == 0)
     with engine:
         qtbot.waitUntil(show_the_latest_until_finished, timeout=30_000)
     snapshot = shown[-1]

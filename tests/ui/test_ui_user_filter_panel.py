@@ -54,6 +54,17 @@ def test_a_running_filter(qtbot):
     assert not panel.problem_box.isVisible() and panel.unload_button.isEnabled()
 
 
+def test_its_lag_and_what_it_printed(qtbot):
+    panel, _ = _panel(qtbot)
+    printed = [f"line {k}" for k in range(20)]
+    panel.update_status(_running(lag_s=0.012, printed=printed, printed_total=120))
+    assert panel.speed_label.text() == "42 µs per sample, 12 ms behind OWN"
+    assert panel.printed_label.text() == "line 17\nline 18\nline 19"
+    assert panel.printed_label.toolTip() == "\n".join(printed)
+    panel.update_status(_running(state="paused", lag_s=0.012))
+    assert panel.speed_label.text() == "42 µs per sample" and panel.printed_label.text() == ""
+
+
 def test_a_slow_filter_says_how_much_of_the_stream_it_gets(qtbot):
     panel, _ = _panel(qtbot)
     panel.update_status(_running(time_per_sample_s=3.1e-3, slow=True, used_fraction=0.22))

@@ -1,10 +1,10 @@
 """A user's filter file: loading it, finding the user's line in an error, checking its output.
 
 A user filter is one Python file defining ``class Filter`` with ``step(self, t, gyr, acc,
-mag)``. It is the user's own code and runs in the engine's process, with the engine's rights;
-nothing here sandboxes it. This module turns everything that can go wrong with it into a
-:class:`~app.engine.snapshot.UserProblem` (file, line, one-line message, the traceback of the
-user's frames) instead of an exception:
+mag)``. It is the user's own code and runs in its own process (app.engine.userfilter.child),
+with the user's rights; nothing here sandboxes it. This module, which runs in that process,
+turns everything that can go wrong with it into a :class:`~app.engine.user_problem.UserProblem`
+(file, line, one-line message, the traceback of the user's frames) instead of an exception:
 
 * :func:`load_code` reads and executes the file (its SHA-256 is of exactly the bytes run);
 * the course's steps (``tu_qw``, ``mu_g``, ``mu_m``, ``mu_normalizeQ``) are wrapped so that a
@@ -32,7 +32,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from app.engine.snapshot import INNOVATION_SENSORS, UserProblem
+from app.engine.user_problem import UserProblem
+from app.engine.userfilter.protocol import INNOVATION_SENSORS
 from app.engine.userfilter.watchdog import UserCodeTimeout, guard
 
 LOAD_LIMIT_S = 10.0          # executing the file, Filter(): imports may take a while
@@ -173,15 +174,17 @@ def _takes_settings(cls: type) -> bool:
                for p in parameters)
 
 
-def load_code(path: str | Path) -> FilterCode:
-    """Read and run the file; UserFilterError (with the file and line) when it cannot be used."""
+def load_code(path: str | Path, source: bytes | None = None) -> FilterCode:
+    """Run the file (`source`: its bytes, already read); UserFilterError (with the file and line)
+    when it cannot be used."""
     path = Path(path).expanduser().resolve()
-    try:
-        source = path.read_bytes()
-    except OSError as error:
-        raise UserFilterError(UserProblem(
-            "load", f"{path.name}: cannot read ({error.strerror or error})", file=str(path))) \
-            from None
+    if source is None:
+        try:
+            source = path.read_bytes()
+        except OSError as error:
+            raise UserFilterError(UserProblem(
+                "load", f"{path.name}: cannot read ({error.strerror or error})",
+                file=str(path))) from None
     name = f"orientation_lab_user_filter_{next(_module_numbers)}"
     module = importlib.util.module_from_spec(importlib.util.spec_from_loader(name, loader=None))
     module.__file__ = str(path)
@@ -210,11 +213,6 @@ def load_code(path: str | Path) -> FilterCode:
         if inspect.isfunction(function):
             module.__dict__[step] = _skippable(function, step, code)
     return code
-
-
-def unload_code(code: FilterCode) -> None:
-    """Forget the module (the next load of the same file is a fresh one)."""
-    sys.modules.pop(code.module.__name__, None)
 
 
 def instantiate(code: FilterCode, settings: dict[str, Any]) -> Any:

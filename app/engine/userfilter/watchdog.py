@@ -31,7 +31,7 @@ class UserCodeTimeout(BaseException):
 class _Watchdog:
     def __init__(self) -> None:
         self.lock = threading.Lock()
-        self.calls: dict[int, list] = {}      # thread id -> [deadline, limit_s, what]
+        self.calls: dict[int, list] = {}      # thread id -> [deadline, limit_s, what, raised]
         self._thread: threading.Thread | None = None
         self.fired = 0
 
@@ -48,9 +48,10 @@ class _Watchdog:
             now = time.monotonic()
             with self.lock:
                 for ident, call in self.calls.items():
-                    deadline, limit_s, what = call
+                    deadline, limit_s, what, _ = call
                     if now >= deadline:
                         call[0] = now + limit_s          # again later if it is swallowed
+                        call[3] = True
                         self.fired += 1
                         message = (f"{what} ran for more than {limit_s:g} s and was stopped "
                                    "(an endless loop?)")
@@ -74,7 +75,7 @@ class Guard:
             return
         with _WATCHDOG.lock:
             _WATCHDOG.calls[threading.get_ident()] = [time.monotonic() + self.limit_s,
-                                                      self.limit_s, self.what]
+                                                      self.limit_s, self.what, False]
             _WATCHDOG.start()
 
     def __exit__(self, *exc) -> bool:
@@ -88,7 +89,8 @@ class Guard:
             return
         with _WATCHDOG.lock:
             ident = threading.get_ident()
-            if _WATCHDOG.calls.pop(ident, None) is not None:
+            call = _WATCHDOG.calls.pop(ident, None)
+            if call is not None and call[3]:        # raised for this call: not delivered twice
                 ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(ident), None)
 
 
