@@ -28,15 +28,24 @@ MIN_SAMPLES = 100
 NAMES = {"acc": "accelerometer", "gyr": "gyroscope", "mag": "magnetometer"}
 
 
+NORMALITY_LEVEL = 0.01
+"""The significance level of both normality tests."""
+
+VERDICT_RULE = ("Gaussian: neither test rejects normality at the 1 % level (D'Agostino–Pearson "
+                "K² p ≥ 0.01 and Anderson–Darling A² below its 1 % critical value); not "
+                "Gaussian: both reject; mixed: one rejects and the other does not")
+"""How the verdict is reached, in words (the table's caption and the report's footnote)."""
+
+
 @dataclass
 class AxisReport:
     """One sensor axis at rest.
 
     normality_p: D'Agostino-Pearson K² test p-value (small: not Gaussian); anderson: the
-    Anderson-Darling statistic and its 5 % critical value; acf: autocorrelation at lags
-    0..len-1 samples (acf[0] = 1); lag_s: the sampling period [s] the lags are in;
-    correlation_time_s: the first lag where the autocorrelation falls below 1/e (NaN: never
-    within the lags computed)."""
+    Anderson-Darling statistic A² and anderson_critical its critical value at NORMALITY_LEVEL
+    (A² above it: not Gaussian); acf: autocorrelation at lags 0..len-1 samples (acf[0] = 1);
+    lag_s: the sampling period [s] the lags are in; correlation_time_s: the first lag where the
+    autocorrelation falls below 1/e (NaN: never within the lags computed)."""
 
     sensor: str
     axis: str
@@ -45,15 +54,28 @@ class AxisReport:
     count: int
     normality_p: float
     anderson: float
-    anderson_critical_5pct: float
+    anderson_critical: float
     acf: np.ndarray = field(repr=False)
     lag_s: float
     correlation_time_s: float
 
     @property
+    def verdict(self) -> str:
+        """"Gaussian", "not Gaussian" or "mixed" (the two tests disagree), by VERDICT_RULE;
+        "untested" with too few samples (or a constant axis)."""
+        if not (np.isfinite(self.normality_p) and np.isfinite(self.anderson)
+                and np.isfinite(self.anderson_critical)):
+            return "untested"
+        k2_rejects = self.normality_p < NORMALITY_LEVEL
+        ad_rejects = self.anderson > self.anderson_critical
+        if k2_rejects != ad_rejects:
+            return "mixed"
+        return "not Gaussian" if k2_rejects else "Gaussian"
+
+    @property
     def gaussian(self) -> bool:
-        """The normality test does not reject at the 1 % level."""
-        return bool(self.normality_p >= 0.01)
+        """Neither normality test rejects at the 1 % level (verdict "Gaussian")."""
+        return self.verdict == "Gaussian"
 
     @property
     def correlated(self) -> bool:
@@ -94,27 +116,29 @@ class RestAnalysis:
 
     def format_report(self) -> str:
         """Per axis: normality and autocorrelation; then the warnings."""
-        lines = [f"{'sensor':<7}{'axis':<5}{'normality p':>12}{'A-D':>8}{'acf(1)':>8}"
-                 f"{'corr. time':>12}  verdict"]
+        lines = [f"{'sensor':<7}{'axis':<5}{'K² p':>9}{'A-D A²':>9}{'1 % crit.':>10}"
+                 f"{'acf(1)':>8}{'corr. time':>12}  verdict"]
         for name, reports in self.axes.items():
             for r in reports:
                 lag1 = r.acf[1] if len(r.acf) > 1 else np.nan
-                verdict = ("Gaussian" if r.gaussian else "not Gaussian") + \
-                    (", correlated in time" if r.correlated else "")
+                verdict = r.verdict + (", correlated in time" if r.correlated else "")
                 longest = (len(r.acf) - 1) * r.lag_s
                 time_text = (f"{r.correlation_time_s:>10.3f} s" if np.isfinite(
                     r.correlation_time_s) else f"{'> ' + format(longest, '.2f'):>10} s")
-                lines.append(f"{name:<7}{r.axis:<5}{r.normality_p:>12.3g}{r.anderson:>8.2f}"
-                             f"{lag1:>8.2f}{time_text}  {verdict}")
+                lines.append(f"{name:<7}{r.axis:<5}{r.normality_p:>9.3g}{r.anderson:>9.2f}"
+                             f"{r.anderson_critical:>10.2f}{lag1:>8.2f}{time_text}  {verdict}")
+        lines.append(f"verdict: {VERDICT_RULE}")
         for w in self.warnings:
             lines.append(f"warning: {w.message}")
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
         axes = {name: [{"axis": r.axis, "normality_p": r.normality_p, "anderson": r.anderson,
+                        "anderson_critical_1pct": r.anderson_critical,
                         "acf_lag1": float(r.acf[1]) if len(r.acf) > 1 else None,
                         "correlation_time_s": r.correlation_time_s, "gaussian": r.gaussian,
-                        "correlated": r.correlated} for r in reports]
+                        "normality_verdict": r.verdict, "correlated": r.correlated}
+                       for r in reports]
                 for name, reports in self.axes.items()}
         return {"statistics": self.result.to_dict(), "axes": axes,
                 "warnings": [{"kind": w.kind, "message": w.message,
@@ -139,13 +163,15 @@ def autocorrelation(x: ArrayLike, max_lag: int) -> np.ndarray:
 
 
 def _anderson(stats: Any, x: np.ndarray) -> tuple[float, float]:
-    """Anderson-Darling statistic and its 5 % critical value (scipy before and after 1.17)."""
+    """Anderson-Darling statistic and its critical value at NORMALITY_LEVEL (scipy before and
+    after 1.17)."""
     import warnings
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FutureWarning)   # 1.17 asks for a p-value method
         ad = stats.anderson(x, dist="norm")
-    return float(ad.statistic), float(ad.critical_values[list(ad.significance_level).index(5.0)])
+    levels = [float(level) for level in ad.significance_level]
+    return float(ad.statistic), float(ad.critical_values[levels.index(100 * NORMALITY_LEVEL)])
 
 
 def _axis_report(sensor: str, k: int, x: np.ndarray, lag_s: float, max_lag: int) -> AxisReport:
@@ -163,7 +189,7 @@ def _axis_report(sensor: str, k: int, x: np.ndarray, lag_s: float, max_lag: int)
                       crit, acf, lag_s, corr_time)
 
 
-def _merged_axis(series: dict[str, tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, dict]:
+def merged_axis(series: dict[str, tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, dict]:
     """One time axis (the union of the sensors' times) with NaN rows where a sensor has no
     sample: the layout rest_mask reads."""
     times = [t for t, _ in series.values() if len(t)]
@@ -177,7 +203,7 @@ def _merged_axis(series: dict[str, tuple[np.ndarray, np.ndarray]]) -> tuple[np.n
     return t_all, columns
 
 
-def _runs(t: np.ndarray, flag: np.ndarray) -> list[tuple[float, float]]:
+def runs_of(t: np.ndarray, flag: np.ndarray) -> list[tuple[float, float]]:
     """(start, end) times of the runs where `flag` is true."""
     if not flag.any():
         return []
@@ -202,15 +228,21 @@ def _motion_warning(t_all: np.ndarray, columns: dict, origin: float,
     if len(t_all) < 2 or (np.isnan(columns["gyr"]).all() and np.isnan(columns["acc"]).all()):
         return np.zeros(len(t_all), bool), None
     moving = ~rest_mask(t_all, columns["gyr"], columns["acc"], **thresholds)
-    runs = _runs(t_all, moving)
+    runs = runs_of(t_all, moving)
     if not runs:
         return moving, None
-    where = ", ".join(f"{a - origin:.1f}–{b - origin:.1f} s" for a, b in runs[:4])
+    where = ", ".join(_stretch_text(a - origin, b - origin) for a, b in runs[:4])
     more = f" and {len(runs) - 4} more" if len(runs) > 4 else ""
     share = 100.0 * moving.mean()
     return moving, RestWarning(
         "moved", f"the phone moved at {where}{more} from the start ({share:.0f} % of the "
-                 "samples): lay it still, or select a still stretch", runs)
+                 "samples): lay it still, or analyse a still stretch only", runs)
+
+
+def _stretch_text(start: float, end: float) -> str:
+    """"3.2–4.0 s", or "0.6 s" for a moment (a stretch that rounds to no length)."""
+    first, last = f"{start:.1f}", f"{end:.1f}"
+    return f"{first} s" if first == last else f"{first}–{last} s"
 
 
 def analyse_rest(t_acc: ArrayLike | None = None, acc: ArrayLike | None = None,
@@ -227,7 +259,7 @@ def analyse_rest(t_acc: ArrayLike | None = None, acc: ArrayLike | None = None,
     series = {"acc": _clean(t_acc, acc), "gyr": _clean(t_gyr, gyr), "mag": _clean(t_mag, mag)}
     result = calibrate(*(series[s][1] if len(series[s][1]) else None
                          for s in REPORT_ORDER))
-    t_all, columns = _merged_axis(series)
+    t_all, columns = merged_axis(series)
     origin = float(t_all[0]) if len(t_all) else 0.0
     warnings: list[RestWarning] = []
     axes: dict[str, list[AxisReport]] = {}

@@ -42,7 +42,8 @@ def test_calibrate_prints_the_table_the_checks_and_the_allan_figures(logs, capsy
     out = tmp_path / "s.json"
     assert cli.main(["calibrate", str(logs["rest"]), "-o", str(out), "--profile", "sim"]) == 0
     text = capsys.readouterr().out
-    assert "Covariance gyr" in text and "normality p" in text and "ARW" in text
+    assert "Covariance gyr" in text and "K² p" in text and "ARW" in text
+    assert "verdict: Gaussian: neither test rejects normality at the 1 % level" in text
     saved = json.loads(out.read_text())
     assert saved["settings"]["gyr_bias"][0] == pytest.approx(0.01, abs=1e-3)
     assert saved["calibration"]["allan"]["axes"][0]["arw_rad_per_sqrt_s"] > 0
@@ -173,3 +174,31 @@ def test_the_new_commands_run_with_qt_blocked_and_plots_say_what_they_need(logs,
     assert "ok" in r.stdout
     last = r.stderr.strip().splitlines()[-1]
     assert last.startswith("orientation-lab: error: --plots needs Qt")
+
+
+def test_a_log_without_a_gyroscope_is_said_once_and_tune_leaves_its_settings_alone(
+        logs, capsys, tmp_path):
+    """Issue 51: evaluate on a log without a gyroscope gave its figure without a word, and tune
+    searched gyr_noise_cov, which has no effect there."""
+    no_gyro = tmp_path / "no_gyro.txt"
+    no_gyro.write_bytes(b"".join(line for line in logs["motion"].read_bytes().splitlines(True)
+                                 if b"\tGYR\t" not in line))
+    assert cli.main(["evaluate", str(no_gyro)]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert warnings == ["orientation-lab: warning: no_gyro.txt has no gyroscope samples: the "
+                        "estimate runs without it (--sensors acc,mag says so and silences this)"]
+    assert cli.main(["evaluate", str(no_gyro), "--sensors", "acc,mag"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert cli.main(["evaluate", str(logs["motion"])]) == 0
+    assert "warning" not in capsys.readouterr().err
+    out = tmp_path / "tuned.json"
+    assert cli.main(["tune", str(no_gyro), "--params", "gyr_noise_cov,acc_noise_cov",
+                     "--max-evals", "4", "-o", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "not tuning gyr_noise_cov: the filter runs without its sensor" in captured.err
+    assert "tuning acc_noise_cov on" in captured.out
+    saved = json.loads(out.read_text())
+    assert saved["settings"]["gyr_noise_cov"] == ekf.PRESETS["default"].gyr_noise_cov
+    assert [p["name"] for p in saved["tuning"]["parameters"]] == ["acc_noise_cov"]
+    assert cli.main(["tune", str(no_gyro), "--params", "gyr_noise_cov"]) == 2
+    assert "nothing to tune" in capsys.readouterr().err

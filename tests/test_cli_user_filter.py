@@ -77,6 +77,36 @@ def test_a_failing_filter_names_its_line_and_exits_1(tmp_path, log, capsys):
     assert "Traceback (most recent call last)" in err and "return np.ones(2) @ acc" in err
 
 
+def test_the_traceback_shows_only_your_frames(tmp_path, log, capsys):
+    """Issue 51: a step whose arguments do not match the call showed Orientation Lab's own
+    frame (the call site in app/engine/userfilter) as the traceback of the user's code."""
+    path = write_filter(tmp_path, "few_arguments", """
+        class Filter:
+            def step(self, t):
+                return [1.0, 0.0, 0.0, 0.0]
+    """)
+    assert cli.main(["filter", str(log), "--estimator", str(path), "--traceback"]) == 1
+    err = capsys.readouterr().err
+    assert "few_arguments.py: TypeError: Filter.step() takes 2 positional arguments" in err
+    assert "app/engine" not in err and "app\\engine" not in err and 'File "' not in err
+    assert "no line of it ran" in err
+    nested = write_filter(tmp_path, "nested", """
+        import numpy as np
+
+        class Filter:
+            def step(self, t, gyr, acc, mag):
+                return helper(acc)
+
+        def helper(acc):
+            return np.linalg.inv(np.zeros((3, 3)))
+    """)
+    assert cli.main(["filter", str(log), "--estimator", str(nested), "--traceback"]) == 1
+    err = capsys.readouterr().err
+    frames = [line for line in err.splitlines() if line.strip().startswith('File "')]
+    assert 'nested.py", line 6, in step' in frames[0] and "in helper" in frames[1]
+    assert not any("/app/" in line or "/ekf/" in line for line in frames)
+
+
 def test_evaluate_compares_your_filter_with_ours(tmp_path, log, capsys):
     good = write_filter(tmp_path, "flat")
     bad = write_filter(tmp_path, "nan")

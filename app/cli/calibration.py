@@ -7,12 +7,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
 import ekf
 from app.cli import options
-from app.cli.offline import intervals_of, read_log
+from app.cli.offline import intervals_of, read_log, warn_absent
 from app.engine import config, profiles, tuning
 from app.engine.calibration import RestCalibration, mag_from_log, rest_from_log
 from app.engine.outputs import atomic_output, check_output
@@ -186,9 +187,20 @@ def cmd_tune(args: argparse.Namespace) -> int:
         raise config.ConfigError("tune: give one EKF --estimator (ekf or course)")
     base = config.load_settings(args.settings) or ekf.PRESETS["default"]
     parameters = tuning.parse_parameters(args.params, base)
-    prepared = PreparedLog.from_log(read_log(args.log, args.limits))
+    log = read_log(args.log, args.limits)
+    prepared = PreparedLog.from_log(log)
     if len(prepared.ori_times) == 0:
         raise config.ConfigError(f"tune: {args.log} has no ORI lines to tune against")
+    absent = warn_absent(log, sensors, names, tuple(tuning.sensors_in(prepared)))
+    parameters, left_alone = tuning.split_by_sensor(
+        parameters, [s for s in sensors if s not in absent])
+    if left_alone:
+        names_left = ", ".join(p.name for p in left_alone)
+        if not parameters:
+            raise config.ConfigError(f"tune: nothing to tune: the filter runs without the "
+                                     f"sensor of {names_left}")
+        print(f"orientation-lab: not tuning {names_left}: the filter runs without "
+              f"{'its sensor' if len(left_alone) == 1 else 'their sensors'}", file=sys.stderr)
     target, check = _targets(args, prepared)
     print(f"tuning {', '.join(p.name for p in parameters)} on {args.log} "
           f"({target.label or 'whole log'}), at most {args.max_evals} runs ...", flush=True)

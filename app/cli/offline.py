@@ -49,9 +49,7 @@ def check_estimable(log: LogData, sensors: tuple[str, ...]) -> None:
     """ConfigError (one line) when no estimate can be made from the log with these sensors:
     none of them in it, or no accelerometer (nothing gives down; the estimate would be the
     identity, or a turn from it)."""
-    arrays = log.to_arrays()
-    present = [name for name in ("gyr", "acc", "mag")
-               if bool(np.isfinite(getattr(arrays, name)[:, 0]).any())]
+    present = present_sensors(log)
     used = [name for name in present if name in sensors]
     tags = ", ".join(name.upper() for name in present) or "no GYR, ACC or MAG"
     if not used:
@@ -60,6 +58,35 @@ def check_estimable(log: LogData, sensors: tuple[str, ...]) -> None:
     if "acc" not in present:
         raise config.ConfigError(f"{log.path}: no estimate can be made without accelerometer "
                                  f"samples (nothing gives down); the log holds {tags} only")
+
+
+SENSOR_WORDS = {"gyr": "gyroscope", "acc": "accelerometer", "mag": "magnetometer"}
+# what an estimator reads (a filter of the user's may read them all)
+ESTIMATOR_SENSORS = {"accmag": ("acc", "mag")}
+
+
+def present_sensors(log: LogData) -> tuple[str, ...]:
+    """The filter sensors the log holds samples of, in ("gyr", "acc", "mag") order."""
+    arrays = log.to_arrays()
+    return tuple(name for name in SENSOR_WORDS
+                 if bool(np.isfinite(getattr(arrays, name)[:, 0]).any()))
+
+
+def warn_absent(log: LogData, sensors: tuple[str, ...], names: list[str],
+                present: tuple[str, ...] | None = None) -> tuple[str, ...]:
+    """One line on stderr when the log lacks a sensor the estimators would use (a figure from
+    such a log is that of the other sensors alone); the sensors it lacks."""
+    present = present_sensors(log) if present is None else present
+    used = {sensor for name in names
+            for sensor in ESTIMATOR_SENSORS.get(str(name).lower(), tuple(SENSOR_WORDS))}
+    absent = tuple(s for s in SENSOR_WORDS if s in sensors and s in used and s not in present)
+    if absent:
+        words = " or ".join(SENSOR_WORDS[s] for s in absent)
+        left = ",".join(s for s in sensors if s in present) or "none"
+        print(f"orientation-lab: warning: {Path(log.path).name} has no {words} samples: the "
+              f"estimate runs without {'it' if len(absent) == 1 else 'them'} "
+              f"(--sensors {left} says so and silences this)", file=sys.stderr)
+    return absent
 
 
 def check_finite(name: str, quat: np.ndarray, t_ms: np.ndarray, settings: object) -> None:
@@ -202,6 +229,7 @@ def _filter_with(args: argparse.Namespace, names: list[str], settings, which: st
                      and args.settings.endswith(".json") else None)
     log = read_log(args.log, args.limits)
     check_estimable(log, sensors)
+    warn_absent(log, sensors, names)
     print(f"{args.log}: settings: {which}", file=sys.stderr)
     try:
         with contextlib.redirect_stdout(sys.stderr):   # what the user's code prints: not the CSV
@@ -276,6 +304,7 @@ def _evaluate(args: argparse.Namespace, estimators: list) -> int:
     user_filters(estimators)
     log = read_log(args.log, args.limits)
     check_estimable(log, sensors)
+    warn_absent(log, sensors, names)
     truth, against = _truth(args)
     skip = f", after the first {args.skip:g} s" if args.skip else ""
     smooth = ", smoothed (forward EKF + backward RTS pass)" if args.smooth else ""

@@ -3,7 +3,10 @@ the calibration workspace (Qt-free).
 
 * :func:`rest_from_log` picks the rest stretch of a log (the longest still interval, a chosen
   time range, or all of it) and analyses it: task-2 statistics with normality, autocorrelation
-  and warnings (:func:`ekf.noise.analyse_rest`) and the gyroscope's Allan deviation.
+  and warnings (:func:`ekf.noise.analyse_rest`) and the gyroscope's Allan deviation. The
+  workspace does the same in steps: a :class:`RestSource` (a log's samples, or live ones
+  collected, with where the phone was still and where it moved), then
+  :func:`analyse_still` or :func:`analyse_stretch` of the stretch the user drags.
 * :func:`mag_from_log` fits the magnetometer's hard and soft iron to a log's readings.
 * :class:`SampleCollector` gathers the live plot chunks' samples (acc, gyr, mag with their
   times) for a duration of phone time, for the workspace's Start button.
@@ -12,6 +15,7 @@ the calibration workspace (Qt-free).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -19,7 +23,7 @@ from ekf import calibration, magcal
 from ekf.calibration import REPORT_ORDER
 from ekf._optional import MissingLibrary
 from ekf.allan import AllanResult, allan_deviation
-from ekf.noise import RestAnalysis, analyse_rest
+from ekf.noise import RestAnalysis, analyse_rest, merged_axis, runs_of
 from app.engine.errors import ConfigError
 from app.stream.logfile import LogData
 
@@ -65,36 +69,113 @@ def analyse_series(series: dict[str, np.ndarray], interval_s: tuple[float, float
     return RestCalibration(analysis, allan, interval_s, how)
 
 
+@dataclass
+class RestSource:
+    """Samples to take a rest stretch from: a log, or live samples collected.
+
+    series: per sensor its times and values (keys t_acc, acc, t_gyr, gyr, t_mag, mag; seconds on
+    the source's own time axis); origin_s: its first time (a stretch is given in seconds from
+    there); duration_s; still: the longest still interval (absolute times; None: no still run
+    of 1 s); moving_s: the stretches in which the phone moved (seconds from the origin); name:
+    what it is, for the user ("walk.txt", "live samples")."""
+
+    series: dict[str, np.ndarray]
+    origin_s: float
+    duration_s: float
+    still: calibration.RestSegment | None
+    moving_s: list[tuple[float, float]]
+    name: str = ""
+
+    def still_s(self) -> tuple[float, float] | None:
+        """The longest still interval in seconds from the origin (None: there is none)."""
+        if self.still is None:
+            return None
+        return (self.still.start_s - self.origin_s, self.still.end_s - self.origin_s)
+
+    def between(self, low: float, high: float) -> dict[str, np.ndarray]:
+        """The series of the samples at absolute times low..high (both included)."""
+        out: dict[str, np.ndarray] = {}
+        for name in REPORT_ORDER:
+            t = self.series["t_" + name]
+            keep = (t >= low) & (t <= high)
+            out["t_" + name], out[name] = t[keep], self.series[name][keep]
+        return out
+
+    def count_between(self, low: float, high: float) -> int:
+        return sum(int(np.count_nonzero((self.series["t_" + name] >= low)
+                                        & (self.series["t_" + name] <= high)))
+                   for name in REPORT_ORDER)
+
+
+def _source(t_s: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
+            series: dict[str, np.ndarray], name: str) -> RestSource:
+    """t_s with gyr and acc in the batch layout (NaN rows where a sensor has no sample)."""
+    if len(t_s) == 0 or np.isnan(acc).all():
+        raise ConfigError(f"calibrate: {name or 'the samples'}: no accelerometer samples")
+    origin = float(t_s[0])
+    segment = calibration.find_rest_segment(t_s, gyr, acc)
+    moving = ~calibration.rest_mask(t_s, gyr, acc) if len(t_s) > 1 else np.zeros(1, bool)
+    runs = [(a - origin, b - origin) for a, b in runs_of(t_s, moving)]
+    return RestSource(series, origin, float(t_s[-1] - t_s[0]), segment, runs, name)
+
+
+def rest_source(log: LogData) -> RestSource:
+    """A log as a RestSource. ConfigError when it has no accelerometer samples."""
+    arrays = log.to_arrays()
+    if len(arrays.t_s) == 0 or np.isnan(arrays.acc).all():
+        raise ConfigError("calibrate: the log has no ACC lines")
+    return _source(arrays.t_s, arrays.gyr, arrays.acc, _sensor_series(log),
+                   Path(log.path).name)
+
+
+def collected_source(series: dict[str, np.ndarray], name: str = "live samples") -> RestSource:
+    """Collected samples (SampleCollector.series()) as a RestSource."""
+    t_all, columns = merged_axis({sensor: (np.asarray(series["t_" + sensor], float),
+                                           np.asarray(series[sensor], float).reshape(-1, 3))
+                                  for sensor in REPORT_ORDER})
+    return _source(t_all, columns["gyr"], columns["acc"], dict(series), name)
+
+
+def analyse_stretch(source: RestSource, start_s: float | None = None,
+                    end_s: float | None = None, how: str | None = None) -> RestCalibration:
+    """The rest calibration of [start_s, end_s] seconds from the source's origin (None: from
+    its start / to its end; both None: all of it). ConfigError for an empty range."""
+    whole = start_s is None and end_s is None
+    low = source.origin_s + (start_s or 0.0)
+    high = (source.origin_s + end_s if end_s is not None
+            else source.origin_s + source.duration_s)
+    if not whole:
+        if not high > low:
+            raise ConfigError(f"calibrate: empty range {start_s}..{end_s} s")
+        if source.count_between(low, high) < 2:
+            raise ConfigError(f"calibrate: nothing in the range {start_s or 0:g}.."
+                              f"{'end' if end_s is None else format(end_s, 'g')} s "
+                              f"(the log lasts {source.duration_s:.1f} s)")
+    return analyse_series(source.between(low, high), None if whole else (low, high),
+                          how or ("whole log" if whole else "chosen range"))
+
+
+def analyse_still(source: RestSource) -> RestCalibration:
+    """The rest calibration of the source's longest still interval. ConfigError when there is
+    none."""
+    if source.still is None:
+        raise ConfigError("calibrate: found no still interval of at least 1 s "
+                          "(use --whole to take all)")
+    return analyse_series(source.between(source.still.start_s, source.still.end_s),
+                          (source.still.start_s, source.still.end_s), "longest still interval")
+
+
 def rest_from_log(log: LogData, start_s: float | None = None, end_s: float | None = None,
                   whole: bool = False) -> RestCalibration:
     """The rest calibration of a log: [start_s, end_s] seconds from the log's start when given,
     everything with `whole`, else the longest still interval. ConfigError when there is no
     accelerometer or no still interval."""
-    arrays = log.to_arrays()
-    t_s = arrays.t_s
-    if len(t_s) == 0 or np.isnan(arrays.acc).all():
-        raise ConfigError("calibrate: the log has no ACC lines")
+    source = rest_source(log)
     if start_s is not None or end_s is not None:
-        lo = t_s[0] + (start_s or 0.0)
-        hi = t_s[0] + end_s if end_s is not None else t_s[-1]
-        if not hi > lo:
-            raise ConfigError(f"calibrate: empty range {start_s}..{end_s} s")
-        chosen, how = (t_s >= lo) & (t_s <= hi), "chosen range"
-        if chosen.sum() < 2:
-            raise ConfigError(f"calibrate: nothing in the range {start_s or 0:g}.."
-                              f"{'end' if end_s is None else format(end_s, 'g')} s "
-                              f"(the log lasts {t_s[-1] - t_s[0]:.1f} s)")
-        interval = (float(lo), float(hi))
-    elif whole:
-        chosen, how, interval = np.ones(len(t_s), bool), "whole log", None
-    else:
-        segment = calibration.find_rest_segment(t_s, arrays.gyr, arrays.acc)
-        if segment is None:
-            raise ConfigError("calibrate: found no still interval of at least 1 s "
-                              "(use --whole to take all)")
-        chosen, how = segment.mask(t_s), "longest still interval"
-        interval = (segment.start_s, segment.end_s)
-    return analyse_series(_sensor_series(log, chosen), interval, how)
+        return analyse_stretch(source, start_s if start_s is not None else 0.0, end_s)
+    if whole:
+        return analyse_stretch(source)
+    return analyse_still(source)
 
 
 def mag_from_log(log: LogData, start_s: float | None = None,

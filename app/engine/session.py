@@ -20,7 +20,9 @@ fields (app version, UTC start and stop, raw line count, stream statistics):
   the recording started with the stream.
 
 Markers can be added while replaying a session: :func:`write_markers` rewrites its
-session.json with them, atomically (the recorder's write_json_atomic).
+session.json with them, atomically (the recorder's write_json_atomic). ``label`` (optional, a
+string) is the name the user gave the session (:func:`write_label`); a session without one is
+named by its folder's time stamp.
 """
 
 from __future__ import annotations
@@ -265,6 +267,48 @@ def write_markers(session_json: str | Path, markers: list[Marker]) -> None:
     events.sort(key=lambda e: (e.get("t_ms") is None, e.get("t_ms") or 0))
     data["timeline"] = events
     write_json_atomic(path, data)
+
+
+MAX_LABEL = 120
+
+
+def session_json_of(path: str | Path) -> Path | None:
+    """The session.json of a session given as its folder, raw.txt or session.json (None: not
+    a recorded session, e.g. a phone's own log)."""
+    path = Path(path)
+    candidate = path / "session.json" if path.is_dir() else path.with_name("session.json")
+    return candidate if candidate.is_file() else None
+
+
+def session_label(path: str | Path) -> str:
+    """The label the user gave a session (its folder, raw.txt or session.json): "" for none,
+    for an older session without one and for anything unreadable."""
+    found = session_json_of(path)
+    if found is None:
+        return ""
+    try:
+        data = json.loads(found.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return ""
+    label = data.get("label") if isinstance(data, dict) else None
+    return label if isinstance(label, str) else ""
+
+
+def write_label(session_json: str | Path, label: str) -> str:
+    """Set a session's label (one line, at most MAX_LABEL characters; "" removes it) in its
+    session.json, atomically; the label written. OSError when it cannot be written, ValueError
+    when the file is no session."""
+    path = Path(session_json)
+    data = json.loads(path.read_text(encoding="utf-8"))
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: not a session file")
+    label = " ".join(str(label).split())[:MAX_LABEL]
+    if label:
+        data["label"] = label
+    else:
+        data.pop("label", None)
+    write_json_atomic(path, data)
+    return label
 
 
 # ---- the engine's state as JSON (start_state) ---------------------------------------------------

@@ -39,6 +39,36 @@ RANGES: dict[str, tuple[float, float]] = {
     name: (r.low, r.high) for name, r in search_ranges().items()}
 DEFAULT_PARAMETERS = ("gyr_noise_cov", "acc_noise_cov", "mag_noise_cov", "acc_lowpass_s")
 OBJECTIVES = ("total", "heading", "inclination")
+# The sensor a setting belongs to, by its name: on a log without that sensor the setting has no
+# effect, and a search leaves it alone (no_gyro_random_walk is the one for a log without a
+# gyroscope, and belongs to none).
+SETTING_SENSORS = (("gyr", ("gyr_", "gyro_", "rest_rate_")), ("acc", ("acc_",)),
+                   ("mag", ("mag_",)))
+
+
+def setting_sensor(name: str) -> str | None:
+    """"gyr", "acc" or "mag" for a setting of that sensor (gyr_noise_cov: "gyr"), else None."""
+    for sensor, prefixes in SETTING_SENSORS:
+        if name.startswith(prefixes):
+            return sensor
+    return None
+
+
+def sensors_in(log: PreparedLog) -> frozenset[str]:
+    """The filter sensors the log holds samples of."""
+    codes = np.unique(log.tag)
+    return frozenset(name for code, name in enumerate(SENSORS) if code in codes)
+
+
+def split_by_sensor(parameters: Sequence["Parameter"], present: Iterable[str]
+                    ) -> tuple[list["Parameter"], list["Parameter"]]:
+    """(the parameters to search, those of a sensor not in `present`: left alone)."""
+    present = set(present)
+    kept, dropped = [], []
+    for parameter in parameters:
+        sensor = setting_sensor(parameter.name)
+        (dropped if sensor is not None and sensor not in present else kept).append(parameter)
+    return kept, dropped
 
 
 @dataclass(frozen=True)

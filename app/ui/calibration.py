@@ -25,164 +25,17 @@ from PySide6 import QtCore, QtWidgets
 import ekf
 from ekf import magcal
 from app.engine import config
-from app.engine.calibration import (RestCalibration, SampleCollector, analyse_series,
-                                    mag_from_log, rest_from_log)
+from app.engine.calibration import mag_from_log, rest_source
 from app.engine.commands import SetSettings
 from app.engine.profiles import Profile, ProfileStore
 from app.ui import figures
+from app.ui.calibration_rest import RestTab
+from app.ui.calibration_rest import label as _label
 from app.ui.no_data import NoDataText
 
-NO_REST_DATA = "no data"
 NO_MAG_DATA = "no readings"
 MAG_FIT_EVERY = 25        # refit the magnetometer after this many new readings
 MAG_FIT_POINTS = 3000     # at most this many readings (evenly thinned) in a live fit
-
-
-def _label(text: str = "") -> QtWidgets.QLabel:
-    label = QtWidgets.QLabel(text)
-    label.setWordWrap(True)
-    label.setTextInteractionFlags(QtCore.Qt.TextInteractionFlag.TextSelectableByMouse)
-    return label
-
-
-class RestTab(QtWidgets.QWidget):
-    """Start (duration, default 10 s) collects live samples; the result shows histograms with the
-    Gaussian, time series, Table 1 (means, covariances), normality, autocorrelation, warnings."""
-
-    analysed = QtCore.Signal(object)        # RestCalibration
-
-    def __init__(self, parent: QtWidgets.QWidget | None = None) -> None:
-        super().__init__(parent)
-        self.collector: SampleCollector | None = None
-        self.result: RestCalibration | None = None
-        self.duration = QtWidgets.QDoubleSpinBox()
-        self.duration.setRange(1.0, 3600.0)
-        self.duration.setValue(10.0)
-        self.duration.setSuffix(" s")
-        self.start_button = QtWidgets.QPushButton("Start")
-        self.start_button.clicked.connect(self.toggle)
-        self.from_log_button = QtWidgets.QPushButton("From log…")
-        self.progress = QtWidgets.QProgressBar()
-        self.status = _label("Lay the phone still and press Start.")
-        self.warnings = _label()
-        self.warnings.setStyleSheet("color: #b00020")
-        controls = QtWidgets.QHBoxLayout()
-        for w in (QtWidgets.QLabel("Duration"), self.duration, self.start_button,
-                  self.from_log_button, self.progress):
-            controls.addWidget(w)
-        self.histograms = pg.GraphicsLayoutWidget()
-        self.histograms.setBackground("w")
-        self.histogram_plots = [[self.histograms.addPlot(row=r, col=c) for c in range(3)]
-                                for r in range(3)]
-        self.series = pg.GraphicsLayoutWidget()
-        self.series.setBackground("w")
-        self.series_plots = [self.series.addPlot(row=r, col=0) for r in range(3)]
-        self.acf = pg.GraphicsLayoutWidget()
-        self.acf.setBackground("w")
-        self.acf_plots = [self.acf.addPlot(row=r, col=0) for r in range(3)]
-        self.no_data = [NoDataText(plot.getViewBox()) for plot in
-                        [*sum(self.histogram_plots, []), *self.series_plots, *self.acf_plots]]
-        for text in self.no_data:
-            text.set_text(NO_REST_DATA)
-        self.table = QtWidgets.QTableWidget(0, 10)
-        self.table.setHorizontalHeaderLabels(["sensor", "axis", "mean", "std", "cov x", "cov y",
-                                              "cov z", "normality p", "acf(1)", "verdict"])
-        self.table.verticalHeader().setVisible(False)
-        views = QtWidgets.QTabWidget()
-        views.addTab(self.histograms, "Histograms")
-        views.addTab(self.series, "Time series")
-        views.addTab(self.acf, "Autocorrelation")
-        views.addTab(self.table, "Table 1")
-        self.views = views
-        layout = QtWidgets.QVBoxLayout(self)
-        layout.addLayout(controls)
-        layout.addWidget(self.status)
-        layout.addWidget(self.warnings)
-        layout.addWidget(views, 1)
-
-    @property
-    def collecting(self) -> bool:
-        return self.collector is not None
-
-    def toggle(self) -> None:
-        if self.collecting:
-            self.stop()
-        else:
-            self.start()
-
-    def start(self, duration_s: float | None = None) -> None:
-        if duration_s is not None:
-            self.duration.setValue(duration_s)
-        self.collector = SampleCollector(self.duration.value())
-        self.start_button.setText("Stop")
-        self.progress.setValue(0)
-        self.status.setText(f"collecting {self.duration.value():g} s of samples: keep the "
-                            "phone still…")
-
-    def stop(self) -> None:
-        """Stop collecting and analyse what was collected."""
-        collector, self.collector = self.collector, None
-        self.start_button.setText("Start")
-        if collector is not None:
-            self.analyse(collector.series(), f"{collector.elapsed_s:.1f} s of live samples")
-
-    def feed(self, chunk: Any) -> None:
-        if self.collector is None:
-            return
-        self.collector.add(chunk)
-        self.progress.setValue(int(100 * min(1.0, self.collector.elapsed_s
-                                              / max(self.duration.value(), 1e-9))))
-        if self.collector.done:
-            self.progress.setValue(100)
-            self.stop()
-
-    def analyse(self, series: dict[str, np.ndarray], how: str) -> RestCalibration | None:
-        try:
-            result = analyse_series(series, how=how)
-        except config.ConfigError as error:
-            self.status.setText(str(error))
-            return None
-        self.show_result(result)
-        return result
-
-    def show_result(self, result: RestCalibration) -> None:
-        self.result = result
-        analysis = result.analysis
-        self.status.setText(f"{result.how}: {analysis.duration_s:.1f} s analysed")
-        for text in self.no_data:
-            text.set_text("")
-        self.warnings.setText("\n".join("⚠ " + w.message for w in analysis.warnings))
-        histograms = analysis.result.histograms()
-        for r, sensor in enumerate(("acc", "gyr", "mag")):
-            for c in range(3):
-                plot = self.histogram_plots[r][c]
-                if sensor in histograms:
-                    figures.draw_histogram(plot, histograms[sensor][c], figures.AXIS_COLOURS[c])
-                else:
-                    plot.clear()
-                    plot.setTitle(f"{sensor}: no samples", size="8pt")
-            figures.draw_series(self.series_plots[r], analysis, sensor)
-            figures.draw_autocorrelation(self.acf_plots[r], analysis, sensor)
-        self._fill_table(result)
-        self.analysed.emit(result)
-
-    def _fill_table(self, result: RestCalibration) -> None:
-        stats = result.analysis.result
-        rows = []
-        for sensor, reports in result.analysis.axes.items():
-            cov = stats.sensor(sensor).cov
-            for k, report in enumerate(reports):
-                verdict = ("Gaussian" if report.gaussian else "not Gaussian") + \
-                    (", correlated" if report.correlated else "")
-                rows.append([sensor, report.axis, f"{report.mean:.6g}", f"{report.std:.3g}",
-                             *(f"{v:.3e}" for v in cov[k]), f"{report.normality_p:.3g}",
-                             f"{report.acf[1]:.2f}" if len(report.acf) > 1 else "",
-                             verdict])
-        self.table.setRowCount(len(rows))
-        for r, row in enumerate(rows):
-            for c, text in enumerate(row):
-                self.table.setItem(r, c, QtWidgets.QTableWidgetItem(text))
-        self.table.resizeColumnsToContents()
 
 
 class AllanTab(QtWidgets.QWidget):
@@ -389,16 +242,20 @@ class CalibrationWorkspace(QtWidgets.QWidget):
         self.mag.feed(snapshot.plot)
 
     def analyse_log(self, path: str | Path, start_s: float | None = None,
-                    end_s: float | None = None) -> bool:
-        """A stretch of a log (seconds from its start; none: its longest still interval) in the
-        At rest tab, and its magnetometer readings in the Magnetometer tab."""
+                    end_s: float | None = None, whole: bool = False) -> bool:
+        """A stretch of a log (seconds from its start; all of it with `whole`; neither: its
+        longest still interval) in the At rest tab, where another stretch can be dragged, and
+        its magnetometer readings in the Magnetometer tab."""
         try:
             log = config.open_log(path)
-            rest = rest_from_log(log, start_s, end_s)
+            source = rest_source(log)
         except config.ConfigError as error:
             self.message.setText(str(error))
             return False
-        self.rest.show_result(rest)
+        rest = self.rest.load_source(source, start_s, end_s, whole)
+        if rest is None:
+            self.message.setText(self.rest.status.text())
+            return False
         try:
             mag, raw = mag_from_log(log, start_s, end_s)
             self.mag.count = len(raw)

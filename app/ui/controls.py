@@ -176,9 +176,11 @@ class FilterPanel(QtWidgets.QWidget, _FollowsEngine):
             checkbox.setEnabled(not missing)
             checkbox.setToolTip(f"{absent_text(sensor)}: the switch applies when its samples "
                                 "arrive" if missing else "")
-        notes = [absent_text(sensor) for sensor in SENSOR_NAMES if sensor in absent]
-        self.sensor_note.setText("; ".join(notes))
-        self.sensor_note.setVisible(bool(notes))
+        missing = [SENSOR_NAMES[sensor] for sensor in SENSOR_NAMES if sensor in absent]
+        # one short line ("no gyroscope or magnetometer in this stream"): the panel's height
+        # barely changes
+        self.sensor_note.setText(f"no {' or '.join(missing)} in this stream" if missing else "")
+        self.sensor_note.setVisible(bool(missing))
 
     def show_configuration(self, configuration: ConfigurationView | None) -> None:
         """A replayed recording: one line saying what of its set-up is yours ("settings: yours;
@@ -250,10 +252,13 @@ class ComparisonPanel(QtWidgets.QWidget, _FollowsEngine):
         self.table.verticalHeader().setVisible(False)
         self.table.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
         self.table.setSelectionMode(QtWidgets.QAbstractItemView.SelectionMode.NoSelection)
+        # the names as wide as they are, the figures sharing the rest: a note spanning the
+        # figures ("no gyroscope in this stream") never widens a column past the dock
         header = self.table.horizontalHeader()
-        header.setSectionResizeMode(0, QtWidgets.QHeaderView.ResizeMode.Stretch)
+        header.setSectionResizeMode(0, QtWidgets.QHeaderView.ResizeMode.ResizeToContents)
         for column in range(1, len(self.COLUMNS)):
-            header.setSectionResizeMode(column, QtWidgets.QHeaderView.ResizeMode.ResizeToContents)
+            header.setSectionResizeMode(column, QtWidgets.QHeaderView.ResizeMode.Stretch)
+        self.table.setHorizontalScrollBarPolicy(QtCore.Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
         self.table.verticalHeader().setDefaultSectionSize(22)
         self.table.setMinimumHeight(7 * 22 + 28)
         layout.addWidget(self.table, 1)

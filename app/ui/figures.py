@@ -3,6 +3,8 @@ the command line's PNG files (``--plots DIR``, rendered offscreen), from the sam
 
 * :func:`draw_histogram`: one sensor axis, the probability density with the fitted Gaussian.
 * :func:`draw_series`: the rest time series of one sensor, moving stretches shaded.
+* :func:`draw_whole_series`: all of a log's (or a collection's) samples of one sensor, moving
+  stretches shaded: the workspace's view to choose the stretch on.
 * :func:`draw_allan`: Allan deviation log-log per gyro axis, the -1/2 line of the angle random
   walk and the bias-instability minimum marked.
 * :func:`draw_projections`: the magnetometer readings as three 2D projections (x-y, x-z, y-z),
@@ -72,6 +74,27 @@ def draw_series(plot: pg.PlotItem, analysis: RestAnalysis, sensor: str) -> None:
                                          brush=pg.mkBrush(255, 140, 0, 60))
             plot.addItem(region)
     plot.setTitle(f"{SENSOR_TITLES[sensor]} minus its mean [{UNITS[sensor]}]", size="8pt")
+    plot.setLabel("bottom", "time", units="s")
+
+
+def draw_whole_series(plot: pg.PlotItem, t_s: np.ndarray, values: np.ndarray, origin_s: float,
+                      reference: np.ndarray | None, sensor: str,
+                      moving_s: list[tuple[float, float]]) -> None:
+    """All of a source's samples of one sensor (a log, or what was collected), in seconds from
+    `origin_s`, about `reference` (the analysed stretch's mean; None: their own), with the
+    stretches in which the phone moved shaded: the view to choose a stretch on."""
+    plot.clear()
+    if len(t_s) == 0:
+        plot.setTitle(f"{sensor}: no samples", size="8pt")
+        return
+    centre = values.mean(axis=0) if reference is None else np.asarray(reference, float)
+    for k, colour in enumerate(AXIS_COLOURS):
+        plot.plot(t_s - origin_s, values[:, k] - centre[k], pen=pg.mkPen(colour), name=AXES[k])
+    for start, end in moving_s:
+        plot.addItem(pg.LinearRegionItem((start, end), movable=False,
+                                         brush=pg.mkBrush(255, 140, 0, 60)), ignoreBounds=True)
+    plot.setTitle(f"{SENSOR_TITLES[sensor]} minus the stretch's mean [{UNITS[sensor]}] "
+                  "(orange: moved)", size="8pt")
     plot.setLabel("bottom", "time", units="s")
 
 

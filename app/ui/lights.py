@@ -27,19 +27,28 @@ STATE_COLORS = {
     "moving": QtGui.QColor(150, 152, 158),
     "still": QtGui.QColor(60, 140, 245),
 }
+COMPACT_LAMP_PX = 14
 CAPTIONS = {"off": "off", "no data": "no data", "ok": "OK", "acc disturbed": "disturbed",
             "mag disturbed": "disturbed", "calibrating": "calibrating", "moving": "moving",
             "still": "still"}
 
 
 class Light(QtWidgets.QWidget):
-    """A round lamp with a caption "<name> <state>"; `state` is one of STATE_COLORS."""
+    """A round lamp with a caption "<name> <state>"; `state` is one of STATE_COLORS. compact: a
+    smaller lamp with the two lines of its caption beside it (a panel short of height)."""
 
-    def __init__(self, name: str, parent: QtWidgets.QWidget | None = None) -> None:
+    def __init__(self, name: str, parent: QtWidgets.QWidget | None = None,
+                 compact: bool = False) -> None:
         super().__init__(parent)
         self.name = name
         self.state = "no data"
-        self.setMinimumSize(84, 66)
+        self.compact = compact
+        if compact:
+            metrics = self.fontMetrics()
+            text = max(metrics.horizontalAdvance(text) for text in (name, *CAPTIONS.values()))
+            self.setMinimumSize(COMPACT_LAMP_PX + 8 + text, 2 * metrics.height() + 2)
+        else:
+            self.setMinimumSize(84, 60)
         self.setSizePolicy(QtWidgets.QSizePolicy.Policy.Preferred,
                            QtWidgets.QSizePolicy.Policy.Fixed)
         self.setToolTip(f"{name}: no data yet")
@@ -61,20 +70,31 @@ class Light(QtWidgets.QWidget):
     def paintEvent(self, event: QtGui.QPaintEvent) -> None:  # noqa: N802 (Qt name)
         painter = QtGui.QPainter(self)
         painter.setRenderHint(QtGui.QPainter.RenderHint.Antialiasing)
-        diameter = 24
-        x = (self.width() - diameter) / 2
         color = STATE_COLORS[self.state]
-        gradient = QtGui.QRadialGradient(x + diameter * 0.35, 4 + diameter * 0.35, diameter * 0.7)
+        if self.compact:
+            diameter = COMPACT_LAMP_PX
+            x, y = 2.0, (self.height() - diameter) / 2
+        else:
+            diameter = 24
+            x, y = (self.width() - diameter) / 2, 4.0
+        gradient = QtGui.QRadialGradient(x + diameter * 0.35, y + diameter * 0.35,
+                                         diameter * 0.7)
         gradient.setColorAt(0.0, color.lighter(150))
         gradient.setColorAt(1.0, color)
         painter.setBrush(QtGui.QBrush(gradient))
         painter.setPen(QtGui.QPen(color.darker(150), 1.5))
-        painter.drawEllipse(QtCore.QRectF(x, 4, diameter, diameter))
+        painter.drawEllipse(QtCore.QRectF(x, y, diameter, diameter))
         painter.setPen(self.palette().color(QtGui.QPalette.ColorRole.WindowText))
-        # two lines (the name, then its state), so a narrow dock never cuts the state off
-        painter.drawText(QtCore.QRectF(0, 4 + diameter + 1, self.width(), 36),
-                         QtCore.Qt.AlignmentFlag.AlignHCenter,
-                         f"{self.name}\n{CAPTIONS[self.state]}")
+        if self.compact:
+            left = x + diameter + 5
+            painter.drawText(QtCore.QRectF(left, 0, self.width() - left, self.height()),
+                             QtCore.Qt.AlignmentFlag.AlignVCenter,
+                             f"{self.name}\n{CAPTIONS[self.state]}")
+        else:
+            # two lines (the name, then its state), so a narrow dock never cuts the state off
+            painter.drawText(QtCore.QRectF(0, 4 + diameter + 1, self.width(), 36),
+                             QtCore.Qt.AlignmentFlag.AlignHCenter,
+                             f"{self.name}\n{CAPTIONS[self.state]}")
         painter.end()
 
 

@@ -79,7 +79,7 @@ def default_settings() -> QtCore.QSettings:
     return QtCore.QSettings(ORGANIZATION, APPLICATION)
 
 
-PREPARING_TEXT = "preparing the filter\n(the first start compiles it: about a minute)"
+PREPARING_TEXT = "preparing the filter\n(the first start compiles it: about half a minute)"
 
 
 def phone_no_data_text(snapshot: Snapshot) -> str:
@@ -213,6 +213,7 @@ class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWi
         box.addWidget(self.central_splitter, 1)
         for view in self.views():
             view.camera_changed.connect(lambda v=view: self._on_camera_changed(v))
+        self.transport.navigated.connect(self.plots.follow)    # a seek or Play: follow again
 
     def _build_tool_workspaces(self, use_gl: bool | None, tune_log: str | Path | None) -> None:
         """Calibrate (task 2, Allan, magnetometer), Tune (settings, A/B re-filter, auto-tune)
@@ -258,7 +259,8 @@ class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWi
                                                                   self.show_connect_dialog))
         filter_widget = QtWidgets.QWidget()
         filter_layout = QtWidgets.QVBoxLayout(filter_widget)
-        filter_layout.setContentsMargins(4, 4, 4, 4)
+        filter_layout.setContentsMargins(4, 2, 4, 2)
+        filter_layout.setSpacing(2)
         filter_layout.addWidget(self.lights)
         filter_layout.addWidget(self.controls)
         filter_layout.addStretch(1)
@@ -321,7 +323,7 @@ class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWi
         self._apply_user(snapshot)
         self.calibration.feed(snapshot)
         self.consistency.apply_snapshot(snapshot)
-        self.plots.append(snapshot.plot)
+        self.plots.append(snapshot.plot, snapshot.status.sensors_enabled)
         self.plots.set_status(snapshot.status)
         self.plots.set_time_origin(snapshot.t0_ms)
         replay = snapshot.replay
@@ -366,6 +368,7 @@ class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWi
             return
         self._absent = absent
         self.controls.set_absent(absent)
+        self.fit_filter_dock()                   # the note under the switches: room for it
         for sensor, action in self.sensor_actions.items():
             action.setEnabled(sensor not in absent)
             action.setToolTip(absent_text(sensor) if sensor in absent else action.text())

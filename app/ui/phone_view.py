@@ -14,6 +14,7 @@ import time
 import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
+from app.ui.elided import ElidedLabel
 from app.ui.scene import (AXIS_LENGTH, CAMERA, DETAIL_INTERVAL_S, REDRAW_QUAT_CHANGE,
                           RING_REDRAW_CHANGE, PhoneScene, opengl_available, software_gl)
 from app.ui.uncertainty import (attitude_covariance, axis_tip_ellipses,
@@ -26,27 +27,6 @@ def _make_gl_view():
     """A new offscreen-rendered 3D scene widget (see app.ui.scene_view.SceneView)."""
     from app.ui.scene_view import SceneView
     return SceneView()
-
-
-class ElidedLabel(QtWidgets.QLabel):
-    """A one-line label that may be narrower than its text: the end is cut with "…" (the whole
-    text in the tooltip), so three views side by side fit a 1280-pixel screen."""
-
-    def minimumSizeHint(self) -> QtCore.QSize:  # noqa: N802 (Qt name)
-        return QtCore.QSize(self.fontMetrics().horizontalAdvance("…") + 4,
-                            super().minimumSizeHint().height())
-
-    def setText(self, text: str) -> None:  # noqa: N802 (Qt name)
-        super().setText(text)
-        self.setToolTip(text)
-
-    def paintEvent(self, event: QtGui.QPaintEvent) -> None:  # noqa: N802 (Qt name)
-        painter = QtGui.QPainter(self)
-        text = self.fontMetrics().elidedText(self.text(), QtCore.Qt.TextElideMode.ElideRight,
-                                             self.contentsRect().width())
-        painter.setPen(self.palette().color(QtGui.QPalette.ColorRole.WindowText))
-        painter.drawText(self.contentsRect(), int(QtCore.Qt.AlignmentFlag.AlignLeft
-                                                  | QtCore.Qt.AlignmentFlag.AlignVCenter), text)
 
 
 class PhoneView(QtWidgets.QFrame):

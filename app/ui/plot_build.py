@@ -9,10 +9,12 @@ from __future__ import annotations
 import pyqtgraph as pg
 from PySide6 import QtCore, QtWidgets
 
+from app.ui.elided import ElidedLabel
 from app.ui.no_data import NoDataText
 from app.ui.plot_items import Curve, PlotGroup, TimeAxis, cache_painting, legend_icon
-from app.ui.plot_specs import (DEFAULT_WINDOW_S, GATE_COLOR, LEFT_AXIS_WIDTH, LEGENDS,
-                               MAX_WINDOW_S, PLOTS, REJECTED_COLOR, CurveSpec, PlotSpec)
+from app.ui.plot_specs import (DEFAULT_WINDOW_S, FOLLOW_NOTE_STYLE, GATE_COLOR, LEFT_AXIS_WIDTH,
+                               LEGEND_TIPS, LEGENDS, MAX_WINDOW_S, OFF_COLOR, PLOTS,
+                               REJECTED_COLOR, CurveSpec, PlotSpec)
 
 
 class PlotPanelBuild:
@@ -36,8 +38,16 @@ class PlotPanelBuild:
                                      "(Space when live)")
         self.pause_button.toggled.connect(lambda checked: self.set_paused(checked))
         self.follow_button = QtWidgets.QPushButton("Follow")
-        self.follow_button.setToolTip("Show the newest samples again")
+        self.follow_button.setObjectName("follow_button")
+        self.follow_button.setToolTip("Show the newest samples again (a replay: its position; "
+                                      "a seek, Home or Play follows it too)")
         self.follow_button.clicked.connect(self.follow)
+        self.follow_button.setEnabled(False)        # following already
+        # While not following: what the plots show instead, in a colour that stands out
+        self.follow_note = ElidedLabel("", minimum_text="not following…")
+        self.follow_note.setObjectName("follow_note")
+        self.follow_note.setStyleSheet(FOLLOW_NOTE_STYLE)
+        self.follow_note.setVisible(False)
         self.cursor_checkbox = QtWidgets.QCheckBox("Cursor")
         self.cursor_checkbox.setToolTip("A draggable line reading every visible curve")
         self.cursor_checkbox.toggled.connect(self.set_cursor_visible)
@@ -51,6 +61,7 @@ class PlotPanelBuild:
         for widget in (self.window_spin, self.pause_button, self.follow_button,
                        self.cursor_checkbox, self.unwrap_checkbox, self.clear_button):
             toolbar.addWidget(widget)
+        toolbar.addWidget(self.follow_note)
         toolbar.addStretch(1)
         return toolbar
 
@@ -79,7 +90,7 @@ class PlotPanelBuild:
             button.setCheckable(True)
             button.setChecked(True)
             button.setAutoRaise(True)
-            button.setToolTip(f"Show or hide {name}")
+            button.setToolTip(f"Show or hide {LEGEND_TIPS.get(name, name)}")
             button.toggled.connect(lambda checked, g=key, n=name: self.set_shown(g, n, checked))
             row.addWidget(button)
             group.toggles[name] = button
@@ -128,6 +139,10 @@ class PlotPanelBuild:
             band = Curve(pen=pg.mkPen(REJECTED_COLOR, width=4), antialias=False)
             plot.addItem(band, ignoreBounds=True)
             self.bands[spec.key] = band
+            off = Curve(pen=pg.mkPen(OFF_COLOR, width=4, style=QtCore.Qt.PenStyle.DashLine),
+                        antialias=False)
+            plot.addItem(off, ignoreBounds=True)
+            self.off_bands[spec.key] = off
             pen = pg.mkPen(GATE_COLOR, width=1, style=QtCore.Qt.PenStyle.DashLine)
             lines = (pg.InfiniteLine(angle=0, pen=pen), pg.InfiniteLine(angle=0, pen=pen))
             for line in lines:

@@ -148,6 +148,35 @@ def unwrap_in_turn(reference_t: np.ndarray, reference_deg: np.ndarray, t: np.nda
     return out
 
 
+class OffSpans:
+    """Stretches of time [start, end] (s), in order, merged when one starts within `join_s`
+    of the previous one's end: where a sensor was switched off."""
+
+    def __init__(self, join_s: float) -> None:
+        self.join_s = join_s
+        self.spans: list[list[float]] = []
+
+    def add(self, start: float, end: float) -> None:
+        if self.spans and start <= self.spans[-1][1] + self.join_s:
+            self.spans[-1][1] = max(self.spans[-1][1], end)
+        else:
+            self.spans.append([start, end])
+
+    def clear(self) -> None:
+        self.spans.clear()
+
+    def mask(self, t: np.ndarray) -> np.ndarray:
+        """Which of the times `t` fall in one of the stretches."""
+        if not self.spans or not len(t):
+            return np.zeros(len(t), bool)
+        starts = np.array([a for a, _ in self.spans])
+        ends = np.array([b for _, b in self.spans])
+        index = np.searchsorted(starts, t, side="right") - 1
+        inside = index >= 0
+        inside[inside] = t[inside] <= ends[index[inside]]
+        return inside
+
+
 def rejected_spans(t: np.ndarray, rejected: np.ndarray) -> np.ndarray:
     """Runs of rejected samples as (n, 2) [start, end] times; a run is widened by half a
     sample period on each side so that a single rejected sample is still a visible tick."""

@@ -86,6 +86,9 @@ def legend_icon(color: tuple[int, int, int], style: str) -> QtGui.QIcon:
     painter = QtGui.QPainter(pixmap)
     if style == "band":
         painter.fillRect(QtCore.QRectF(1, 8, 20, 3), QtGui.QColor(*color))
+    elif style == "dashed band":
+        for x in (1, 9, 17):
+            painter.fillRect(QtCore.QRectF(x, 8, 5, 3), QtGui.QColor(*color))
     else:
         pen = QtGui.QPen(QtGui.QColor(*color), 2)
         if style == "dash":

@@ -15,6 +15,8 @@ MAX_WINDOW_S = 600.0
 AXIS_COLORS = ((220, 50, 50), (40, 160, 60), (50, 100, 230))    # x, y, z
 NORM_COLOR = (90, 90, 90)
 REJECTED_COLOR = (225, 40, 40)
+OFF_COLOR = (130, 132, 140)      # a sensor switched off: its samples are not used
+OFF_JOIN_S = 0.5                 # "off" samples closer than this are one stretch
 GATE_COLOR = (200, 120, 0)
 MARKER_COLOR = (230, 120, 0)
 FIRST_PLOTS = ("acc", "yaw", "error")    # the top plot of each tab labels the markers
@@ -26,6 +28,9 @@ EULER_TOOLTIP = ("Euler angles z-y-x (the course's q2euler intent, its errata fi
                  "R = Rz(yaw) Ry(pitch) Rx(roll), sensor -> East-North-Up; yaw about up "
                  "(0 = the phone's y axis to the north, counter-clockwise positive), pitch about "
                  "the turned y axis (±90°), roll about the phone's x axis.")
+# The toolbar's note while the plots do not follow (paused, or zoomed/dragged by hand)
+FOLLOW_NOTE_STYLE = ("QLabel { background: #ffe8a8; color: #5a3c00; border: 1px solid #e0b040; "
+                     "border-radius: 3px; padding: 1px 6px; }")
 LEFT_AXIS_WIDTH = 64        # px, the same for every plot so their time axes line up
 BAND_FRACTION = 0.035       # the rejected band: this much of the plot's height, at the bottom
 
@@ -93,12 +98,18 @@ def curve_specs() -> list[CurveSpec]:
 LEGENDS = {
     "sensors": (("x", AXIS_COLORS[0], "line"), ("y", AXIS_COLORS[1], "line"),
                 ("z", AXIS_COLORS[2], "line"), ("norm", NORM_COLOR, "line"),
-                ("rejected", REJECTED_COLOR, "band"), ("gates", GATE_COLOR, "dash")),
+                ("rejected", REJECTED_COLOR, "band"), ("off", OFF_COLOR, "dashed band"),
+                ("gates", GATE_COLOR, "dash")),
     "orientation": (("OWN", (60, 60, 60), "line"), ("PHONE", (60, 60, 60), "dash"),
                     ("YOURS", (60, 60, 60), "dot")),
     "error": (("total", ERROR_COLORS[0], "line"), ("heading", ERROR_COLORS[1], "line"),
               ("inclination", ERROR_COLORS[2], "line"), ("OWN", (60, 60, 60), "line"),
               ("YOURS", (60, 60, 60), "dot")),
+}
+LEGEND_TIPS = {
+    "rejected": "samples the filter rejected (a gate fired): a red band along the bottom",
+    "off": "the sensor was switched off: the filter did not use these samples (a grey dashed "
+           "band; no gate was asked)",
 }
 USER_TOGGLES = (("orientation", "YOURS"), ("error", "YOURS"), ("error", "OWN"))
 

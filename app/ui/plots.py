@@ -1,7 +1,8 @@
 """Live plots in time since the session's start, in three tabs.
 
-* Sensors: accelerometer, gyroscope and magnetometer (x, y, z, norm), the gates on the norms
-  and the samples the filter rejected as a thin band of ticks along the bottom;
+* Sensors: accelerometer, gyroscope and magnetometer (x, y, z, norm), the gates on the norms,
+  the samples the filter rejected as a thin red band of ticks along the bottom and, where the
+  sensor was switched off (its samples not used, no gate asked), a grey dashed band instead;
 * Orientation: yaw, pitch and roll (z-y-x) of OWN (solid) and PHONE (dashed, same colour),
   wrapped to ±180° (±90° for pitch) with the line broken at a wrap, or unwrapped in one turn;
 * Error vs PHONE: total angle, heading and inclination of OWN against PHONE, compared at
@@ -14,7 +15,8 @@ Samples arrive in PlotChunks (one per display frame) and go into preallocated nu
 of bounded size; the current tab's curves are redrawn at most once per display frame, only
 over the visible window, peak-downsampled to the plot's width. Following shows the last
 `window_s` seconds; pausing (button, Space, or dragging/zooming a plot) freezes the view while
-samples keep being stored, Follow resumes. The legend of each tab is a row of toggles above
+samples keep being stored, and a note in the toolbar says so with the times shown; Follow
+resumes (the window also calls follow() on a replay's seek or Play). The legend of each tab is a row of toggles above
 its plots (never over the data); the cursor reads every visible curve into a small table.
 A sensor the stream does not deliver has its plot say so ("no gyroscope in this stream").
 
@@ -33,12 +35,12 @@ from PySide6 import QtCore, QtWidgets
 from app.engine.snapshot import FilterStatus, PlotChunk
 from app.ui.no_data import NoDataText
 from app.ui.plot_build import PlotPanelBuild
-from app.ui.plot_data import (SampleBuffer, break_at_wraps, peak_downsample, rejected_spans,
-                              time_text, unwrap_deg, unwrap_in_turn)
+from app.ui.plot_data import (OffSpans, SampleBuffer, break_at_wraps, peak_downsample,
+                              rejected_spans, time_text, unwrap_deg, unwrap_in_turn)
 from app.ui.plot_items import Curve, PlotGroup
-from app.ui.plot_specs import (BAND_FRACTION, FIRST_PLOTS, GROUPS, MARKER_COLOR, STREAM_COLUMNS,
-                               USER_STREAMS, USER_TOGGLES, CurveSpec, curve_specs,
-                               readout_table)
+from app.ui.plot_specs import (BAND_FRACTION, FIRST_PLOTS, GROUPS, MARKER_COLOR, OFF_JOIN_S,
+                               STREAM_COLUMNS, USER_STREAMS, USER_TOGGLES, CurveSpec,
+                               curve_specs, readout_table)
 
 class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
     """Toolbar (window length, Pause/Follow, Cursor, Unwrap, Clear), three tabs of plots and
@@ -49,6 +51,7 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
     def __init__(self, parent: QtWidgets.QWidget | None = None) -> None:
         super().__init__(parent)
         self.following = True
+        self.pause_reason = ""          # "paused" or "zoomed" while not following
         self.unwrapped = False
         self._dirty = True
         self._last_range: tuple[float, float] | None = None
@@ -67,6 +70,11 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
         self.plots: dict[str, pg.PlotItem] = {}
         self.curves: list[tuple[CurveSpec, Curve]] = []
         self.bands: dict[str, Curve] = {}
+        self.off_bands: dict[str, Curve] = {}
+        # per banded sensor: the stretches in which its samples arrived while it was switched
+        # off (said by each snapshot's status)
+        self.off_spans = {"acc": OffSpans(OFF_JOIN_S), "mag": OffSpans(OFF_JOIN_S)}
+        self._off_band_spans: dict[str, np.ndarray] = {}
         self.gate_lines: dict[str, tuple[pg.InfiniteLine, pg.InfiniteLine]] = {}
         self.cursors: dict[str, pg.InfiniteLine] = {}
         self.groups: dict[str, PlotGroup] = {}
@@ -100,8 +108,10 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
 
     # ---- data in ---------------------------------------------------------------------------
 
-    def append(self, chunk: PlotChunk) -> None:
-        """Store the new samples; drawing waits for the next refresh()."""
+    def append(self, chunk: PlotChunk, enabled: dict[str, bool] | None = None) -> None:
+        """Store the new samples; drawing waits for the next refresh(). enabled: the sensor
+        switches these samples were filtered with (FilterStatus.sensors_enabled): the samples
+        of a switched-off sensor are drawn as "off", not as rejected."""
         for key, t, values, rejected in (("acc", chunk.t_acc, chunk.acc, chunk.acc_rejected),
                                          ("gyr", chunk.t_gyr, chunk.gyr, None),
                                          ("mag", chunk.t_mag, chunk.mag, chunk.mag_rejected)):
@@ -120,6 +130,10 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
                                ("user_error", chunk.t_user_err, chunk.user_error_deg)):
             if len(t):
                 self._append(key, t, np.asarray(values, float).reshape(len(t), 3))
+        for key, t in (("acc", chunk.t_acc), ("mag", chunk.t_mag)):
+            if enabled is not None and enabled.get(key) is False and len(t):
+                self.off_spans[key].add(float(t[0]), float(t[-1]))
+                self._dirty = True
 
     def set_user_present(self, present: bool) -> None:
         """YOURS loaded or not: its legend toggles (and OWN's beside it in the error tab) show
@@ -164,6 +178,8 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
         if t[0] < buffer.last_time() - 1e-6:
             for other in self.live_buffers.values():
                 other.clear()
+            if self.session is None:
+                self._clear_off_spans()
             self._dirty = self._dirty or self.session is None
         buffer.append(t, values)
         # While paused, samples after the frozen view change nothing on screen; a replay's
@@ -267,18 +283,47 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
     def set_current_group(self, key: str) -> None:
         self.tabs.setCurrentIndex([k for k, _ in GROUPS].index(key))
 
-    def set_paused(self, paused: bool) -> None:
-        """Pause: the view stays where it is while samples keep being stored."""
+    def set_paused(self, paused: bool, reason: str = "paused") -> None:
+        """Pause: the view stays where it is while samples keep being stored. `reason` ("paused"
+        or "zoomed": a plot dragged or zoomed by hand) is said in the toolbar's note, with the
+        time range shown, until the plots follow again (Follow; a replay's seek, Home or
+        Play)."""
         paused = bool(paused)
+        if paused:
+            self.pause_reason = reason
         if paused == self.paused:
+            self._show_follow_state()
             return
         self.following = not paused
         self.pause_button.blockSignals(True)
         self.pause_button.setChecked(paused)
         self.pause_button.blockSignals(False)
         self.pause_button.setText("Paused" if paused else "Pause")
+        self.follow_button.setEnabled(paused)
         self._dirty = True
+        self._show_follow_state()
         self.paused_changed.emit(paused)
+
+    def follow_text(self) -> str:
+        """The toolbar's note: "" while following, else why not and which times are shown."""
+        if self.following:
+            return ""
+        low, high = self.x_range()
+        span = high - low
+        why = "zoomed by hand" if self.pause_reason == "zoomed" else "paused"
+        low_text, high_text = time_text(low, span, 1), time_text(high, span, 1)
+        unit = "" if ":" in high_text else " s"
+        return f"not following ({why}): showing {low_text} – {high_text}{unit}"
+
+    def _show_follow_state(self) -> None:
+        text = self.follow_text()
+        if self.follow_note.text() != text:
+            self.follow_note.setText(text, (text.split(": showing ")[0],))
+            self.follow_note.setToolTip(
+                f"{text}\nThe plots stay on these times while samples keep arriving; Follow "
+                "(or, in a replay, a seek, Home or Play) shows the newest again" if text else "")
+        if self.follow_note.isVisible() != bool(text):
+            self.follow_note.setVisible(bool(text))
 
     def follow(self) -> None:
         self.set_paused(False)
@@ -301,6 +346,9 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
         if name == "rejected":
             for band in self.bands.values():
                 band.setVisible(bool(shown))
+        elif name == "off":
+            for band in self.off_bands.values():
+                band.setVisible(bool(shown))
         elif name == "gates" and not shown:     # shown again with the next status
             for lines in self.gate_lines.values():
                 for line in lines:
@@ -319,8 +367,14 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
     def clear(self) -> None:
         for buffer in self.live_buffers.values():
             buffer.clear()
+        self._clear_off_spans()
         self._dirty = True
         self.refresh()
+
+    def _clear_off_spans(self) -> None:
+        for spans in self.off_spans.values():
+            spans.clear()
+        self._dirty = True
 
     def latest_time(self) -> float:
         if self.session is not None and self._position is not None:
@@ -346,7 +400,7 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
     def _on_manual_range(self, *args) -> None:
         # The user dragged or zoomed a plot: they want to look at it, so stop following.
         if not self._setting_range:
-            self.set_paused(True)
+            self.set_paused(True, "zoomed")
 
     def _on_x_range_changed(self, view_box, x_range) -> None:
         """A plot's time range changed by hand (drag, zoom, its menu): the others follow."""
@@ -384,6 +438,8 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
         self._dirty = False
         t_start, t_end = self.x_range()
         self._last_range = (t_start, t_end) if self.following else None
+        if not self.following:
+            self._show_follow_state()
         group = self.current_group()
         bounds: dict[str, list[tuple[float, float]]] = {key: [] for key in self.groups[group].plots}
         for stream in self._streams_of(group):
@@ -448,18 +504,30 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
             if valid:
                 bounds[spec.plot].append((low, high))
         if stream in self.bands:
-            rejected = values[:, 4] > 0.5 if len(t) else np.zeros(0, bool)
+            off = self.off_spans[stream].mask(t)
+            rejected = (values[:, 4] > 0.5) & ~off if len(t) else np.zeros(0, bool)
             self._band_spans[stream] = rejected_spans(t, rejected)
+            self._off_band_spans[stream] = rejected_spans(t, off)
 
     def _draw_band(self, key: str) -> None:
         """The rejected samples as ticks along the bottom of the plot (the curves stay
-        visible above them)."""
-        spans = self._band_spans.get(key, np.empty((0, 2)))
+        visible above them), and where the sensor was switched off a grey dashed band at the
+        same height."""
         low, high = self.plots[key].getViewBox().viewRange()[1]
         level = low + BAND_FRACTION * (high - low)
-        x = spans.reshape(-1)
-        self.bands[key].set_curve(x, np.full(len(x), level), True,
-                                  (level, level) if len(x) else None, connect="pairs")
+        for bands, spans in ((self.bands, self._band_spans),
+                             (self.off_bands, self._off_band_spans)):
+            x = spans.get(key, np.empty((0, 2))).reshape(-1)
+            bands[key].set_curve(x, np.full(len(x), level), True,
+                                 (level, level) if len(x) else None, connect="pairs")
+
+    def off_band_spans(self, key: str) -> np.ndarray:
+        """The "off" stretches drawn in the plot's visible window, (n, 2) [start, end] s."""
+        return self._off_band_spans.get(key, np.empty((0, 2)))
+
+    def rejected_band_spans(self, key: str) -> np.ndarray:
+        """The rejected stretches drawn in the plot's visible window, (n, 2) [start, end] s."""
+        return self._band_spans.get(key, np.empty((0, 2)))
 
     def _fit_y(self, key: str, low: float, high: float) -> None:
         """Fit the y range to the visible curves' span (and gate lines), with hysteresis so the

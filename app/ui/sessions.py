@@ -10,6 +10,7 @@ resolution as ``--replay``: app.engine.config.open_replay) and swaps it in.
 
 from __future__ import annotations
 
+import re
 import threading
 from pathlib import Path
 from typing import Any, Callable
@@ -19,7 +20,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 from app.engine.commands import AddMarker, SetMarkerLabel
 from app.engine.config import ConfigError, open_replay
 from app.engine.configuration import replayed_setup
-from app.engine.session import sessions_dir
+from app.engine.session import session_json_of, session_label, sessions_dir, write_label
 from app.engine.snapshot import Snapshot
 
 MAX_RECENT = 10
@@ -31,6 +32,50 @@ REPLAY_KEYS = (("Back 1 s", "Left", ("jump_by", -1.0)), ("Forward 1 s", "Right",
                ("One sample forward", "Ctrl+Right", ("step", 1)),
                ("To the start", "Home", ("seek_to", 0.0)),
                ("To the end", "End", ("seek_to", float("inf"))))
+
+
+EXPORT_SUFFIXES = {"csv": ".csv", "log": ".txt", "mat": ".mat"}
+
+
+def session_folder(path: str | Path) -> Path | None:
+    """The recorded session a path names (its folder, raw.txt or session.json); None for a
+    phone's own log."""
+    found = session_json_of(path)
+    return found.parent if found is not None else None
+
+
+def session_title(path: str | Path) -> str:
+    """How a session is named to the user: "label (2026-12-01_10-00-00)" for a labelled one,
+    else its folder's (or the log's) name."""
+    path = Path(path)
+    folder = session_folder(path)
+    if folder is None:
+        return path.name
+    label = session_label(folder)
+    return f"{label} ({folder.name})" if label else folder.name
+
+
+def _file_stem(text: str) -> str:
+    """A label as part of a file name: letters, digits, - and _ (spaces become _)."""
+    return re.sub(r"[^\w\-]+", "", re.sub(r"\s+", "_", text.strip()))[:60]
+
+
+def export_path(source: str | Path, fmt: str) -> Path:
+    """Where File → Export suggests writing: named after the session (its label and time
+    stamp, or its folder; a log's own name), never raw_export.*; beside the session's files."""
+    base = Path(source)
+    suffix = EXPORT_SUFFIXES[fmt]
+    folder = session_folder(base)
+    if folder is not None:
+        label = _file_stem(session_label(folder))
+        stem = f"{label}_{folder.name}" if label else folder.name
+        return folder / f"{stem}_export{suffix}"
+    name = base.name
+    for ending in (".txt.gz", ".gz", ".txt"):
+        if name.lower().endswith(ending):
+            name = name[:-len(ending)]
+            break
+    return base.parent / f"{name or 'session'}_export{suffix}"
 
 
 def default_engine_factory(path: str):
@@ -178,6 +223,8 @@ class SessionControls(QtCore.QObject):
                                             window.transport.toggle_recording)
         self.marker_action = window._action(menu, "Add a &marker", SHORTCUTS["marker"],
                                             self.add_marker)
+        self.label_action = window._action(menu, "&Label this session…", None,
+                                           lambda: self.label_session())
         menu.addSeparator()
         export = menu.addMenu("&Export")
         self.export_actions = {
@@ -227,7 +274,57 @@ class SessionControls(QtCore.QObject):
             return False
         window.swap_engine(engine)
         self.add_recent(path)
+        self._show_title(path)
         window.statusBar().showMessage(f"replaying {path}", 5000)
+        return True
+
+    def _show_title(self, path: str | Path | None) -> None:
+        if path is not None and session_folder(path) is not None:
+            self.window.setWindowTitle(f"Orientation Lab — {session_title(path)}")
+
+    # ---- labels --------------------------------------------------------------------------------
+
+    def label_target(self) -> Path | None:
+        """The session File → Label names: the one replayed, else the latest recording once it
+        has stopped (a recording in progress rewrites its session.json itself)."""
+        source = self.export_source()
+        if source is None:
+            return None
+        snapshot = self.window.last_snapshot
+        recording = snapshot.recording if snapshot is not None else None
+        if (recording and recording.get("active")
+                and Path(str(recording.get("folder", ""))) == session_folder(source)):
+            return None
+        return session_folder(source)
+
+    def label_session(self, label: str | None = None) -> bool:
+        """Give the session a label (asked for when None): kept in its session.json, shown in
+        Open recent, the window's title and export names."""
+        folder = self.label_target()
+        if folder is None:
+            self._complain("Label a session", "Open a recorded session (or stop the recording) "
+                                              "to label it: a phone's own log has no "
+                                              "session.json to keep a label in.")
+            return False
+        if label is None:
+            label, ok = QtWidgets.QInputDialog.getText(
+                self.window, "Label this session", f"A name for {folder.name} (empty: none):",
+                text=session_label(folder))
+            if not ok:
+                return False
+        try:
+            written = write_label(folder / "session.json", label)
+        except (OSError, ValueError) as error:
+            self._complain("Label a session", f"cannot write {folder / 'session.json'}: "
+                                              f"{getattr(error, 'strerror', None) or error}")
+            return False
+        self.add_recent(folder)
+        engine_source = getattr(getattr(self.window.engine, "source", None), "path", None)
+        if engine_source is not None and session_folder(engine_source) == folder:
+            self._show_title(folder)
+        self.window.statusBar().showMessage(
+            f"{folder.name} labelled {written!r}" if written else f"{folder.name}: label removed",
+            5000)
         return True
 
     def recent(self) -> list[Path]:
@@ -250,7 +347,10 @@ class SessionControls(QtCore.QObject):
         if not recent:
             menu.addAction("(none yet)").setEnabled(False)
         for path in recent:
-            menu.addAction(str(path), lambda p=path: self.open(p))
+            title = session_title(path)
+            action = menu.addAction(title if title != path.name else str(path),
+                                    lambda p=path: self.open(p))
+            action.setToolTip(str(path))
 
     def drop_paths(self, mime: QtCore.QMimeData) -> list[str]:
         return [url.toLocalFile() for url in mime.urls() if url.isLocalFile()] \
@@ -330,11 +430,8 @@ class SessionControls(QtCore.QObject):
         dialog = ExportDialog(self.window, fmt, markers, self.window.plots.x_range())
         if dialog.exec() != QtWidgets.QDialog.DialogCode.Accepted:
             return
-        suffix = {"csv": ".csv", "log": ".txt", "mat": ".mat"}[fmt]
-        base = Path(source)
-        name = (base.name if base.is_dir() else base.stem) + "_export" + suffix
         out, _ = QtWidgets.QFileDialog.getSaveFileName(self.window, dialog.windowTitle(),
-                                                       str(base.parent / name))
+                                                       str(export_path(source, fmt)))
         if out:
             # the replayed session holds what the replay shows: its configuration over time
             setup = replayed_setup(self.window.configuration, source)

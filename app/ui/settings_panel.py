@@ -1,6 +1,6 @@
-"""The settings panel: every filter setting with its value, unit, default, course value and the
-one-line explanation, all taken from the declarations (``ekf.settings_rows()``, no second copy),
-editable live.
+"""The settings panel: every filter setting with its value, unit, default and course value, and
+below the table what the chosen one means, all taken from the declarations
+(``ekf.settings_rows()``, no second copy), editable live.
 
 A change is parsed and checked (``EKFSettings.from_dict``, the rules of `--settings` files) and
 sent as ``SetSettings`` (the engine applies it at the next batch and records it in the session
@@ -27,8 +27,9 @@ from app.engine import config
 from app.engine.commands import SetSettings
 from app.engine.profiles import Profile, ProfileStore
 
-COLUMNS = ("setting", "value", "unit", "default", "course", "meaning")
+COLUMNS = ("setting", "value", "unit", "default", "course")
 VALUE = 1
+MAX_VALUE_COLUMN_PX = 120    # a long vector or matrix is cut ("…"), whole in its tooltip
 _NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|[-+]?inf"
 
 
@@ -95,13 +96,24 @@ class SettingsPanel(QtWidgets.QWidget):
         self.table = QtWidgets.QTableWidget(len(self.rows), len(COLUMNS))
         self.table.setHorizontalHeaderLabels([c.capitalize() for c in COLUMNS])
         self.table.verticalHeader().setVisible(False)
-        self.table.horizontalHeader().setStretchLastSection(True)
+        self.table.setHorizontalScrollBarPolicy(QtCore.Qt.ScrollBarPolicy.ScrollBarAsNeeded)
         self.table.itemChanged.connect(self._on_item_changed)
+        # what the current row's setting means (the declaration's doc), below the table
+        self.meaning = QtWidgets.QLabel("")
+        self.meaning.setObjectName("setting_meaning")
+        self.meaning.setWordWrap(True)
+        self.meaning.setStyleSheet("color: #444;")
+        self.meaning.setMinimumHeight(3 * self.meaning.fontMetrics().lineSpacing())
+        self.meaning.setAlignment(QtCore.Qt.AlignmentFlag.AlignLeft
+                                  | QtCore.Qt.AlignmentFlag.AlignTop)
+        self.table.currentCellChanged.connect(lambda row, *_: self.show_meaning(row))
         self.message = QtWidgets.QLabel("")
         self.message.setWordWrap(True)
         layout = QtWidgets.QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
         layout.addLayout(self._buttons())
         layout.addWidget(self.table, 1)
+        layout.addWidget(self.meaning)
         layout.addWidget(self.message)
         self._fill()
 
@@ -144,14 +156,16 @@ class SettingsPanel(QtWidgets.QWidget):
             for r, row in enumerate(self.rows):
                 value = getattr(self.settings, row.name)
                 cells = (row.name, format_value(value), row.unit, format_value(row.default),
-                         format_value(row.course), row.doc)
+                         format_value(row.course))
                 for c, text in enumerate(cells):
                     item = self.table.item(r, c)
                     new = item is None
                     if new:
                         item = QtWidgets.QTableWidgetItem()
                     item.setText(text)
-                    item.setToolTip(f"{row.name} [{row.unit}]: {row.doc} (allowed: {row.allowed})")
+                    shown = f"{COLUMNS[c]}: {text}\n" if c in (VALUE, 3, 4) else ""
+                    item.setToolTip(f"{shown}{row.name} [{row.unit}]: {row.doc} (allowed: "
+                                    f"{row.allowed})")
                     flags = QtCore.Qt.ItemFlag.ItemIsEnabled | QtCore.Qt.ItemFlag.ItemIsSelectable
                     if c == VALUE:
                         flags |= QtCore.Qt.ItemFlag.ItemIsEditable
@@ -162,8 +176,31 @@ class SettingsPanel(QtWidgets.QWidget):
                     if new:      # an item the table owns already stays where it is
                         self.table.setItem(r, c, item)
             self.table.resizeColumnsToContents()
+            for column in (VALUE, 3, 4):
+                if self.table.columnWidth(column) > MAX_VALUE_COLUMN_PX:
+                    self.table.setColumnWidth(column, MAX_VALUE_COLUMN_PX)
         finally:
             self._filling = False
+        self.show_meaning(self.table.currentRow())
+
+    def show_meaning(self, row: int) -> None:
+        """Below the table: what the setting of `row` means, its unit and allowed values (the
+        first setting's while none is chosen)."""
+        spec = self.rows[row if 0 <= row < len(self.rows) else 0]
+        text = f"<b>{spec.name}</b> [{spec.unit}]: {spec.doc} (allowed: {spec.allowed})"
+        if self.meaning.text() != text:
+            self.meaning.setText(text)
+
+    def columns_width(self) -> int:
+        """The table's width showing every column whole."""
+        table = self.table
+        header = table.horizontalHeader()
+        natural = [max(table.sizeHintForColumn(c), header.sectionSizeHint(c))
+                   for c in range(len(COLUMNS))]
+        natural = [min(width, MAX_VALUE_COLUMN_PX) if c in (VALUE, 3, 4) else width
+                   for c, width in enumerate(natural)]
+        return (sum(natural) + table.verticalScrollBar().sizeHint().width()
+                + 2 * table.frameWidth())
 
     # -- edits --------------------------------------------------------------------------------
 

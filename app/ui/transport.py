@@ -21,12 +21,15 @@ from typing import Any, Callable
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.engine.commands import ReplayControl, StartRecording, StopRecording
+from app.ui.elided import ElidedLabel
 from app.ui.plot_data import time_text
 
 SEEK_STEPS = 10_000
 SPEEDS = ((0.1, "0.1×"), (0.25, "0.25×"), (0.5, "0.5×"), (1.0, "1×"), (2.0, "2×"), (5.0, "5×"),
           (10.0, "10×"), (0.0, "max"))
 MARKER_COLOR = (230, 120, 0)
+SLIDER_MIN_WIDTH = 160      # px: the time slider stays usable however much else the bar shows
+SLIDER_MIN_WIDTH_LIVE = 40  # px: no replay to move through
 MARKER_HIT_PX = 6
 
 
@@ -139,7 +142,11 @@ class MarkerSlider(QtWidgets.QSlider):
 
 
 class TransportBar(QtWidgets.QFrame):
-    """Replay and recording controls. `send(command)` forwards commands."""
+    """Replay and recording controls. `send(command)` forwards commands. `navigated` is
+    emitted when the user moves the replay somewhere (a seek: the slider, a key, a marker, Home
+    or End) or plays it: the plots follow the replay again."""
+
+    navigated = QtCore.Signal()
 
     def __init__(self, send: Callable[[object], None],
                  parent: QtWidgets.QWidget | None = None) -> None:
@@ -168,7 +175,9 @@ class TransportBar(QtWidgets.QFrame):
                                       "session.json, estimates.csv in the data folder's sessions")
         self.record_button.setStyleSheet("QToolButton { color: #c01818; font-weight: bold; }")
         self.record_button.clicked.connect(self.toggle_recording)
-        self.record_label = QtWidgets.QLabel("")
+        # "REC 1:12 · 3.0 MB · 12,345 lines", cut to the room there is (never wider: the
+        # window would grow off a small screen), whole in its tooltip
+        self.record_label = ElidedLabel("", minimum_text="REC 0:00")
         self.record_label.setObjectName("record_label")
         layout.addWidget(self.record_button)
         layout.addWidget(self.record_label)
@@ -208,6 +217,7 @@ class TransportBar(QtWidgets.QFrame):
         self.loop_checkbox.clicked.connect(lambda checked: self._send(ReplayControl(loop=checked)))
         self.slider = MarkerSlider()
         self.slider.setObjectName("seek_slider")
+        self.slider.setMinimumWidth(SLIDER_MIN_WIDTH)
         self.slider.setRange(0, SEEK_STEPS)
         self.slider.setToolTip("Drag or click to jump; the markers are ticks (click one to "
                                "jump to it)")
@@ -220,7 +230,9 @@ class TransportBar(QtWidgets.QFrame):
         self.position_label.setMinimumWidth(118)
         self.position_label.setAlignment(QtCore.Qt.AlignmentFlag.AlignRight
                                          | QtCore.Qt.AlignmentFlag.AlignVCenter)
-        self.source_label = QtWidgets.QLabel("")
+        self.source_label = ElidedLabel("", mode=QtCore.Qt.TextElideMode.ElideMiddle,
+                                        minimum_text="live…")
+        self.source_label.setObjectName("source_label")
         self.source_label.setStyleSheet("color: #666;")
         self.source_label.setMaximumWidth(260)
         for widget in (self.step_back_button, self.play_button, self.step_button,
@@ -248,13 +260,17 @@ class TransportBar(QtWidgets.QFrame):
         for widget in self.replay_widgets:
             if widget.isEnabled() != enabled:
                 widget.setEnabled(enabled)
+        # a replay's slider keeps its room; live, the recording's figures and the peer get it
+        minimum = SLIDER_MIN_WIDTH if enabled else SLIDER_MIN_WIDTH_LIVE
+        if self.slider.minimumWidth() != minimum:
+            self.slider.setMinimumWidth(minimum)
         if replay is None:
             _set_text(self.position_label, "live")
-            _set_elided(self.source_label, source or "not a replay")
+            _set_text(self.source_label, source or "not a replay")
             return
         if not replay.get("indexed", True):
             source = f"indexing {100 * float(replay.get('index_progress', 0.0)):.0f} %"
-        _set_elided(self.source_label, source)
+        _set_text(self.source_label, source)
         finished = bool(replay.get("finished", False))
         self._show_play(bool(replay.get("paused", False)) or finished)
         self._show_speed(float(replay.get("speed", 1.0)))
@@ -299,15 +315,21 @@ class TransportBar(QtWidgets.QFrame):
             text = error if error.startswith("cannot record") else f"recording stopped: {error}"
             style = "color: #c01818; font-weight: bold;"
         elif active:
-            text = (f"REC {clock_text(recording.get('elapsed_s', 0.0))[:-2]} · "
-                    f"{size_text(int(recording.get('bytes', 0)))} · "
-                    f"{int(recording.get('lines', 0)):,} lines")
+            elapsed = f"REC {clock_text(recording.get('elapsed_s', 0.0))[:-2]}"
+            size = size_text(int(recording.get("bytes", 0)))
+            text = f"{elapsed} · {size} · {int(recording.get('lines', 0)):,} lines"
+            shorter = (f"{elapsed} · {size}", elapsed)       # what fits, the time first
             style = "color: #c01818;"
         else:
             text = "saved"
             style = "color: #666;"
-        self.record_label.setToolTip(str(recording.get("folder", "")))
-        _set_text(self.record_label, text)
+        if not active or error:
+            shorter = ()
+        self.record_label.setText(text, shorter)
+        folder = str(recording.get("folder", ""))
+        tooltip = f"{text}\n{folder}" if folder else text
+        if self.record_label.toolTip() != tooltip:
+            self.record_label.setToolTip(tooltip)
         if self.record_label.styleSheet() != style:
             self.record_label.setStyleSheet(style)
 
@@ -331,6 +353,8 @@ class TransportBar(QtWidgets.QFrame):
             self._send(ReplayControl(paused=paused))
         self._replay = {**self._replay, "paused": paused, "finished": False}
         self._show_play(paused)
+        if not paused:
+            self.navigated.emit()
 
     def _show_play(self, paused: bool) -> None:
         """The button offers what a click does: Play when paused (or at the end), else Pause."""
@@ -352,6 +376,7 @@ class TransportBar(QtWidgets.QFrame):
         target = max(0.0, min(float(seconds), self.duration_s()))
         self._send(ReplayControl(seek_s=target))
         self._replay = {**self._replay, "position_s": target, "finished": False}
+        self.navigated.emit()
 
     def jump_by(self, seconds: float) -> None:
         self.seek_to(self.position_s() + seconds)
@@ -388,13 +413,3 @@ class TransportBar(QtWidgets.QFrame):
 def _set_text(widget, text: str) -> None:
     if widget.text() != text:
         widget.setText(text)
-
-
-def _set_elided(label: QtWidgets.QLabel, text: str) -> None:
-    """`text` cut in the middle to the label's width ("…" where it is cut), whole in its
-    tooltip."""
-    shown = label.fontMetrics().elidedText(text, QtCore.Qt.TextElideMode.ElideMiddle,
-                                           label.maximumWidth())
-    _set_text(label, shown)
-    if label.toolTip() != text:
-        label.setToolTip(text)

@@ -42,6 +42,9 @@ from app.ui.tuning import ABCompareView, TuningPanel
 CURRENT_COLOR = (130, 40, 170)
 GHOST_COLOR = (110, 110, 110)
 DIFFERENCE_COLOR = (0, 130, 130)
+MIN_DIFFERENCE_SPAN_DEG = 0.1    # the Δ plot's smallest y range
+RUNS_MIN_WIDTH = 300         # px the A/B plots and table keep beside the settings
+SETTINGS_PANE_MARGIN = 34    # the group box's frame and margins around the settings table
 NO_SESSION_TEXT = ("No session to re-filter.\nReplay a log (orientation-lab --replay LOG) or "
                    "choose one with Open log…")
 
@@ -117,7 +120,9 @@ class ABPlots(QtWidgets.QWidget):
         difference = self.curves[("difference", "current")]
         if current is not None and ghost is not None and len(current.rows):
             t = (current.rows.t_ms - start_ms) / 1000.0
-            difference.setData(t, angle_between_runs_deg(current, ghost), connect="finite")
+            angles = angle_between_runs_deg(current, ghost)
+            difference.setData(t, angles, connect="finite")
+            self._fit_difference(angles)
         else:
             difference.setData([], [])
         has_errors = current is not None and current.errors is not None
@@ -139,6 +144,14 @@ class ABPlots(QtWidgets.QWidget):
             text = ""
         self.message.setText(text)
         self.message.setVisible(bool(text))
+
+    def _fit_difference(self, angles: np.ndarray) -> None:
+        """y from 0 to a little above the largest angle, at least MIN_DIFFERENCE_SPAN_DEG: two
+        runs that agree draw a line along zero, not rounding noise blown up to fill the plot."""
+        finite = angles[np.isfinite(angles)]
+        top = float(finite.max()) if len(finite) else 0.0
+        self.plots["difference"].setYRange(0.0, max(1.1 * top, MIN_DIFFERENCE_SPAN_DEG),
+                                           padding=0.0)
 
     def _fit_errors(self, plot: str, errors: list) -> None:
         """y from 0 to a little above the 99th percentile of both runs: the start, before the
@@ -187,6 +200,7 @@ class TuneWorkspace(QtWidgets.QWidget):
         self.settings_panel = SettingsPanel(send, settings(), store=store)
         settings_box = QtWidgets.QGroupBox("Filter settings (live: the filter and the re-run)")
         QtWidgets.QVBoxLayout(settings_box).addWidget(self.settings_panel)
+        self.settings_box = settings_box
         self.ab_plots = ABPlots()
         self.smooth_checkbox = QtWidgets.QCheckBox("Smoothed (forward + backward RTS pass)")
         self.smooth_checkbox.setToolTip("The offline smoother of `filter --smooth`: our EKF "
@@ -194,34 +208,61 @@ class TuneWorkspace(QtWidgets.QWidget):
                                         "each estimate uses the whole session. Keep the forward "
                                         "run as the ghost to see what smoothing gives.")
         self.smooth_checkbox.toggled.connect(self.set_smoothed)
+        # A/B: the settings beside the runs they give; the ab_page holds the runs' side
         self.ab_page = QtWidgets.QWidget()
         ab_layout = QtWidgets.QVBoxLayout(self.ab_page)
         ab_layout.setContentsMargins(0, 0, 0, 0)
         ab_layout.addWidget(self.smooth_checkbox)
         ab_layout.addWidget(self.ab_plots, 1)
+        self.splitter = QtWidgets.QSplitter(QtCore.Qt.Orientation.Horizontal)
+        self.splitter.setObjectName("tune_splitter")
+        self.splitter.setChildrenCollapsible(False)
+        self.splitter.addWidget(self.settings_box)
+        self.splitter.addWidget(self.ab_page)
+        self.splitter.setStretchFactor(0, 0)
+        self.splitter.setStretchFactor(1, 1)
+        # the panes follow the window's size until the user drags the handle between them
+        self._panes_by_user = False
+        self.splitter.splitterMoved.connect(lambda *_: setattr(self, "_panes_by_user", True))
+        # Auto-tune: its parameters, ranges and figures over the whole width
         self.tune_page = QtWidgets.QWidget()
         self.tune_message = QtWidgets.QLabel(NO_SESSION_TEXT)
         self.tune_message.setWordWrap(True)
         QtWidgets.QVBoxLayout(self.tune_page).addWidget(self.tune_message)
         self.tabs = QtWidgets.QTabWidget()
-        self.tabs.addTab(self.ab_page, "A/B re-filter")
+        self.tabs.setDocumentMode(True)
+        self.tabs.addTab(self.splitter, "A/B re-filter")
         self.tabs.addTab(self.tune_page, "Auto-tune")
-        splitter = QtWidgets.QSplitter(QtCore.Qt.Orientation.Horizontal)
-        splitter.addWidget(settings_box)
-        splitter.addWidget(self.tabs)
-        splitter.setStretchFactor(0, 5)
-        splitter.setStretchFactor(1, 6)
         layout = QtWidgets.QVBoxLayout(self)
+        layout.setContentsMargins(4, 4, 4, 4)
         layout.addLayout(header)
-        layout.addWidget(splitter, 1)
+        layout.addWidget(self.tabs, 1)
 
     # -- the session --------------------------------------------------------------------------
 
     def showEvent(self, event) -> None:  # noqa: N802 (Qt name)
         super().showEvent(event)
+        self.size_panes()
         if self.pending_log is not None and self.prepared is None:
             # Reading a long log takes a moment: after the tab has been drawn.
             QtCore.QTimer.singleShot(0, self._load_pending)
+
+    def resizeEvent(self, event) -> None:  # noqa: N802 (Qt name)
+        super().resizeEvent(event)
+        self.size_panes()
+
+    def size_panes(self) -> None:
+        """The settings pane as wide as its table's columns, the runs the rest, never narrower
+        than RUNS_MIN_WIDTH."""
+        total = self.splitter.width()
+        if total <= 0 or self._panes_by_user:
+            return
+        table = self.settings_panel.table
+        around = (self.settings_box.width() - table.width() if table.width() > 0
+                  and self.settings_box.width() > table.width() else SETTINGS_PANE_MARGIN)
+        wanted = self.settings_panel.columns_width() + around
+        left = max(min(wanted, total - RUNS_MIN_WIDTH), 0)
+        self.splitter.setSizes([left, max(total - left, 0)])
 
     def _load_pending(self) -> None:
         if self.pending_log is not None and self.prepared is None:

@@ -26,6 +26,7 @@ from app.ui.lights import Light
 
 Send = Callable[[object], None]
 FILE_FILTER = "Python filter (*.py)"
+PROBLEM_CHARACTERS = 240     # a longer message is cut in the panel (whole in the traceback)
 STATE_COLOURS = {"running": "#2a9d4a", "paused": "#d9412e", "catching up": "#c98a00",
                  "failed to load": "#d9412e", "loading": "#c98a00"}
 PRINTED_LINES = 3              # of what your filter printed, under its numbers
@@ -78,12 +79,14 @@ class UserFilterPanel(QtWidgets.QGroupBox):
     """Your filter (YOURS): status, lights, problem, and Load / New / Unload buttons."""
 
     def __init__(self, send: Send, parent: QtWidgets.QWidget | None = None) -> None:
-        super().__init__("Your filter (YOURS)", parent)
+        super().__init__("", parent)        # the dock's title says "Your filter"
+        self.setFlat(True)
         self.setObjectName("user_filter_panel")
         self.send = send
         self.status: UserFilterStatus | None = None
         layout = QtWidgets.QVBoxLayout(self)
         self.file_label = QtWidgets.QLabel("no filter loaded")
+        self.file_label.setWordWrap(True)
         self.file_label.setTextInteractionFlags(QtCore.Qt.TextInteractionFlag.TextSelectableByMouse)
         self.state_label = QtWidgets.QLabel("")
         header = QtWidgets.QHBoxLayout()
@@ -91,8 +94,11 @@ class UserFilterPanel(QtWidgets.QGroupBox):
         header.addWidget(self.state_label)
         layout.addLayout(header)
         layout.addLayout(self._buttons())
-        self.lights = {"acc": Light("Acc"), "mag": Light("Mag"),
-                       "standstill": Light("Standstill")}
+        # a problem first: it is what the panel has to say then (the dock is short on a
+        # 720-pixel screen)
+        layout.addWidget(self._problem_box())
+        self.lights = {"acc": Light("Acc", compact=True), "mag": Light("Mag", compact=True),
+                       "standstill": Light("Standstill", compact=True)}
         row = QtWidgets.QHBoxLayout()
         for light in self.lights.values():
             row.addWidget(light)
@@ -113,7 +119,6 @@ class UserFilterPanel(QtWidgets.QGroupBox):
         self.printed_label.setTextInteractionFlags(
             QtCore.Qt.TextInteractionFlag.TextSelectableByMouse)
         layout.addWidget(self.printed_label)
-        layout.addWidget(self._problem_box())
         layout.addStretch(1)
         self.update_status(None)
 
@@ -247,7 +252,11 @@ class UserFilterPanel(QtWidgets.QGroupBox):
             return
         then = ("fix it and save the file: it loads again by itself" if problem.kind == "load"
                 else "paused until you save the file again; everything else goes on")
-        self._set(self.problem_label, f"{problem.message}\n({then})")
+        message = problem.message
+        if len(message) > PROBLEM_CHARACTERS:      # the whole of it: Show traceback, Copy
+            message = message[:PROBLEM_CHARACTERS].rstrip() + "… (Show traceback: all of it)"
+        self._set(self.problem_label, f"{message}\n({then})")
+        self.problem_label.setToolTip(problem.message)
         if self.details.toPlainText() != problem.details:
             self.details.setPlainText(problem.details)
 

@@ -13,6 +13,7 @@ from typing import Any
 from PySide6 import QtCore, QtGui, QtWidgets
 
 SETTINGS_VERSION = 2
+FIT_ATTEMPTS = 4
 DEFAULT_SIZE = (1600, 1000)     # the first start: this, or 92 % of a smaller screen
 
 
@@ -27,6 +28,8 @@ def _to_bool(value: Any, default: bool) -> bool:
 
 class WindowPersistence:
     """Default layout, named layouts, saving and restoring the window's set-up."""
+
+    _filter_dock_fitted = False
 
     def arrange_default_layout(self) -> None:
         """The docks on the right: Filter above, the table and the connection below, tabbed
@@ -50,6 +53,31 @@ class WindowPersistence:
                          QtCore.Qt.Orientation.Horizontal)
         self.central_splitter.setSizes([int(height * 0.36), int(height * 0.64)])
         self.views_splitter.setSizes([1, 1, 1])
+        self.fit_filter_dock()
+
+    def fit_filter_dock(self) -> None:
+        """The Filter dock as tall as its lights, switches and buttons (it does not scroll in
+        the default layout); the docks below it give up the room, never below their own
+        minimum."""
+        QtCore.QTimer.singleShot(0, self._fit_filter_dock_now)    # once laid out
+
+    def _fit_filter_dock_now(self, attempt: int = 0) -> None:
+        dock = self.filter_dock
+        if dock.isFloating() or not dock.isVisible():
+            return              # (the window's first show fits it)
+        scroll = dock.widget()
+        missing = scroll.widget().sizeHint().height() - scroll.viewport().height()
+        if missing > 0 and attempt < FIT_ATTEMPTS:
+            # resizeDocks shares a change between the docks it touches: ask again until the
+            # dock has the room (or its neighbours are at their minimum)
+            self.resizeDocks([dock], [dock.height() + missing], QtCore.Qt.Orientation.Vertical)
+            QtCore.QTimer.singleShot(0, lambda: self._fit_filter_dock_now(attempt + 1))
+
+    def showEvent(self, event: QtGui.QShowEvent) -> None:  # noqa: N802 (Qt name)
+        super().showEvent(event)
+        if not self._filter_dock_fitted:
+            self._filter_dock_fitted = True
+            self.fit_filter_dock()
 
 
     # ---- layouts and persistence ----------------------------------------------------------

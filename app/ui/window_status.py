@@ -28,6 +28,11 @@ class WindowStatus:
         self.time_status = QtWidgets.QLabel("t = –")
         self.rates_status = QtWidgets.QLabel("")
         self.fps_status = QtWidgets.QLabel("")
+        # the texts that change every refresh keep the width of their widest value, so the
+        # status bar's layout does not jump (nor cut the last one) as they change
+        metrics = self.fps_status.fontMetrics()
+        self.fps_status.setMinimumWidth(metrics.horizontalAdvance("888 fps") + 4)
+        self.time_status.setMinimumWidth(metrics.horizontalAdvance("t = 8888.8 s") + 4)
         for label in (self.state_status, self.time_status, self.rates_status, self.fps_status):
             bar.addPermanentWidget(label)
 

@@ -9,7 +9,7 @@ from hypothesis import given, settings as hsettings, strategies as st
 
 from ekf import magcal
 from ekf.allan import allan_deviation
-from ekf.noise import analyse_rest, autocorrelation
+from ekf.noise import VERDICT_RULE, analyse_rest, autocorrelation
 from ekf.simulate import DEFAULT_NOISE_STD, simulate
 
 BIAS = (0.01, -0.02, 0.005)
@@ -207,3 +207,34 @@ def test_readings_of_a_phone_lying_still_are_no_fit():
     circle = np.column_stack([45 * np.cos(np.linspace(0, 6, 500)),
                               45 * np.sin(np.linspace(0, 6, 500)), np.full(500, -20.0)])
     assert magcal.calibrate_magnetometer(circle).samples == 500   # one plane is enough to fit
+
+
+def test_the_gaussian_verdict_names_its_tests_and_says_mixed_when_they_disagree():
+    """Issue 51: "Gaussian" came from the D'Agostino p-value alone (an unstated 1 % cut) while
+    the Anderson-Darling figure beside it said otherwise (a quantised gyroscope axis: p = 0.44,
+    A² = 93)."""
+    rng = np.random.default_rng(1)
+    quantised = np.round(rng.standard_normal(3000))       # few levels: a step-shaped CDF
+    samples = {"Gaussian": rng.standard_normal(3000), "mixed": quantised,
+               "not Gaussian": rng.exponential(size=3000)}
+    for expected, x in samples.items():
+        analysis = analyse_rest(t_gyr=np.arange(len(x)) * 0.01,
+                                gyr=np.column_stack([x, x, x]) * 1e-3)
+        report = analysis.axes["gyr"][2]
+        assert report.verdict == expected, (expected, report.normality_p, report.anderson)
+        assert report.gaussian == (expected == "Gaussian")
+        assert report.anderson_critical == pytest.approx(1.035, abs=0.01)    # A² at 1 %
+        assert analysis.to_dict()["axes"]["gyr"][2]["normality_verdict"] == expected
+    mixed = analyse_rest(t_gyr=np.arange(3000) * 0.01, gyr=np.column_stack([quantised] * 3))
+    report = mixed.axes["gyr"][0]
+    assert report.normality_p >= 0.01 and report.anderson > report.anderson_critical
+    text = mixed.format_report()
+    assert "mixed" in text and VERDICT_RULE in text
+    assert "D'Agostino–Pearson K² p ≥ 0.01" in VERDICT_RULE and "Anderson–Darling" in VERDICT_RULE
+
+
+def test_a_moment_of_motion_reads_as_a_moment_not_a_zero_length_stretch():
+    """Issue 51: the motion warning listed "0.6–0.6 s"."""
+    from ekf.noise import _stretch_text
+    assert _stretch_text(0.61, 0.63) == "0.6 s"
+    assert _stretch_text(3.21, 4.0) == "3.2–4.0 s"

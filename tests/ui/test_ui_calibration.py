@@ -12,6 +12,8 @@ from ekf.simulate import DEFAULT_NOISE_STD, simulate
 from app.engine.commands import SetSettings
 from app.engine.profiles import ProfileStore
 from app.engine.snapshot import PlotChunk, Snapshot
+from ekf.calibration import UNITS
+from app.stream.demo import write_session
 from app.ui.calibration import CalibrationWorkspace
 
 BIAS = (0.01, -0.02, 0.005)
@@ -55,7 +57,7 @@ def test_start_collects_ten_seconds_and_finds_the_noise_and_bias(workspace):
     np.testing.assert_allclose(stats.gyr.std, DEFAULT_NOISE_STD["gyr"], rtol=0.1)
     np.testing.assert_allclose(stats.gyr_bias, BIAS, rtol=0.1)
     assert workspace.rest.table.rowCount() == 9
-    assert workspace.rest.table.item(0, 0).text() == "acc"
+    assert workspace.rest.table.item(0, 0).text().startswith("acc [")
     assert workspace.rest.warnings.text() == ""
     assert "Gyroscope" in workspace.rest.series_plots[1].titleLabel.text
     assert workspace.allan.allan is not None          # the Allan tab follows the rest tab
@@ -239,3 +241,67 @@ def test_the_allan_plots_log_tick_labels_do_not_overlap_at_1280(workspace, qtbot
         assert len(spans) >= 2, name
         overlaps = [(a[2], b[2]) for a, b in zip(spans, spans[1:]) if b[0] < a[1] + 2]
         assert overlaps == [], name
+
+
+def test_a_stretch_is_chosen_on_the_time_series_or_the_whole_taken(workspace, tmp_path):
+    """Issue 51: From log… analysed only the longest still interval, with no way to take the
+    whole log or a stretch of it (the command line has --whole and --range); a live Start that
+    moved said "select a still stretch" with no way to select one."""
+    moving = simulate(duration_s=12.0, seed=3)          # still 0-3 s, then turns
+    rest = workspace.rest
+    assert not rest.stretch_bar.isVisibleTo(workspace)
+    rest.start(10.0)
+    for snapshot in snapshots(moving):
+        workspace.feed(snapshot)
+    assert rest.result.how == "all of them" and "moved" in rest.warnings.text()
+    assert rest.stretch_bar.isVisibleTo(workspace)
+    assert "drag the blue range over a still stretch" in rest.stretch_label.text()
+    assert rest.regions[0].getRegion() == pytest.approx((0.0, 10.0), abs=0.01)
+    region = rest.regions[2]                             # drag the range on the mag plot
+    region.setRegion((0.5, 2.5))
+    assert rest.regions[0].getRegion() == pytest.approx((0.5, 2.5))      # all three follow
+    region.sigRegionChangeFinished.emit(region)
+    result = rest.result
+    assert result.how == "chosen range" and result.analysis.duration_s == pytest.approx(2.0,
+                                                                                       abs=0.02)
+    assert "moved" not in result.analysis.warning_kinds() and rest.warnings.text() == ""
+    assert "Analysed 0.5–2.5 s of the live samples (10.0 s): chosen range" in \
+        rest.stretch_label.text()
+    rest.whole_button.click()
+    assert rest.result.how == "whole log" and rest.result.analysis.duration_s > 9.9
+    rest.still_button.click()
+    assert rest.result.how == "longest still interval"
+    assert rest.regions[1].getRegion()[1] == pytest.approx(2.9, abs=0.1)
+    # a log: its longest still stretch first, then the whole of it or a range
+    log = tmp_path / "moving.txt"
+    write_session(moving, log)
+    assert workspace.analyse_log(log)
+    assert rest.result.how == "longest still interval" and rest.source.name == "moving.txt"
+    assert workspace.analyse_log(log, whole=True)
+    assert rest.result.analysis.duration_s == pytest.approx(12.0, abs=0.05)
+    assert workspace.analyse_log(log, 1.0, 2.0)
+    assert rest.result.analysis.duration_s == pytest.approx(1.0, abs=0.02)
+    # the command line's path gives the same figures for the same stretch
+    from app.engine.calibration import rest_from_log
+    from app.engine.config import open_log
+    cli = rest_from_log(open_log(log), 1.0, 2.0)
+    np.testing.assert_array_equal(cli.analysis.result.gyr.cov, rest.result.analysis.result.gyr.cov)
+    assert not workspace.analyse_log(log, 20.0, 30.0)
+    assert "nothing in the range" in workspace.message.text()
+    assert rest.result.analysis.duration_s == pytest.approx(1.0, abs=0.02)  # kept
+
+
+def test_the_table_names_the_tests_behind_the_verdict(workspace):
+    rest = simulate(duration_s=12.0, script="rest", seed=11)
+    workspace.rest.start()
+    for snapshot in snapshots(rest):
+        workspace.feed(snapshot)
+    table = workspace.rest.table
+    headers = [table.horizontalHeaderItem(c).text() for c in range(table.columnCount())]
+    assert {"K² p", "A² (1 % crit.)", "verdict"} <= set(headers)
+    verdicts = {table.item(r, headers.index("verdict")).text() for r in range(table.rowCount())}
+    assert verdicts <= {"Gaussian", "mixed", "not Gaussian", "Gaussian, correlated",
+                        "mixed, correlated", "not Gaussian, correlated"}
+    assert table.item(0, 0).text() == f"acc [{UNITS['acc']}]"
+    assert "D'Agostino–Pearson K² p ≥ 0.01" in workspace.rest.verdict_rule.text()
+    assert "mixed" in workspace.rest.verdict_rule.text()

@@ -136,8 +136,10 @@ def test_a_long_file_name_in_the_transport_bar_is_cut_with_the_whole_name_in_its
     window.transport.update_replay({"position_s": 1.0, "duration_s": 90.0, "speed": 1.0,
                                  "paused": False, "loop": False, "finished": False}, name)
     label = window.transport.source_label
-    assert "…" in label.text() and label.toolTip() == name
-    assert label.fontMetrics().horizontalAdvance(label.text()) <= label.maximumWidth()
+    assert label.text() == label.toolTip() == name
+    assert "…" in label.shown_text()
+    assert label.fontMetrics().horizontalAdvance(label.shown_text()) <= label.width() \
+        <= label.maximumWidth()
 
 
 @pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
@@ -181,3 +183,47 @@ def test_the_tune_plots_axis_titles_stay_apart(qtbot, make_window, fake_engine, 
     no_data = tune.ab_plots.no_data           # no ghost yet: its plot says so, the errors do not
     assert no_data["difference"].isVisible() and "ghost" in no_data["difference"].text()
     assert not no_data["total"].isVisible() and not no_data["heading"].isVisible()
+
+
+@pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
+def test_the_filter_dock_does_not_scroll_even_with_a_note_of_absent_sensors(
+        qtbot, make_window, fake_engine, size):
+    """Issue 51: the Filter dock scrolled in the default layout, and on an accelerometer-only
+    log (its "no gyroscope" note) Reset filter and Align heading were cut in half."""
+    from clipping import clipped, scrolls
+    window = _shown(make_window(fake_engine), size)
+    scroll = window.filter_dock.widget()
+    qtbot.waitUntil(lambda: not scrolls(scroll), timeout=2000)
+    snapshot = make_snapshot(1, 2.5)
+    snapshot.session_samples = {"acc": 250, "ori": 250}            # no gyroscope, no magnetometer
+    fake_engine.snapshots.append(snapshot)
+    window.tick()
+    note = window.controls.sensor_note
+    assert note.isVisibleTo(window) and "no gyroscope" in note.text()
+    qtbot.waitUntil(lambda: not scrolls(scroll), timeout=2000)
+    assert note.text() == "no gyroscope or magnetometer in this stream"     # one short line
+    cut = [finding for finding in clipped(window, whole=(scroll,)) if "filter_dock" in finding
+           or "Reset filter" in finding or "Align heading" in finding]
+    assert cut == []
+    for button in (window.controls.reset_button, window.controls.align_button):
+        seen = button.visibleRegion().boundingRect()
+        assert seen.size() == button.size(), (button.text(), seen, button.size())
+
+
+def test_an_elided_label_shows_the_longest_form_that_fits_and_never_widens_its_panel(qtbot):
+    from app.ui.elided import ElidedLabel
+    label = ElidedLabel(minimum_text="REC 0:00")
+    qtbot.addWidget(label)
+    full, shorter = "REC 1:12 · 3.0 MB · 12,345 lines", ("REC 1:12 · 3.0 MB", "REC 1:12")
+    label.setText(full, shorter)
+    metrics = label.fontMetrics()
+    assert label.minimumSizeHint().width() < metrics.horizontalAdvance(shorter[1]) + 10
+    assert label.sizeHint().width() >= metrics.horizontalAdvance(full)
+    label.resize(metrics.horizontalAdvance(full) + 8, 20)
+    assert label.shown_text() == full and label.toolTip() == full
+    label.resize(metrics.horizontalAdvance(shorter[0]) + 8, 20)
+    assert label.shown_text() == shorter[0]                # the size, not "3.0 M…"
+    label.resize(metrics.horizontalAdvance(shorter[1]) + 8, 20)
+    assert label.shown_text() == shorter[1]
+    label.resize(metrics.horizontalAdvance("REC") + 8, 20)
+    assert label.shown_text().endswith("…")

@@ -113,6 +113,35 @@ def test_rejected_samples_are_a_thin_band_and_the_gates_lines(panel):
     assert not panel.bands["acc"].isVisible()
 
 
+def test_a_switched_off_magnetometer_draws_off_not_rejected(panel):
+    """Issue 51: switching the magnetometer off drew the red "rejected" band (its last
+    rejected flag held while off), which reads as rejections."""
+    on, off = dict(gyr=True, acc=True, mag=True), dict(gyr=True, acc=True, mag=False)
+    for k in range(10):                                      # 0-5 s, off from 2 to 4 s
+        chunk = make_chunk(0.5 * k, count=50)
+        chunk.mag_rejected = np.ones(50, bool) if 4 <= k < 8 else np.zeros(50, bool)
+        panel.append(chunk, off if 4 <= k < 8 else on)
+    panel.refresh()
+    assert panel.rejected_band_spans("mag").shape == (0, 2)         # no red for the off stretch
+    np.testing.assert_allclose(panel.off_band_spans("mag"), [[1.995, 3.995]], atol=0.01)
+    x, _ = panel.off_bands["mag"].getData()
+    assert len(x) == 2 and panel.off_bands["mag"].isVisible()
+    assert panel.off_band_spans("acc").shape == (0, 2)              # the accelerometer stayed on
+    toggle = panel.groups["sensors"].toggles["off"]
+    assert "switched off" in toggle.toolTip()
+    panel.set_shown("sensors", "off", False)
+    assert not panel.off_bands["mag"].isVisible()
+    # a rejection while on stays red
+    chunk = make_chunk(5.0, count=50)
+    chunk.mag_rejected = np.zeros(50, bool)
+    chunk.mag_rejected[10:20] = True
+    panel.append(chunk, on)
+    panel.refresh()
+    assert panel.rejected_band_spans("mag").shape == (1, 2)
+    panel.clear()
+    assert panel.off_spans["mag"].spans == []
+
+
 def test_rejected_spans_merge_runs_and_widen_single_samples():
     t = np.arange(10) * 0.01
     spans = rejected_spans(t, np.array([0, 1, 1, 0, 0, 1, 0, 0, 0, 1], bool))

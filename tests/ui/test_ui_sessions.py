@@ -254,3 +254,128 @@ def test_ctrl_l_clears_the_plots_and_says_so(window, fake_engine, qtbot):
     window.tick()
     window.clear_action.trigger()
     assert "plots cleared" in window.statusBar().currentMessage()
+
+
+def _wheel_zoom(plots, key: str) -> None:
+    """Turn the mouse wheel over a plot, as a user zooms it."""
+    group = next(g for g in plots.groups.values() if key in g.plots)
+    view_box = plots.plots[key].getViewBox()
+    centre = view_box.sceneBoundingRect().center()
+    viewport = group.graphics.viewport()
+    pos = QtCore.QPointF(group.graphics.mapFromScene(centre))
+    event = QtGui.QWheelEvent(pos, QtCore.QPointF(viewport.mapToGlobal(pos.toPoint())),
+                              QtCore.QPoint(0, 0), QtCore.QPoint(0, 240),
+                              QtCore.Qt.MouseButton.NoButton,
+                              QtCore.Qt.KeyboardModifier.NoModifier,
+                              QtCore.Qt.ScrollPhase.NoScrollPhase, False)
+    QtWidgets.QApplication.sendEvent(viewport, event)
+
+
+def _session_at(window, engine, seq: int, position_s: float, plot, paused: bool = False):
+    snapshot = make_snapshot(seq, position_s)
+    snapshot.t_ms, snapshot.t0_ms = int(position_s * 1000), 0
+    snapshot.replay = {**REPLAY, "duration_s": 60.0, "position_s": position_s, "paused": paused}
+    snapshot.session_plot = plot
+    engine.snapshots.append(snapshot)
+    window.tick()
+
+
+def test_a_zoom_stops_following_visibly_and_home_then_play_follow_the_replay_again(
+        window, fake_engine, qtbot):
+    """Issue 51, item 3: after a zoom, Home and Play, the plot stayed at 52-54 s while the
+    replay played at 8 s, with nothing but a "Paused" button to say why."""
+    plot = SessionPlot()
+    for start in range(0, 60, 2):
+        plot.add(make_chunk(float(start), count=200))
+    plot.finish()
+    plots = window.plots
+    _session_at(window, fake_engine, 1, 53.0, plot)
+    assert plots.x_range()[1] == pytest.approx(53.0) and not plots.follow_note.isVisible()
+    assert not plots.follow_button.isEnabled()               # following: nothing to resume
+    _wheel_zoom(plots, "acc")
+    assert plots.paused and plots.pause_reason == "zoomed"
+    low, high = plots.x_range()
+    assert high - low < plots.window_s                        # zoomed in
+    note = plots.follow_note
+    assert note.isVisible() and "not following (zoomed by hand)" in note.text()
+    assert f"{low:.1f} – {high:.1f} s" in note.text()
+    assert plots.follow_button.isEnabled()
+    _press(qtbot, window, "Home")
+    assert fake_engine.commands[-1] == ReplayControl(seek_s=0.0)
+    _session_at(window, fake_engine, 2, 0.0, plot, paused=True)
+    _press(qtbot, window, "Space")                            # Play
+    assert fake_engine.commands[-1] == ReplayControl(paused=False)
+    _session_at(window, fake_engine, 3, 8.0, plot)
+    assert not plots.paused and not note.isVisible()
+    assert plots.x_range() == pytest.approx((8.0 - plots.window_s, 8.0))
+
+
+def test_a_seek_follows_again_but_a_step_keeps_the_zoom(window, fake_engine, qtbot):
+    plot = SessionPlot()
+    for start in range(0, 60, 2):
+        plot.add(make_chunk(float(start), count=200))
+    plot.finish()
+    plots = window.plots
+    _session_at(window, fake_engine, 1, 30.0, plot, paused=True)
+    _wheel_zoom(plots, "gyr")
+    zoomed = plots.x_range()
+    _press(qtbot, window, "Ctrl+Right")                       # one sample: still inspecting
+    assert fake_engine.commands[-1] == ReplayControl(paused=True, step=1)
+    _session_at(window, fake_engine, 2, 30.01, plot, paused=True)
+    assert plots.paused and plots.x_range() == pytest.approx(zoomed)
+    _press(qtbot, window, "Right")                            # a jump: show where it went
+    _session_at(window, fake_engine, 3, 31.0, plot, paused=True)
+    assert not plots.paused and plots.x_range()[1] == pytest.approx(31.0)
+
+
+def _recorded_session(folder, label=None):
+    import json
+    folder.mkdir(parents=True)
+    (folder / "raw.txt").write_text("1000\tACC\t0\t0\t9.81\n1010\tACC\t0\t0\t9.81\n")
+    data = {"format": 2, "app_version": "0.1.0", "timeline": []}
+    if label is not None:
+        data["label"] = label
+    (folder / "session.json").write_text(json.dumps(data))
+    return folder
+
+
+def test_exports_are_named_after_the_session_not_raw_export(tmp_path):
+    """Issue 51: File → Export suggested raw_export.* for every recorded session."""
+    from app.ui.sessions import export_path
+    plain = _recorded_session(tmp_path / "2026-12-01_10-00-00")
+    assert export_path(plain / "raw.txt", "csv") == plain / "2026-12-01_10-00-00_export.csv"
+    assert export_path(plain, "mat") == plain / "2026-12-01_10-00-00_export.mat"
+    labelled = _recorded_session(tmp_path / "2026-12-02_09-30-00", label="Lab 2: rotation!")
+    assert export_path(labelled / "session.json", "log") == \
+        labelled / "Lab_2_rotation_2026-12-02_09-30-00_export.txt"
+    log = tmp_path / "demo_session.txt.gz"
+    assert export_path(log, "csv") == tmp_path / "demo_session_export.csv"
+    assert export_path(tmp_path / "walk.txt", "csv") == tmp_path / "walk_export.csv"
+
+
+def test_a_session_is_labelled_and_named_by_its_label(window, fake_engine, tmp_path):
+    """Issue 51: sessions were named by their time stamp only."""
+    import types
+
+    from app.engine.session import read_session, session_label
+    old = _recorded_session(tmp_path / "2026-12-01_10-00-00")          # no label: loads
+    assert session_label(old) == "" and read_session(old / "session.json")
+    fake_engine.source = types.SimpleNamespace(path=str(old / "raw.txt"), kind="replay",
+                                               name="raw.txt")
+    controls = window.sessions
+    assert controls.label_session("  Lab 2:\n rotation  ")
+    assert session_label(old) == "Lab 2: rotation"
+    assert read_session(old / "session.json").timeline == []          # the rest kept
+    assert window.windowTitle() == "Orientation Lab — Lab 2: rotation (2026-12-01_10-00-00)"
+    controls._fill_recent()
+    texts = [a.text() for a in controls.recent_menu.actions()]
+    assert texts[0] == "Lab 2: rotation (2026-12-01_10-00-00)"
+    assert controls.recent_menu.actions()[0].toolTip() == str(old)
+    assert controls.label_session("")                                   # removed again
+    assert session_label(old) == ""
+    fake_engine.source = types.SimpleNamespace(path=str(tmp_path / "walk.txt"), kind="replay")
+    assert not controls.label_session("x")                              # a phone's own log
+    assert "no session.json" in controls.last_message
+    for widget in QtWidgets.QApplication.topLevelWidgets():
+        if widget.objectName() == "session_message":
+            widget.close()

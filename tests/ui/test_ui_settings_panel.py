@@ -26,7 +26,11 @@ def test_every_setting_is_listed_with_unit_default_course_and_doc(panel):
     for r, row in enumerate(rows):
         assert panel.table.item(r, 0).text() == row.name
         assert panel.table.item(r, 2).text() == row.unit
-        assert panel.table.item(r, 5).text() == row.doc      # the declaration's own doc
+        assert row.doc in panel.table.item(r, 0).toolTip()   # the declaration's own doc
+    assert panel.table.columnCount() == 5
+    panel.table.setCurrentCell(panel.row_of("acc_gate"), 1)
+    assert panel.meaning.text().startswith("<b>acc_gate</b> [m/s²]: ")
+    assert panel.rows[panel.row_of("acc_gate")].doc in panel.meaning.text()
     assert panel.table.item(panel.row_of("acc_gate"), 3).text() == "2"
     assert panel.table.item(panel.row_of("acc_gate"), 4).text() == "1"
 

@@ -4,6 +4,7 @@ thread, reports progress, can be cancelled, and its result is applied or kept as
 from __future__ import annotations
 
 import pytest
+from PySide6 import QtGui
 
 import ekf
 from ekf.simulate import simulate
@@ -51,6 +52,12 @@ def test_a_search_reports_progress_and_before_after_figures(panel, qtbot):
     assert panel.figures.rowCount() == 4
     assert float(panel.figures.item(1, 1).text()) <= float(panel.figures.item(0, 1).text())
     assert panel.parameters.item(0, 4).text()          # "after" shown
+    # what the search did reads as information, not as an error (issue 51)
+    assert panel.summary.text() == f"{result.evaluations} runs in {result.elapsed_s:.1f} s"
+    assert "runs in" not in panel.warning.text()
+    assert "b00020" not in panel.summary.styleSheet()
+    red = QtGui.QColor("#b00020")
+    assert panel.summary.palette().color(QtGui.QPalette.ColorRole.WindowText) != red
     panel.apply_button.click()
     assert isinstance(panel.sent[-1], SetSettings) and panel.sent[-1].source == "tuned"
     profile = panel.keep_as_profile()
@@ -66,7 +73,27 @@ def test_cancel_stops_with_the_best_so_far(panel, qtbot):
         panel.cancel_button.click()
     qtbot.waitUntil(lambda: panel.result is not None, timeout=5000)
     assert panel.result.cancelled and panel.result.evaluations < 5000
-    assert "cancelled" in panel.warning.text()
+    assert "cancelled" in panel.summary.text()
+
+
+def test_a_session_without_a_gyroscope_offers_none_of_its_settings(qtbot, prepared, tmp_path):
+    """Issue 51: auto-tune searched gyr_noise_cov on a log without a gyroscope."""
+    from PySide6 import QtCore
+    keep = prepared.tag != 0                                    # GYR's code
+    no_gyro = PreparedLog(prepared.t_ms[keep], prepared.tag[keep], prepared.values[keep],
+                          prepared.ori_times, prepared.path)
+    panel = TuningPanel(no_gyro, lambda command: None, store=ProfileStore(tmp_path / "p"))
+    qtbot.addWidget(panel)
+    names = [panel.parameters.verticalHeaderItem(r).text()
+             for r in range(panel.parameters.rowCount())]
+    row = names.index("gyr_noise_cov")
+    check = panel.parameters.item(row, 0)
+    assert check.checkState() == QtCore.Qt.CheckState.Unchecked
+    assert not check.flags() & QtCore.Qt.ItemFlag.ItemIsEnabled
+    assert "no gyroscope in this session" in check.toolTip()
+    chosen = [p.name for p in panel.chosen_parameters()]
+    assert "gyr_noise_cov" not in chosen and "acc_noise_cov" in chosen
+    assert not any(name.startswith(("gyr_", "gyro_")) for name in chosen)
 
 
 def test_no_parameter_chosen_is_refused(panel):

@@ -10,7 +10,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from PySide6 import QtCore
+from PySide6 import QtCore, QtWidgets
 
 import ekf
 from app.engine.commands import SetConsistencyEnabled, SetSettings, UnloadUserFilter
@@ -199,6 +199,33 @@ def test_tune_refilters_the_session_at_each_change_with_a_ghost(qtbot, make_wind
     window.send(SetSettings(changed, source="panel"))
     window.apply_snapshot(make_snapshot(2, 0.5, settings=changed))
     assert tune.refilterer.wait(10.0) and tune.refilterer.runs == runs
+
+
+def test_tune_difference_of_two_identical_runs_draws_along_zero(qtbot, make_window,
+                                                                 fake_engine, sim_log):
+    """Issue 51: for two runs that agree the Δ plot blew rounding noise up to its height (an
+    axis of 3e-06°)."""
+    window = make_window(fake_engine)
+    tune = window.tune
+    window.show()
+    window.workspaces.setCurrentWidget(tune)
+    assert tune.set_log(sim_log)
+    qtbot.waitUntil(lambda: tune.refilterer.current is not None, timeout=20_000)
+    first = tune.refilterer.current
+    tune.ab_view.keep_button.click()
+    # a setting that acts only past a bound this session never reaches: the same estimates
+    same = dataclasses.replace(window.filter_settings, mag_reject_noise_scale=20.0)
+    window.send(SetSettings(same, source="panel"))
+    qtbot.waitUntil(lambda: tune.refilterer.current is not first, timeout=20_000)
+    qtbot.waitUntil(lambda: tune.ab_view.table.rowCount() == 3, timeout=5000)
+    tune.redraw()
+    assert np.nanmax(tune.difference_deg()) < 1e-3
+    view_box = tune.ab_plots.plots["difference"].getViewBox()
+    for _ in range(3):                          # the plot lays out and ranges as it paints
+        QtWidgets.QApplication.processEvents()
+    view_box.prepareForPaint()
+    low, high = view_box.viewRange()[1]
+    assert low == pytest.approx(0.0, abs=1e-9) and high >= 0.1
 
 
 def test_tune_says_why_when_a_log_cannot_be_used(make_window, fake_engine, tmp_path):

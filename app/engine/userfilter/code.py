@@ -96,16 +96,32 @@ def problem_from_exception(error: BaseException, path: Path, t_s: float | None =
     if mine:
         frame = frames[mine[-1]]
         where = f"{name}:{frame.lineno} in {frame.name}"
-        shown = frames[mine[0]:]
+        # the user's frames and what they called (numpy, ...), never Orientation Lab's own
+        shown = [f for f in frames[mine[0]:]
+                 if _same_file(f.filename, path) or not _ours(f.filename)]
         line, function = frame.lineno, frame.name
-    else:
-        where, shown, line, function = name, frames[-1:], None, None
-    details = ("Traceback (most recent call last):\n" + "".join(traceback.format_list(shown))
+    else:       # raised by the call itself (a step with the wrong arguments): no frame of theirs
+        where, shown, line, function = name, [], None, None
+    details = (("Traceback (most recent call last):\n" + "".join(traceback.format_list(shown))
+                if shown else f"raised where Orientation Lab called {name} (no line of it ran):\n")
                + "".join(traceback.format_exception_only(type(error), error)))
     if during:
         details = f"{during}\n{details}"
     return UserProblem(kind, _one_line(f"{where}: {text}"), details, str(path), line, function,
                        t_s)
+
+
+_APP = Path(__file__).resolve().parents[2]
+_OUR_PACKAGES = (_APP, _APP.parent / "ekf")
+
+
+def _ours(filename: str) -> bool:
+    """Whether a frame is Orientation Lab's own code (app/ or ekf/), not the user's."""
+    try:
+        where = Path(filename).resolve()
+    except (OSError, ValueError):
+        return False
+    return any(where.is_relative_to(package) for package in _OUR_PACKAGES)
 
 
 def _same_file(filename: str, path: Path) -> bool:
