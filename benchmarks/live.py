@@ -145,7 +145,7 @@ def no_loss(name: str, path: Path, lines: list[bytes]) -> bool:
         record = Path(directory) / "session"
         engine, seconds, _ = run_through_engine(lines, 0.0, False, record)
         raw_identical = (record / "raw.txt").read_bytes() == good_lines(path.read_bytes())
-        offline = run_offline(read_log(path).samples)
+        offline = run_offline(read_log(path))
     t_ms, quat = engine_rows(engine)
     same = np.array_equal(t_ms, offline.t_ms) and np.array_equal(quat, offline.quat)
     print(f"  {name:48s} {len(lines):9d} lines  raw.txt = its lines that parse: {raw_identical}  "

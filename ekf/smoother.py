@@ -85,6 +85,9 @@ from ekf.settings import EKFSettings, resolve_settings
 
 __all__ = ["REJECTED_STRETCH_S", "rejected_stretches", "smooth_batch"]
 
+BLOCK_ROWS = 1 << 14
+"""Rows of forward records held at a time (smooth_batch's memory: about 1 kB a row of them)."""
+
 REJECTED_STRETCH_S = 1.0
 """A stretch of rejected magnetometer readings longer than this [s] is one the backward pass
 carries no heading across (module docstring)."""
@@ -221,14 +224,25 @@ def _heading_projector(q, m):
 
 
 @njit(cache=True)
-def _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m, rejected, x_s):
-    """The RTS pass of the module docstring, in place into x_s (N, 7); x_s[-1] = x_f[-1]. At a
-    row k of a rejected stretch (``rejected[k]``) the gain is Pi_k C_k Pi_k+1 (the heading
-    rule of the module docstring)."""
-    N = x_f.shape[0]
-    x_s[N - 1] = x_f[N - 1]
-    Ps = _error_cov(x_f[N - 1, :4], P_f[N - 1], m)
-    for k in range(N - 2, -1, -1):
+def _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m, rejected, x_s, Ps_next, last):
+    """The RTS pass of the module docstring over one block of rows, from its last row down,
+    in place into x_s. At a row k of a rejected stretch (``rejected[k]``) the gain is
+    Pi_k C_k Pi_k+1 (the heading rule of the module docstring).
+
+    The last block (`last`) ends the recording: x_s of its last row is x_f's. Any other block's
+    arrays hold one row more, the first row of the block after it: its prediction (x_p, P_p,
+    omega, T) and its smoothed state x_s, whose smoothed covariance in error coordinates is
+    `Ps_next`. Returns the smoothed covariance of the block's first row (error coordinates),
+    the `Ps_next` of the block before."""
+    if last:
+        N = x_f.shape[0]
+        x_s[N - 1] = x_f[N - 1]
+        Ps = _error_cov(x_f[N - 1, :4], P_f[N - 1], m)
+        top = N - 2
+    else:
+        Ps = Ps_next.copy()
+        top = x_f.shape[0] - 2
+    for k in range(top, -1, -1):
         Pf = _error_cov(x_f[k, :4], P_f[k], m)
         if T[k + 1] < 0.0:
             # no time update in row k+1: its prediction is row k's estimate
@@ -271,6 +285,32 @@ def _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m, rejected, x_s):
         if not np.isfinite(x_s[k]).all():
             x_s[k] = x_f[k]   # a degenerate step: keep the filter's estimate
             Ps = Pf
+    return Ps
+
+
+class _Records:
+    """The forward pass's records of one block of rows (and one row more: the first row of the
+    block after it), refilled block by block."""
+
+    def __init__(self, rows: int) -> None:
+        self.q = np.empty((rows, 4))
+        self.x_f, self.x_p = np.zeros((rows, 7)), np.zeros((rows, 7))
+        self.P_f, self.P_p = np.zeros((rows, 7, 7)), np.zeros((rows, 7, 7))
+        self.omega, self.T = np.zeros((rows, 3)), np.zeros(rows)
+
+    def record(self, record, packed, cfg, t, g, a, m, flags) -> None:
+        """The forward pass over rows t, g, a, m (from the state `packed`, which it advances)
+        into the first len(t) rows, the flags into `flags`."""
+        n = t.shape[0]
+        record(packed, cfg, t, g, a, m, self.q[:n], flags, self.x_f[:n], self.P_f[:n],
+               self.x_p[:n], self.P_p[:n], self.omega[:n], self.T[:n])
+
+    def hold_next(self, first: tuple, n: int) -> None:
+        """Row n: the prediction of the next block's first row (`first`, :meth:`first_row`)."""
+        self.x_p[n], self.P_p[n], self.omega[n], self.T[n] = first
+
+    def first_row(self) -> tuple:
+        return self.x_p[0].copy(), self.P_p[0].copy(), self.omega[0].copy(), float(self.T[0])
 
 
 def rejected_stretches(t: np.ndarray, mag_present: np.ndarray, mag_rejected: np.ndarray,
@@ -297,20 +337,100 @@ def rejected_stretches(t: np.ndarray, mag_present: np.ndarray, mag_rejected: np.
     return out
 
 
+def _less(m: np.ndarray, offset: np.ndarray | None) -> np.ndarray:
+    return m if offset is None else m - offset
+
+
+def _as_set(settings: EKFSettings, sensors, t, g, a, m, changes: dict,
+            block_rows: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """The lights of the filter as set, not of the smoother's forward pass (N, 3), and the
+    magnetometer offset to subtract for the forward pass (None: none)."""
+    from ekf.fast.filter import FastEKF
+
+    as_set = FastEKF(settings, sensors)
+    flags = np.zeros((t.shape[0], 3), dtype=np.bool_)
+    for first in range(0, t.shape[0], block_rows):
+        end = first + block_rows
+        r = as_set.run_batch(t[first:end], g[first:end], a[first:end], m[first:end])
+        flags[first:end, 0], flags[first:end, 1], flags[first:end, 2] = \
+            r.acc_rejected, r.mag_rejected, r.at_rest
+    state = as_set.snapshot()["state"]
+    if "mag_hard_iron_tau_s" in changes and (state["mag_acquiring"] or state["mag_waiting"]
+                                             or np.any(state["mag_offset_prior"] != 0.0)):
+        # a raw magnetometer (its offset acquired, ekf.reference_field): without the fit
+        # the forward pass would have no heading; the offset the filter found over the
+        # whole recording is subtracted instead (its least-squares fit, unshrunk: offline
+        # nothing is at stake in between), a calibration as calibrate-mag's
+        return flags, np.asarray(state["mag_offset_fit"], float)
+    return flags, None
+
+
+def _forward_backward(est, t, g, a, m, offset: np.ndarray | None, rejected_stretch_s: float,
+                      block_rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """The forward pass of `est` and the backward pass: the smoothed states (N, 7) and the
+    forward pass's flags (N, 3).
+
+    The forward pass runs block by block, keeping only the filter's state at each block's
+    start; the backward pass runs the blocks in reverse, each recorded again from its state
+    (the same compiled loop from the same state: the same records, bit for bit). Memory: the
+    records of one block instead of the whole recording's (~1 kB a row)."""
+    from ekf.fast.layout import C
+    from ekf.fast.steps import _run_batch_record
+
+    cfg = est._cfg.copy()
+    cfg[C.record_prediction] = 1.0
+    n = t.shape[0]
+    out_flags = np.zeros((n, 3), dtype=np.bool_)
+    x_s = np.zeros((n, 7))
+    blocks = [(first, min(first + block_rows, n)) for first in range(0, n, block_rows)]
+    records = _Records(min(block_rows, n) + 1)
+    starts = []
+    for first, end in blocks:
+        starts.append(est._packed.copy())
+        records.record(_run_batch_record, est._packed, cfg, t[first:end], g[first:end],
+                       a[first:end], _less(m[first:end], offset), out_flags[first:end])
+    if not n:
+        return x_s, out_flags
+    m_err = 6 if est.settings.estimate_gyro_bias else 3
+    bias_fixed = np.asarray(est.settings.gyr_bias, float)
+    # the forward pass's own light (a flag row without a reading keeps the latest one)
+    present = np.isfinite(m).all(axis=1)     # the readings of the forward pass
+    if offset is not None and not np.isfinite(offset).all():
+        present[:] = False
+    rejected = rejected_stretches(t, present, out_flags[:, 1], rejected_stretch_s)
+    Ps = np.zeros((m_err, m_err))
+    after = None
+    for index in range(len(blocks) - 1, -1, -1):
+        first, end = blocks[index]
+        last = after is None
+        if not last:       # the last block's records are still those of the forward pass
+            records.record(_run_batch_record, starts[index].copy(), cfg, t[first:end],
+                           g[first:end], a[first:end], _less(m[first:end], offset),
+                           np.zeros((end - first, 3), dtype=np.bool_))
+            records.hold_next(after, end - first)
+        rows = end - first + (0 if last else 1)
+        Ps = _backward(records.x_f[:rows], records.P_f[:rows], records.x_p[:rows],
+                       records.P_p[:rows], records.omega[:rows], records.T[:rows],
+                       bias_fixed, m_err, rejected[first:end], x_s[first:first + rows],
+                       Ps, last)
+        after = records.first_row()
+    return x_s, out_flags
+
+
 def smooth_batch(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
                  mag: ArrayLike | None, settings: EKFSettings | str | None = None,
                  sensors: tuple[str, ...] | list[str] = SENSORS,
-                 rejected_stretch_s: float = REJECTED_STRETCH_S) -> BatchResult:
+                 rejected_stretch_s: float = REJECTED_STRETCH_S,
+                 block_rows: int = BLOCK_ROWS) -> BatchResult:
     """The EKF (compiled, `settings` as for ``ekf.filter_batch``) forward over the rows, then
     the backward RTS pass: per row the smoothed quaternion (w-first, sensor -> ENU, w >= 0) and
     gyro bias; the flags are the forward filter's (with `settings` as given). Same arguments as
     ``ekf.filter_batch``; the forward pass runs without ``mag_bias_innovation_limit`` and, with
     ``smooth_hard_iron`` false, without the online hard-iron fit (module docstring). Within a
     stretch of rejected magnetometer readings longer than `rejected_stretch_s` [s] the heading
-    is the forward pass's (module docstring; inf: no such rule)."""
+    is the forward pass's (module docstring; inf: no such rule). `block_rows`: the rows whose
+    forward records are held at a time (the result does not depend on it)."""
     from ekf.fast.filter import FastEKF
-    from ekf.fast.layout import C
-    from ekf.fast.steps import _run_batch_record
 
     t, g, a, m = batch_rows(t_s, gyr, acc, mag)
     settings = resolve_settings(settings)
@@ -320,43 +440,16 @@ def smooth_batch(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
     if settings.mag_bias_innovation_limit != math.inf:
         changes["mag_bias_innovation_limit"] = math.inf
     forward = settings.with_changes(**changes) if changes else settings
-    flags = None
+    flags, offset = None, None
     if forward is not settings and t.shape[0]:
-        # the lights of the filter as set, not of the smoother's forward pass
-        as_set = FastEKF(settings, sensors)
-        r = as_set.run_batch(t, g, a, m)
-        flags = (r.acc_rejected, r.mag_rejected, r.at_rest)
-        state = as_set.snapshot()["state"]
-        if "mag_hard_iron_tau_s" in changes and (state["mag_acquiring"] or state["mag_waiting"]
-                                                 or np.any(state["mag_offset_prior"] != 0.0)):
-            # a raw magnetometer (its offset acquired, ekf.reference_field): without the fit
-            # the forward pass would have no heading; the offset the filter found over the
-            # whole recording is subtracted instead (its least-squares fit, unshrunk: offline
-            # nothing is at stake in between), a calibration as calibrate-mag's
-            m = m - np.asarray(state["mag_offset_fit"], float)
+        flags, offset = _as_set(settings, sensors, t, g, a, m, changes, block_rows)
     est = FastEKF(forward, sensors)
-    cfg = est._cfg.copy()
-    cfg[C.record_prediction] = 1.0
+    x_s, out_flags = _forward_backward(est, t, g, a, m, offset, rejected_stretch_s, block_rows)
     n = t.shape[0]
-    out_q = np.empty((n, 4))
-    out_flags = np.zeros((n, 3), dtype=np.bool_)
-    x_f, x_p = np.zeros((n, 7)), np.zeros((n, 7))
-    P_f, P_p = np.zeros((n, 7, 7)), np.zeros((n, 7, 7))
-    omega, T = np.zeros((n, 3)), np.zeros(n)
-    _run_batch_record(est._packed, cfg, t, g, a, m, out_q, out_flags, x_f, P_f, x_p, P_p,
-                      omega, T)
-    x_s = np.zeros((n, 7))
-    if n:
-        m_err = 6 if est.settings.estimate_gyro_bias else 3
-        bias_fixed = np.asarray(est.settings.gyr_bias, float)
-        # the forward pass's own light (a flag row without a reading keeps the latest one)
-        rejected = rejected_stretches(t, np.isfinite(m).all(axis=1), out_flags[:, 1],
-                                      rejected_stretch_s)
-        _backward(x_f, P_f, x_p, P_p, omega, T, bias_fixed, m_err, rejected, x_s)
     bias = x_s[:, 4:7] if est.settings.estimate_gyro_bias else np.tile(
         np.asarray(est.settings.gyr_bias, float), (n, 1))
     if flags is not None:
-        out_flags[:, 0], out_flags[:, 1], out_flags[:, 2] = flags
+        out_flags = flags
     return BatchResult(t, x_s[:, :4].copy(), out_flags[:, 0].copy(), out_flags[:, 1].copy(),
                        out_flags[:, 2].copy(), gyro_bias=bias)
 

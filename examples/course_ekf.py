@@ -309,11 +309,12 @@ if __name__ == "__main__":
     from ekf.simulate import simulate
     from app.engine.offline import run_offline
     from app.engine.userfilter.filter import UserFilterEstimator
+    from app.stream.logfile import LogData
     from app.stream.protocol import Sample
 
     seconds = float(sys.argv[sys.argv.index("--seconds") + 1]) if "--seconds" in sys.argv else 30
     session = simulate(duration_s=seconds, seed=3)
-    samples = [Sample(t, tag, values) for t, tag, values in session.iter_rows()]
+    samples = LogData.from_samples(Sample(t, tag, values) for t, tag, values in session.iter_rows())
     mine = UserFilterEstimator(__file__, ekf.PRESETS["course"])
     yours = run_offline(samples, mine)
     ours = run_offline(samples, "course")

@@ -50,7 +50,7 @@ def test_replay_matches_run_offline_bit_for_bit(tmp_path):
                     recorder=Recorder(tmp_path / "rec"))
     with engine:
         final = _wait_state(engine, "finished")
-    offline = run_offline(read_log(path).samples)
+    offline = run_offline(read_log(path))
     t_ms = np.concatenate([r.t_ms for r in engine.rows_log])
     quat = np.concatenate([r.quat for r in engine.rows_log])
     assert np.array_equal(t_ms, offline.t_ms) and np.array_equal(quat, offline.quat)
@@ -62,7 +62,7 @@ def test_replay_matches_run_offline_bit_for_bit(tmp_path):
     raw = (tmp_path / "rec" / "raw.txt").read_bytes()
     assert raw == b"".join(line for line in lines if _parses(line))
     assert len(raw.splitlines()) == len(lines) - 2
-    again = run_offline(read_log(tmp_path / "rec" / "raw.txt").samples)
+    again = run_offline(read_log(tmp_path / "rec" / "raw.txt"))
     assert np.array_equal(again.quat, offline.quat)
 
 
@@ -138,7 +138,7 @@ def test_simulated_session_through_tcp_equals_run_offline_and_is_recorded(tmp_pa
         _wait_state(engine, "disconnected")
         wait_for_snapshot(engine, lambda s: s.health.lines_total >= len(lines), 20,
                           "every line counted")
-    offline = run_offline(read_log(path).samples)
+    offline = run_offline(read_log(path))
     t_ms = np.concatenate([r.t_ms for r in engine.rows_log])
     quat = np.concatenate([r.quat for r in engine.rows_log])
     assert np.array_equal(t_ms, offline.t_ms) and np.array_equal(quat, offline.quat)

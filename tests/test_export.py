@@ -8,13 +8,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given
+from hypothesis import settings as hsettings
+from hypothesis import strategies as st
 
 from waiting import wait_for_snapshot
 
 import ekf
 from ekf.simulate import simulate
 from app.cli import main
-from app.engine.export import csv_header, export_session, load_session
+from app.engine.export import (MAT_STRUCTS, csv_header, export_session, load_session,
+                               open_session, session_pieces, write_csv)
+from app.engine.matfile import check_size
+from app.stream.demo import write_session
 from app.engine.offline import filter_log
 from app.engine.runner import Rows
 from app.engine.worker import Engine
@@ -107,9 +113,8 @@ def test_log_export_is_the_phone_format_verbatim(session_folder, tmp_path):
     export_session(session_folder, "log", part, from_s=5.0, to_s=8.0)
     raw = (session_folder / "raw.txt").read_bytes()
     assert raw.find(part.read_bytes()) > 0
-    samples = read_log(part).samples            # the course's reader's format: it reads
-    times = np.array([s.t_ms for s in samples])
-    first = read_log(session_folder / "raw.txt").samples[0].t_ms
+    times = read_log(part).t_ms            # the course's reader's format: it reads
+    first = read_log(session_folder / "raw.txt").t_ms[0]
     assert (times - first).min() >= 4990 and (times - first).max() <= 8010
 
 
@@ -201,3 +206,65 @@ def test_a_failed_export_leaves_the_old_file_whole(session_folder, tmp_path, mon
     monkeypatch.undo()
     export_session(session_folder, "csv", out)
     assert out.read_text().startswith(csv_header())
+
+
+# ---- as a stream -------------------------------------------------------------------------------
+
+@given(block_bytes=st.integers(2048, 400_000))
+@hsettings(max_examples=5, deadline=None,
+           suppress_health_check=[HealthCheck.function_scoped_fixture])
+def test_exports_do_not_depend_on_the_blocks_the_log_is_read_in(session_folder, tmp_path,
+                                                                 block_bytes):
+    """The session is replayed block by block and each block's rows written as they come: any
+    block size gives the session computed whole, and the same files."""
+    opened = open_session(session_folder)
+    whole = load_session(session_folder, with_cov=True)
+    pieces = list(session_pieces(opened, with_cov=True, block_bytes=block_bytes))
+    for name in ("t_ms", "t_s", "gyr", "acc", "mag", "ori", "quat", "flags", "cov"):
+        np.testing.assert_array_equal(np.concatenate([getattr(p, name) for p in pieces]),
+                                      getattr(whole, name), err_msg=name)
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    start, end = 3.0, 15.5
+    assert write_csv(iter(pieces), a, start, end, ";", True) == \
+        write_csv(iter([whole]), b, start, end, ";", True)
+    assert a.read_bytes() == b.read_bytes()
+
+
+def test_the_mat_export_holds_what_scipy_savemat_would_write(session_folder, tmp_path):
+    scipy_io = pytest.importorskip("scipy.io")
+    out = _export(session_folder, tmp_path, "mat")
+    data = load_session(session_folder, with_cov=True)
+    reference = tmp_path / "reference.mat"
+    t = data.t_s[None, :]
+    scipy_io.savemat(reference, {
+        "meas": {"t": t, "acc": data.acc.T, "gyr": data.gyr.T, "mag": data.mag.T,
+                 "orient": data.ori.T},
+        "xhat": {"t": t, "x": data.quat.T, "P": np.transpose(data.cov, (1, 2, 0))}},
+        oned_as="row", do_compression=True)
+    ours, theirs = (scipy_io.loadmat(p, simplify_cells=True) for p in (out, reference))
+    for struct in ("meas", "xhat"):
+        assert list(ours[struct]) == list(theirs[struct])
+        for name in ours[struct]:
+            np.testing.assert_array_equal(ours[struct][name], theirs[struct][name])
+
+
+def test_a_mat_variable_over_2_gib_is_refused_before_anything_is_written():
+    check_size(MAT_STRUCTS, 10_000_000)                        # 1.6 GiB of xhat: fits
+    with pytest.raises(ValueError, match="at most 2 GiB a variable"):
+        check_size(MAT_STRUCTS, 13_000_000)
+
+
+def test_a_log_whose_clock_restarts_exports_the_estimates_of_both_sessions(tmp_path):
+    """Was: the rows of every session but the last were dropped where the clock restarted,
+    and the earlier times took the estimates of other rows."""
+    first, second, log = (tmp_path / name for name in ("a.txt", "b.txt", "ab.txt"))
+    write_session(simulate(duration_s=6.0, seed=1, t0_ms=1_000_000), first)
+    write_session(simulate(duration_s=6.0, seed=2, t0_ms=50_000_000), second)
+    log.write_bytes(first.read_bytes() + second.read_bytes())
+    out = tmp_path / "ab.csv"
+    export_session(log, "csv", out)
+    table = _read_csv(out)
+    rows = filter_log(read_log(log))
+    has_sensor = ~np.isnan(table[:, 1:10]).all(axis=1)
+    assert has_sensor.sum() == len(rows)
+    np.testing.assert_allclose(table[has_sensor, 14:18], rows.quat, atol=1e-8)

@@ -11,6 +11,7 @@ import pytest
 import ekf
 from app.stream.logfile import read_log
 from app.stream.protocol import Sample
+from app.stream.tags import FILTER_TAGS, WIDTHS
 from app.engine.offline import run_offline
 from app.engine.compare import SameInstant
 from app.engine.runner import COMBINATIONS, EstimatorRunner
@@ -84,7 +85,7 @@ def test_run_offline_matches_filter_batch_on_sensor_rows():
     if not REALPHONE.is_dir():
         pytest.skip(f"shared real-phone logs not found at {REALPHONE}")
     log = read_log(REALPHONE / "tsrt14_lab2_calibration.txt")
-    rows = run_offline(log.samples)
+    rows = run_offline(log)
     arrays = log.to_arrays()
     assert np.array_equal(rows.t_ms, arrays.t_ms)
     sensor_rows = ~(np.isnan(arrays.gyr[:, 0]) & np.isnan(arrays.acc[:, 0])
@@ -191,7 +192,9 @@ def test_batch_path_equals_feeding_sample_by_sample_on_real_logs():
     if not REALPHONE.is_dir():
         pytest.skip(f"shared real-phone logs not found at {REALPHONE}")
     for path in sorted(REALPHONE.glob("*.txt")):
-        samples = read_log(path).samples
+        log = read_log(path)
+        samples = [Sample(t, FILTER_TAGS[code], tuple(values[:WIDTHS[code]])) for t, code, values
+                   in zip(log.t_ms.tolist(), log.tag.tolist(), log.values.tolist())]
         rows, acc_flags, mag_flags, _, _ = _per_sample_reference(samples)
         runner = EstimatorRunner(collect_plot=True)
         for start in range(0, len(samples), 333):

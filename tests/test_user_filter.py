@@ -20,12 +20,14 @@ from app.engine.userfilter.filter import UserFilterEstimator, filter_settings, m
 from app.engine.userfilter.instance import FilterInstance
 from app.engine.userfilter.protocol import settings_from_wire, settings_to_wire
 from app.engine.userfilter.template import template_text, write_template
+from app.stream.logfile import LogData
 from app.stream.protocol import parse_line
 from user_filters import FILTERS, log_lines, write_filter
 
 
-def _samples(seconds: float = 3.0, turn_rate: float = 0.5):
-    return [parse_line(line.decode()) for line in log_lines(seconds, turn_rate=turn_rate)]
+def _samples(seconds: float = 3.0, turn_rate: float = 0.5) -> LogData:
+    return LogData.from_samples(parse_line(line.decode())
+                                for line in log_lines(seconds, turn_rate=turn_rate))
 
 
 def _run(path, seconds: float = 3.0, settings=None, turn_rate: float = 0.5):

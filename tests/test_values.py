@@ -410,7 +410,7 @@ def test_a_sample_at_the_same_time_with_other_values_is_no_repeat(tmp_path, caps
     from app.stream.logfile import read_log
     data = read_log(path)
     assert data.stats.repeated == 1
-    assert [s.values[2] for s in data.samples if s.tag == "ACC"] == pytest.approx(
+    assert data.values[data.tag == 1, 2].tolist() == pytest.approx(
         [9.8, 9.7, 9.8, 9.8], abs=1e-6)
 
 

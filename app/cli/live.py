@@ -7,6 +7,7 @@ exit status 2, without a traceback.
 from __future__ import annotations
 
 import argparse
+import itertools
 import logging
 import sys
 import threading
@@ -21,7 +22,7 @@ from app.engine.snapshot import Snapshot, lag_text
 from app.engine.worker import Engine
 from app.stream.emulator import PhoneEmulator
 from app.stream.forwarder import LineForwarder
-from app.stream.lines import LogError, read_lines
+from app.stream.lines import LogError, line_blocks, read_lines
 from app.stream.protocol import reasons_text
 from app.stream.recorder import Recorder
 
@@ -29,20 +30,30 @@ from app.stream.recorder import Recorder
 # ---- send ---------------------------------------------------------------------------------------
 
 def cmd_send(args: argparse.Namespace) -> int:
+    path = config.resolve_log_path(args.log)
+    if args.as_app != "sensor-fusion":
+        try:
+            lines = read_lines(path)
+        except LogError as error:
+            raise config.ConfigError(str(error)) from None
+        return phones.send_as_app(args, lines)
+    first_pass = line_blocks(path)          # the Sensor Fusion app's stream: block by block
     try:
-        lines = read_lines(config.resolve_log_path(args.log))
+        # a file that cannot be sent (missing, binary, empty) is one line before connecting
+        passes = [itertools.chain([next(first_pass)], first_pass)]
     except LogError as error:
         raise config.ConfigError(str(error)) from None
-    if args.as_app != "sensor-fusion":
-        return phones.send_as_app(args, lines)
     if args.gone:
         raise config.ConfigError("--gone: only with --as phyphox or --as sensor-logger")
     stop = threading.Event()
     try:
         with PhoneEmulator(args.host, args.port) as phone:
-            sent = phone.stream_lines(lines, args.speed, args.loop, stop)
+            sent = phone.stream_blocks(lambda: passes.pop() if passes else line_blocks(path),
+                                       args.speed, args.loop, stop)
     except KeyboardInterrupt:
         return 130
+    except LogError as error:           # the file broke off while it was being sent
+        raise config.ConfigError(str(error)) from None
     except OSError as error:
         raise config.ConfigError(f"cannot send to {args.host}:{args.port}: "
                                  f"{error.strerror or error}") from None

@@ -16,7 +16,9 @@ import contextlib
 import dataclasses
 import math
 import os
+import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -26,26 +28,53 @@ import ekf
 from ekf.simulate import simulate
 from app.cli import options
 from app.engine import config, estimates
-from app.engine.offline import evaluate_log, evaluate_phone, filter_log, sibling_truth
+from app.engine.offline import (LogScan, evaluate_log, evaluate_phone, filter_rows, scan_log,
+                                sibling_truth)
 from app.engine.outputs import atomic_output, check_output
 from app.engine.session import read_session, session_json_for
 from app.engine.userfilter.filter import UserFilterEstimator
 from app.engine.userfilter.template import write_template
 from app.stream.demo import write_session
-from app.stream.logfile import LogData
+from app.stream.lines import LogError
+from app.stream.logfile import LogData, LogFile, LogStats
 
 
 def read_log(path: str, limits=None) -> LogData:
-    """The log, with its one-line summary (damage by reason, clock quirks) on stderr."""
+    """The whole log in memory (calibrate, tune), with its one-line summary (damage by reason,
+    clock quirks) on stderr."""
     log = config.open_log(path, limits or config.sensor_limits(""))
-    summary = log.stats.summary()
-    if summary:
-        print(summary if summary.startswith(Path(path).name) else f"{path}: {summary}",
-              file=sys.stderr)
+    _print_summary(path, log.stats)
     return log
 
 
-def check_estimable(log: LogData, sensors: tuple[str, ...]) -> None:
+def _print_summary(path: str, stats: LogStats | None) -> None:
+    summary = stats.summary() if stats is not None else ""
+    if summary:
+        print(summary if summary.startswith(Path(path).name) else f"{path}: {summary}",
+              file=sys.stderr)
+
+
+def scan(path: str, limits=None, ori: bool = False) -> tuple[LogFile, LogScan]:
+    """The log to read chunk by chunk (filter, evaluate: memory does not grow with it) and
+    what a first pass over it found, its summary on stderr."""
+    log = config.log_file(path, limits or config.sensor_limits(""))
+    with _log_errors():
+        found = scan_log(log, ori=ori)
+    _print_summary(path, found.stats)
+    return log, found
+
+
+@contextlib.contextmanager
+def _log_errors():
+    """A log that turns out unreadable while it is read (a damaged gzip stream, binary data, no
+    line of the phone's format) is one line."""
+    try:
+        yield
+    except LogError as error:
+        raise config.ConfigError(str(error)) from None
+
+
+def check_estimable(log: LogData | LogScan, sensors: tuple[str, ...]) -> None:
     """ConfigError (one line) when no estimate can be made from the log with these sensors:
     none of them in it, or no accelerometer (nothing gives down; the estimate would be the
     identity, or a turn from it)."""
@@ -65,14 +94,16 @@ SENSOR_WORDS = {"gyr": "gyroscope", "acc": "accelerometer", "mag": "magnetometer
 ESTIMATOR_SENSORS = {"accmag": ("acc", "mag")}
 
 
-def present_sensors(log: LogData) -> tuple[str, ...]:
+def present_sensors(log: LogData | LogScan) -> tuple[str, ...]:
     """The filter sensors the log holds samples of, in ("gyr", "acc", "mag") order."""
+    if isinstance(log, LogScan):
+        return tuple(name for name in SENSOR_WORDS if log.present[name])
     arrays = log.to_arrays()
     return tuple(name for name in SENSOR_WORDS
                  if bool(np.isfinite(getattr(arrays, name)[:, 0]).any()))
 
 
-def warn_absent(log: LogData, sensors: tuple[str, ...], names: list[str],
+def warn_absent(log: LogData | LogScan, sensors: tuple[str, ...], names: list[str],
                 present: tuple[str, ...] | None = None) -> tuple[str, ...]:
     """One line on stderr when the log lacks a sensor the estimators would use (a figure from
     such a log is that of the other sensors alone); the sensors it lacks."""
@@ -89,20 +120,34 @@ def warn_absent(log: LogData, sensors: tuple[str, ...], names: list[str],
     return absent
 
 
-def check_finite(name: str, quat: np.ndarray, t_ms: np.ndarray, settings: object) -> None:
+class FiniteCheck:
     """ConfigError (one line) when a built-in estimator's estimate stops being finite: its
-    settings are within their declared ranges but beyond what the filter can compute."""
-    bad = ~np.isfinite(quat).all(axis=1)
-    if not bad.any():
-        return
-    base = ekf.PRESETS["default"]
-    changed = [f.name for f in dataclasses.fields(base) if settings is not None
-               and getattr(settings, f.name) != getattr(base, f.name)]
-    which = (f"; changed from the default preset: {', '.join(changed[:4])}"
-             f"{' ...' if len(changed) > 4 else ''}" if changed else "")
-    first = (int(t_ms[np.argmax(bad)]) - int(t_ms[0])) / 1000.0
-    raise config.ConfigError(f"the {name} estimate is not finite from {first:.2f} s on: the "
-                             f"settings are beyond what the filter can compute{which}")
+    settings are within their declared ranges but beyond what the filter can compute. Fed the
+    rows piece by piece (:meth:`check`); times count from the first row."""
+
+    def __init__(self, name: str, settings: object) -> None:
+        self.name = name
+        self.settings = settings
+        self.first_ms: int | None = None
+
+    def check(self, quat: np.ndarray, t_ms: np.ndarray) -> None:
+        if not len(t_ms):
+            return
+        if self.first_ms is None:
+            self.first_ms = int(t_ms[0])
+        bad = ~np.isfinite(quat).all(axis=1)
+        if not bad.any():
+            return
+        base = ekf.PRESETS["default"]
+        settings = self.settings
+        changed = [f.name for f in dataclasses.fields(base) if settings is not None
+                   and getattr(settings, f.name) != getattr(base, f.name)]
+        which = (f"; changed from the default preset: {', '.join(changed[:4])}"
+                 f"{' ...' if len(changed) > 4 else ''}" if changed else "")
+        first = (int(t_ms[np.argmax(bad)]) - self.first_ms) / 1000.0
+        raise config.ConfigError(f"the {self.name} estimate is not finite from {first:.2f} s "
+                                 f"on: the settings are beyond what the filter can compute"
+                                 f"{which}")
 
 
 def settings_of(args: argparse.Namespace, names: list[str]) -> tuple[object, str]:
@@ -128,25 +173,28 @@ PROGRESS_EVERY_S = 5.0
 
 
 class _Progress:
-    """on_progress of a user's filter on a long run: a line on stderr every PROGRESS_EVERY_S."""
+    """on_progress of a user's filter on a long run: a line on stderr every PROGRESS_EVERY_S,
+    how much of the log is read (the log is run chunk by chunk: a call's rows are a chunk's)."""
 
-    def __init__(self, name: str) -> None:
+    def __init__(self, name: str, log: LogFile | None = None) -> None:
         self.name = name
+        self.log = log
         self.started = self.said = time.monotonic()
 
     def __call__(self, done: int, total: int) -> None:
         now = time.monotonic()
-        if now - self.said >= PROGRESS_EVERY_S and done < total:
+        share = self.log.fraction_read if self.log is not None else done / total
+        if now - self.said >= PROGRESS_EVERY_S and share < 1.0:
             self.said = now
-            print(f"{self.name}: {done / total:.0%} of {total} rows ({now - self.started:.0f} s)",
+            print(f"{self.name}: {share:.0%} of the log ({now - self.started:.0f} s)",
                   file=sys.stderr, flush=True)
 
 
-def user_filters(estimators: list) -> list[UserFilterEstimator]:
-    """The user's filters among estimators, each saying how far a long run is."""
+def user_filters(estimators: list, log: LogFile | None = None) -> list[UserFilterEstimator]:
+    """The user's filters among estimators, each saying how far a long run over `log` is."""
     mine = [e for e in estimators if isinstance(e, UserFilterEstimator)]
     for estimator in mine:
-        estimator.on_progress = _Progress(estimator.name)
+        estimator.on_progress = _Progress(estimator.name, log)
     return mine
 
 
@@ -223,41 +271,54 @@ def _filter(args: argparse.Namespace) -> int:
 
 def _filter_with(args: argparse.Namespace, names: list[str], settings, which: str,
                  sensors: tuple[str, ...], estimator) -> int:
-    user_filters([estimator])
     if args.output:
         check_output(args.output, args.log, args.settings if args.settings
                      and args.settings.endswith(".json") else None)
-    log = read_log(args.log, args.limits)
-    check_estimable(log, sensors)
-    warn_absent(log, sensors, names)
+    log, found = scan(args.log, args.limits)
+    user_filters([estimator], log)
+    check_estimable(found, sensors)
+    warn_absent(found, sensors, names)
     print(f"{args.log}: settings: {which}", file=sys.stderr)
+    finite = None if isinstance(estimator, UserFilterEstimator) else FiniteCheck(
+        names[0], settings or ekf.PRESETS["default"])
+    # The rows are written as they come, to the output's temporary file (or, for stdout, a
+    # spooled one): nothing is written when the run fails on the way.
     try:
-        with contextlib.redirect_stdout(sys.stderr):   # what the user's code prints: not the CSV
-            rows = filter_log(log, names[0] if args.smooth else estimator, settings, sensors,
-                              smooth=args.smooth)
-    except ValueError as error:
-        raise config.ConfigError(f"filter: {error}") from None
-    close_all([estimator])
-    if not report_user_filter(estimator, args.traceback):
+        with (atomic_output(args.output, "w", encoding="ascii", newline="\n") if args.output
+              else tempfile.SpooledTemporaryFile(1 << 23, "w+", encoding="ascii",
+                                                 newline="\n")) as stream:
+            stream.write(estimates.HEADER + "\n")
+            with contextlib.redirect_stdout(sys.stderr), _log_errors():
+                # what the user's code prints goes to stderr: not the CSV
+                for rows in filter_rows(log, names[0] if args.smooth else estimator, settings,
+                                        sensors, smooth=args.smooth):
+                    if finite is not None:
+                        finite.check(rows.quat, rows.t_ms)
+                    estimates.write_rows(rows, stream)
+            close_all([estimator])
+            if not report_user_filter(estimator, args.traceback):
+                raise _NothingWritten
+            if not args.output:
+                stream.seek(0)
+                shutil.copyfileobj(stream, sys.stdout, 1 << 20)
+    except _NothingWritten:
         print("orientation-lab: no estimates written", file=sys.stderr)
         return 1
-    if not isinstance(estimator, UserFilterEstimator) and len(rows.t_ms):
-        check_finite(names[0], rows.quat, rows.t_ms, settings or ekf.PRESETS["default"])
-    try:
-        if args.output:
-            with atomic_output(args.output, "w", encoding="ascii", newline="\n") as stream:
-                estimates.write_csv(rows, stream)
-        else:
-            estimates.write_csv(rows, sys.stdout)
+    except ValueError as error:
+        raise config.ConfigError(f"filter: {error}") from None
     except BrokenPipeError:
         # `filter LOG | head`: the reader had enough; say nothing, and keep Python's flush at
         # exit from failing on the closed pipe
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except OSError as error:
-        raise config.ConfigError(f"cannot write {args.output}: {error.strerror or error}") \
-            from None
+        raise config.ConfigError(f"cannot write {args.output or 'the estimates'}: "
+                                 f"{error.strerror or error}") from None
     return 0
+
+
+class _NothingWritten(Exception):
+    """Your filter stopped: the estimates are not written."""
 
 
 # ---- evaluate -----------------------------------------------------------------------------------
@@ -273,11 +334,11 @@ def intervals_of(args: argparse.Namespace) -> tuple[list | None, str]:
     return config.read_intervals(path), f"score intervals from {path}"
 
 
-def _truth(args: argparse.Namespace) -> tuple[LogData | None, str]:
+def _truth(args: argparse.Namespace) -> tuple[LogScan | None, str]:
     path = args.truth or sibling_truth(args.log)
     if path is None:
         return None, "the log's ORI"
-    return read_log(str(path)), f"the truth in {path}"
+    return scan(str(path), ori=True)[1], f"the truth in {path}"
 
 
 def _row(name: str, s, width: int = 16) -> str:
@@ -301,10 +362,10 @@ def _evaluate(args: argparse.Namespace, estimators: list) -> int:
     intervals, where = intervals_of(args)
     for name in names:
         estimators.append(config.make_estimator(name, settings, sensors))
-    user_filters(estimators)
-    log = read_log(args.log, args.limits)
-    check_estimable(log, sensors)
-    warn_absent(log, sensors, names)
+    log, found = scan(args.log, args.limits, ori=True)
+    user_filters(estimators, log)
+    check_estimable(found, sensors)
+    warn_absent(found, sensors, names)
     truth, against = _truth(args)
     skip = f", after the first {args.skip:g} s" if args.skip else ""
     smooth = ", smoothed (forward EKF + backward RTS pass)" if args.smooth else ""
@@ -317,9 +378,9 @@ def _evaluate(args: argparse.Namespace, estimators: list) -> int:
     status = 0
     try:
         for name, estimator, label in zip(names, estimators, labels):
-            with contextlib.redirect_stdout(sys.stderr):
+            with contextlib.redirect_stdout(sys.stderr), _log_errors():
                 s = evaluate_log(log, name if args.smooth else estimator, settings, sensors,
-                                 intervals, args.skip, truth, smooth=args.smooth)
+                                 intervals, args.skip, truth, smooth=args.smooth, scan=found)
             close_all([estimator])
             if not report_user_filter(estimator, args.traceback):
                 print(f"{label:<{width}}{'stopped: see above':>20}", flush=True)
@@ -331,7 +392,7 @@ def _evaluate(args: argparse.Namespace, estimators: list) -> int:
                                          "are beyond what the filter can compute")
             print(_row(label, s, width), flush=True)
         if truth is not None:
-            print(_row("phone (ORI)", evaluate_phone(log, truth, intervals, args.skip), width))
+            print(_row("phone (ORI)", evaluate_phone(found, truth, intervals, args.skip), width))
     except ValueError as error:
         raise config.ConfigError(f"evaluate: {error}") from None
     return status
@@ -410,7 +471,7 @@ def add_commands(sub) -> None:
     x.add_argument("--format", required=True, choices=("csv", "log", "mat"),
                    help="csv: measurements and estimates with a header of units; log: the "
                         "phone's text format (the course's MATLAB reader, `send`); mat: the "
-                        "course kit's meas and xhat structs (needs scipy)")
+                        "course kit's meas and xhat structs")
     x.add_argument("-o", "--output", required=True, metavar="OUT", help="the file to write")
     x.add_argument("--from-marker", metavar="A", help="start at marker A (number or label)")
     x.add_argument("--to-marker", metavar="B", help="end at marker B (number or label)")

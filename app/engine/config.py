@@ -25,8 +25,8 @@ from app.engine.session import read_session, session_json_for
 from app.engine.userfilter.code import UserFilterError, is_filter_file
 from app.engine.userfilter.filter import make_estimator as _make_estimator
 from app.stream.fastparse import FastLineParser
-from app.stream.lines import LogError
-from app.stream.logfile import LogData, read_log
+from app.stream.lines import LogError, log_chunks
+from app.stream.logfile import LogData, LogFile, read_log
 from app.stream.protocol import DEFAULT_LIMITS, Limits
 from app.stream.phyphox import PhyphoxSource
 from app.stream.phyphox_api import parse_address as _phyphox_address
@@ -299,13 +299,41 @@ def open_replay(path: str | Path, speed: float = 1.0, loop: bool = False,
         raise ConfigError(f"{error}; {REPLAY_EXPECTED}") from None
     except OSError as error:
         raise ConfigError(f"cannot read {raw}: {error.strerror or error}") from None
+    check_replay_start(raw, source.data, limits)
+    return source
+
+
+def check_replay_start(raw: Path, data: bytes, limits: Limits = DEFAULT_LIMITS) -> None:
+    """ConfigError (one line) unless the start of a log's bytes (its first 256 KiB) holds a
+    line of the phone's format."""
     probe = FastLineParser(limits=limits)
-    probe.feed_arrays(source.data[:_PROBE_BYTES])
+    probe.feed_arrays(data[:_PROBE_BYTES])
     if probe.stats.good == 0:
         probe.finish_arrays()
     if probe.stats.good == 0:
         raise ConfigError(f"{raw}: not a phone log or recorded session; {REPLAY_EXPECTED}")
-    return source
+
+
+def replay_log(path: str | Path, limits: Limits = DEFAULT_LIMITS) -> Path:
+    """The log behind a session folder, its raw.txt or session.json, or a phone's log, checked
+    as :func:`open_replay` checks it but without reading it whole (its start only: exports
+    read it as a stream). ConfigError (one line) for anything else."""
+    raw = resolve_log_path(path)
+    chunks = log_chunks(raw, _PROBE_BYTES)
+    try:
+        start = next(chunks)
+    except LogError as error:
+        raise ConfigError(f"{error}; {REPLAY_EXPECTED}") from None
+    finally:
+        chunks.close()
+    check_replay_start(raw, start, limits)
+    return raw
+
+
+def log_file(path: str | Path, limits: Limits = DEFAULT_LIMITS) -> LogFile:
+    """A log (or recorded session) to read chunk by chunk (LogError while it is read when it
+    turns out unusable); ConfigError when the path is not a log or session at all."""
+    return LogFile(resolve_log_path(path), limits)
 
 
 def open_log(path: str | Path, limits: Limits = DEFAULT_LIMITS) -> LogData:

@@ -31,8 +31,16 @@ def csv_lines(rows: Rows) -> list[str]:
 def write_csv(rows: Rows, stream: TextIO) -> None:
     """Header and rows to an open text stream."""
     stream.write(HEADER + "\n")
-    for line in csv_lines(rows):
-        stream.write(line + "\n")
+    write_rows(rows, stream)
+
+
+def write_rows(rows: Rows, stream: TextIO) -> int:
+    """The CSV lines of `rows` (a piece of a run: call it piece after piece, after the
+    header) to an open text stream; returns the number of lines."""
+    lines = csv_lines(rows)
+    if lines:
+        stream.write("\n".join(lines) + "\n")
+    return len(lines)
 
 
 class EstimatesWriter:
@@ -50,14 +58,13 @@ class EstimatesWriter:
     def write(self, rows: Rows) -> None:
         if self._stream is None or not len(rows):
             return
-        lines = csv_lines(rows)
         try:
-            self._stream.write("".join(line + "\n" for line in lines))
+            written = write_rows(rows, self._stream)
         except OSError as error:
             self.error = f"{self.path}: {error.strerror or error}"
             self._close_quietly()
             return
-        self.rows_written += len(lines)
+        self.rows_written += written
 
     def flush(self) -> None:
         if self._stream is not None:

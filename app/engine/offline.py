@@ -2,72 +2,249 @@
 
 `orientation-lab filter` and `evaluate` (and the examples) call these, so a file and its live
 replay give the same estimates bit for bit, same-time and duplicated lines included.
+
+A log is a :class:`~app.stream.logfile.LogFile` (read chunk by chunk, one chunk in memory at a
+time: each pass reads the file again) or a :class:`~app.stream.logfile.LogData` (in memory).
+:func:`run_log` runs the runner over it chunk by chunk and hands on the rows as they are
+committed, so memory does not grow with the log: :func:`filter_rows` for the estimates,
+:func:`evaluate_log` keeps only the error angles of the ORI samples it scores. What a command
+needs to know before it starts (which sensors a log holds, its ORI series) comes from a first
+pass, :func:`scan_log`. The smoother needs a whole session's readings: :func:`smoothed_quats`
+holds them as arrays (80 bytes a row) while it runs.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
 import ekf
 from ekf import magcal
 from ekf.metrics import ErrorSummary, interpolate_quat, intervals_mask, rmse
-from app.engine.runner import SENSORS, EstimatorRunner, Rows
-from app.stream.logfile import LogData
-from app.stream.protocol import Sample
+from app.engine.runner import SENSORS, TAG_NAMES, EstimatorRunner, Rows
+from app.stream.logfile import LogData, LogStats
+from app.stream.tags import REFERENCE_CODE, SENSOR_CODES
 
 
-def run_offline(samples: Iterable[Sample], estimator: str | ekf.Estimator = "ekf",
-                settings: ekf.EKFSettings | None = None,
-                sensors: Iterable[str] = SENSORS,
-                session_starts: Iterable[int] = ()) -> Rows:
+class OrderedLog(Protocol):
+    """A log's ordered samples, chunk by chunk (LogFile or LogData): each call of chunks() is
+    one pass from the start."""
+
+    path: str
+
+    def chunks(self) -> Iterator[LogData]: ...
+
+
+def run_log(log: OrderedLog, estimator: str | ekf.Estimator = "ekf",
+            settings: ekf.EKFSettings | None = None,
+            sensors: Iterable[str] = SENSORS) -> Iterator[tuple[Rows, bool]]:
     """Run one estimator (a name, a user's FILE.py, or an estimator object, which is then
-    advanced) over ordered samples (e.g. ``read_log(path).samples``, with its
-    ``session_starts``: the estimators start afresh there): one row per distinct phone time,
-    exactly as the live engine produces them."""
+    advanced) over a log's ordered samples, chunk by chunk: (the rows committed, whether a new
+    session starts after them) as they come, one row per distinct phone time, exactly as the
+    live engine produces them (the runner's result does not depend on the chunking); the
+    estimators start afresh where the log's clock restarts."""
     runner = EstimatorRunner(estimator, settings, sensors)
-    samples = list(samples)
-    previous = 0
-    for start in list(session_starts) + [len(samples)]:
-        if start > previous or start == len(samples):
-            runner.feed_many(samples[previous:start])
-        if start < len(samples):
+    for chunk in log.chunks():
+        previous = 0
+        for start in chunk.session_starts:
+            if start > previous:
+                runner.feed_arrays(chunk.t_ms[previous:start], chunk.tag[previous:start],
+                                   chunk.values[previous:start])
             runner.new_session()
-        previous = start
+            yield _taken(runner), True
+            previous = start
+        if previous < len(chunk):
+            runner.feed_arrays(chunk.t_ms[previous:], chunk.tag[previous:],
+                               chunk.values[previous:])
+        rows = _taken(runner)
+        if len(rows):
+            yield rows, False
     runner.finish()
+    yield _taken(runner), False
+
+
+def _taken(runner: EstimatorRunner) -> Rows:
+    """The rows committed so far; the runner's own comparisons with ORI (the window's error
+    plots) are dropped as they come, so nothing piles up over a long log."""
+    runner.take_errors()
+    runner.take_user_errors()
     return runner.take_rows()
 
 
-def filter_log(log: LogData, estimator: str | ekf.Estimator = "ekf",
+def run_offline(log: OrderedLog, estimator: str | ekf.Estimator = "ekf",
+                settings: ekf.EKFSettings | None = None,
+                sensors: Iterable[str] = SENSORS) -> Rows:
+    """:func:`run_log`'s rows of a whole log in one Rows (every distinct time)."""
+    return Rows.concatenate([rows for rows, _ in run_log(log, estimator, settings, sensors)])
+
+
+# ---- one pass to know a log --------------------------------------------------------------------
+
+@dataclass
+class LogScan:
+    """What one pass over a log found: its stats (None for a LogData without them); per sensor
+    (gyr, acc, mag) whether it has a finite sample; the first GYR/ACC/MAG time [ms]; how many
+    times a new session starts; with ``ori``: the ORI series, distinct times (sorted, ms) and
+    quaternions (M, 4) (the last sample of a time)."""
+
+    path: str
+    stats: LogStats | None
+    present: dict[str, bool]
+    first_sensor_ms: int | None
+    session_starts: int
+    ori_t_ms: np.ndarray | None = None
+    ori_quat: np.ndarray | None = None
+
+
+def scan_log(log: OrderedLog, ori: bool = False) -> LogScan:
+    """One pass over the log (no estimator). Raises LogError for a file that cannot be read."""
+    present = dict.fromkeys(TAG_NAMES[:3], False)
+    first: int | None = None
+    sessions = 0
+    ori_t: list[np.ndarray] = []
+    ori_q: list[np.ndarray] = []
+    for chunk in log.chunks():
+        sessions += len(chunk.session_starts)
+        sensor = chunk.tag != REFERENCE_CODE
+        if sensor.any():
+            earliest = int(chunk.t_ms[sensor].min())
+            first = earliest if first is None else min(first, earliest)
+        for code in SENSOR_CODES:
+            if not present[TAG_NAMES[code]]:
+                present[TAG_NAMES[code]] = bool(
+                    np.isfinite(chunk.values[chunk.tag == code, 0]).any())
+        if ori:
+            chosen = chunk.tag == REFERENCE_CODE
+            ori_t.append(chunk.t_ms[chosen])
+            ori_q.append(chunk.values[chosen])
+    scan = LogScan(log.path, getattr(log, "stats", None), present, first, sessions)
+    if ori:
+        t = np.concatenate(ori_t) if ori_t else np.empty(0, np.int64)
+        q = np.concatenate(ori_q) if ori_q else np.empty((0, 4))
+        order = np.argsort(t, kind="stable")
+        t, q = t[order], q[order]
+        last = np.ones(len(t), bool)
+        last[:-1] = t[1:] != t[:-1]           # the last sample of a time wins
+        scan.ori_t_ms, scan.ori_quat = t[last], q[last]
+    return scan
+
+
+def orientation_series(scan: LogScan) -> tuple[np.ndarray, np.ndarray]:
+    """A scanned log's ORI samples (``scan_log(log, ori=True)``): times [ms] (distinct, sorted;
+    the last of equal times wins) as float and quaternions (N, 4). ValueError when there is
+    none."""
+    if scan.ori_t_ms is None or not len(scan.ori_t_ms):
+        raise ValueError(f"{Path(scan.path).name} has no ORI lines to compare with")
+    return scan.ori_t_ms.astype(np.float64), scan.ori_quat
+
+
+# ---- filter --------------------------------------------------------------------------------------
+
+def filter_rows(log: OrderedLog, estimator: str | ekf.Estimator = "ekf",
+                settings: ekf.EKFSettings | None = None, sensors: Iterable[str] = SENSORS,
+                smooth: bool = False) -> Iterator[Rows]:
+    """The estimates of a whole log, piece by piece as the runner commits them: the rows at
+    which a GYR, ACC or MAG sample arrived.
+
+    smooth: the EKF forward, then the backward Rauch-Tung-Striebel pass (``ekf.smooth_batch``,
+    :func:`smoothed_quats`, computed before the first piece); only for the EKF over one session
+    (ValueError otherwise). The lights are the forward filter's."""
+    smoothed = smoothed_quats(log, estimator, settings, sensors) if smooth else None
+    done = 0
+    for rows, _ in run_log(log, estimator, settings, sensors):
+        rows = rows.select(rows.has_sample)
+        if smoothed is not None and len(rows):
+            rows.quat = _take_smoothed(smoothed, done, rows.t_ms)
+        done += len(rows)
+        if len(rows):
+            yield rows
+
+
+def filter_log(log: OrderedLog, estimator: str | ekf.Estimator = "ekf",
                settings: ekf.EKFSettings | None = None, sensors: Iterable[str] = SENSORS,
                smooth: bool = False) -> Rows:
-    """The estimates of a whole log: the rows at which a GYR, ACC or MAG sample arrived.
-
-    smooth: the EKF forward, then the backward Rauch-Tung-Striebel pass (``ekf.smooth_batch``);
-    only for the EKF (ValueError otherwise). The lights are the forward filter's."""
-    rows = run_offline(log.samples, estimator, settings, sensors, log.session_starts)
-    rows = rows.select(rows.has_sample)
-    if smooth:
-        rows.quat = _smoothed(log, estimator, settings, sensors, rows.t_ms)
-    return rows
+    """:func:`filter_rows` of a whole log in one Rows."""
+    return Rows.concatenate(list(filter_rows(log, estimator, settings, sensors, smooth)))
 
 
-def _smoothed(log: LogData, estimator: str | ekf.Estimator, settings: ekf.EKFSettings | None,
-              sensors: Iterable[str], t_ms: np.ndarray) -> np.ndarray:
-    """The smoother's quaternions at the log's GYR/ACC/MAG times (`t_ms`, the runner's)."""
+@dataclass
+class Smoothed:
+    """The smoother's quaternions (N, 4) at its rows' times t_ms (N,)."""
+
+    t_ms: np.ndarray
+    quat: np.ndarray
+
+
+def _take_smoothed(smoothed: Smoothed, done: int, t_ms: np.ndarray) -> np.ndarray:
+    """The smoothed quaternions of the runner's next sensor rows (times `t_ms`)."""
+    end = done + len(t_ms)
+    if not np.array_equal(smoothed.t_ms[done:end], t_ms):
+        raise ValueError("the smoother's rows do not match the runner's")   # not expected
+    return smoothed.quat[done:end]
+
+
+def smoothed_quats(log: OrderedLog, estimator: str | ekf.Estimator = "ekf",
+                   settings: ekf.EKFSettings | None = None,
+                   sensors: Iterable[str] = SENSORS) -> Smoothed:
+    """The smoother over the log's GYR/ACC/MAG times (the runner's sensor rows): readings of
+    one time at one row, the last of a sensor's equal-time samples winning. ValueError unless
+    the estimator is the EKF and the log one session."""
     if estimator not in ("ekf", "course"):
         raise ValueError(f"--smooth needs the EKF (ekf or course), not {estimator!r}")
-    if len(log.session_starts):
-        raise ValueError("--smooth runs over one session: this log's clock restarts")
-    a = log.to_arrays()
-    has = ~(np.isnan(a.gyr).all(1) & np.isnan(a.acc).all(1) & np.isnan(a.mag).all(1))
-    if not np.array_equal(a.t_ms[has], t_ms):
-        raise ValueError("the smoother's rows do not match the runner's")   # not expected
-    return smooth_rows(a.t_ms[has], a.gyr[has], a.acc[has], a.mag[has], estimator, settings,
-                       sensors)
+    t_ms, gyr, acc, mag = sensor_rows(log)
+    return Smoothed(t_ms, smooth_rows(t_ms, gyr, acc, mag, estimator, settings, sensors))
+
+
+def sensor_rows(log: OrderedLog) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A one-session log's distinct GYR/ACC/MAG times t_ms (N,) and the readings at each, gyr,
+    acc, mag (N, 3) (NaN: none; the last of equal-time samples wins), in two passes: one counts
+    the rows, the next fills arrays of that size (80 bytes a row). ValueError when the log's
+    clock restarts."""
+    count = 0
+    for piece in _whole_times(log):
+        count += len(_sensor_times(piece))
+    t_ms = np.empty(count, np.int64)
+    columns = [np.full((count, 3), np.nan) for _ in SENSOR_CODES]
+    filled = 0
+    for piece in _whole_times(log):
+        times = _sensor_times(piece)
+        end = filled + len(times)
+        t_ms[filled:end] = times
+        for code, column in zip(SENSOR_CODES, columns):
+            chosen = piece.tag == code
+            # fancy assignment: the last of duplicate rows wins
+            column[filled + np.searchsorted(times, piece.t_ms[chosen])] = \
+                piece.values[chosen, :3]
+        filled = end
+    return (t_ms, *columns)
+
+
+def _sensor_times(piece: LogData) -> np.ndarray:
+    return np.unique(piece.t_ms[piece.tag != REFERENCE_CODE])
+
+
+def _whole_times(log: OrderedLog) -> Iterator[LogData]:
+    """A one-session log's chunks re-cut so that no time is split between two pieces (the
+    samples of a chunk's last time wait for the next chunk). ValueError when the clock
+    restarts (times are not in order across sessions)."""
+    held: LogData | None = None
+    for chunk in log.chunks():
+        if chunk.session_starts:
+            raise ValueError("--smooth runs over one session: this log's clock restarts")
+        if held is not None:
+            chunk = LogData.concatenate(chunk.path, [held, chunk])
+        if not len(chunk):
+            continue
+        cut = int(np.searchsorted(chunk.t_ms, chunk.t_ms[-1], side="left"))
+        held = LogData(chunk.path, chunk.t_ms[cut:], chunk.tag[cut:], chunk.values[cut:])
+        if cut:
+            yield LogData(chunk.path, chunk.t_ms[:cut], chunk.tag[:cut], chunk.values[:cut])
+    if held is not None and len(held):
+        yield held
 
 
 def smooth_rows(t_ms: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray,
@@ -101,22 +278,14 @@ def session_row_starts(t_ms: Iterable[int] | np.ndarray,
     return [int(row_of[k]) for k in starts]
 
 
+# ---- evaluate ------------------------------------------------------------------------------------
+
 def sibling_truth(log_path: str | Path) -> Path | None:
     """``NAME.truth.txt`` beside ``NAME.txt`` (or a session folder's), when it exists."""
     path = Path(log_path)
     stem = path.name.split(".")[0] if path.is_file() else path.name
     candidate = path.with_name(stem + ".truth.txt")
     return candidate if candidate.is_file() else None
-
-
-def orientation_series(log: LogData) -> tuple[np.ndarray, np.ndarray]:
-    """The log's ORI samples: times [ms] (distinct, sorted; the last of equal times wins) and
-    quaternions (N, 4). ValueError when there is none."""
-    a = log.to_arrays()
-    has = ~np.isnan(a.ori).any(axis=1)
-    if not has.any():
-        raise ValueError(f"{Path(log.path).name} has no ORI lines to compare with")
-    return a.t_ms[has].astype(np.float64), a.ori[has]
 
 
 def score_series(t_est_ms: np.ndarray, q_est: np.ndarray, t_ref_ms: np.ndarray,
@@ -129,41 +298,132 @@ def score_series(t_est_ms: np.ndarray, q_est: np.ndarray, t_ref_ms: np.ndarray,
     return ekf.summarize(q, q_ref, mask)
 
 
-def evaluate_log(log: LogData, estimator: str | ekf.Estimator = "ekf",
+def evaluate_log(log: OrderedLog, estimator: str | ekf.Estimator = "ekf",
                  settings: ekf.EKFSettings | None = None, sensors: Iterable[str] = SENSORS,
                  intervals_ms: list | None = None, skip_s: float = 0.0,
-                 truth: LogData | None = None, smooth: bool = False) -> ErrorSummary:
+                 truth: OrderedLog | LogScan | None = None, smooth: bool = False,
+                 scan: LogScan | None = None) -> ErrorSummary:
     """RMSE (degrees) of the total, heading and inclination error against the reference: the
-    ORI of `truth` (an ORI-only log, e.g. ``NAME.truth.txt``) when given, else the log's own
-    ORI. The estimate is interpolated to the reference's times (slerp), session by session
-    where the log's clock restarts, over `intervals_ms` (None: everywhere) after the first
-    `skip_s` seconds of each session's estimates (the figures re-filter and tune report).
+    ORI of `truth` (an ORI-only log, e.g. ``NAME.truth.txt``, or its ``scan_log(.., ori=True)``)
+    when given, else the log's own ORI. The estimate is interpolated to the reference's times
+    (slerp), session by session where the log's clock restarts, over `intervals_ms` (None:
+    everywhere) after the first `skip_s` seconds of each session's estimates (the figures
+    re-filter and tune report). `scan`: the log's ``scan_log(log, ori=True)`` when known.
+    The estimates are scored as the runner commits them; only the scored angles are kept.
 
     Raises ValueError when there is no reference ORI or no sensor samples."""
-    reference = orientation_series(truth) if truth is not None else None
-    ori_times = np.unique(np.fromiter((s.t_ms for s in log.samples if s.tag == "ORI"),
-                                      dtype=np.int64))
-    if reference is None and not len(ori_times):
+    reference = None
+    if truth is not None:
+        truth_scan = truth if isinstance(truth, LogScan) else scan_log(truth, ori=True)
+        reference = orientation_series(truth_scan)
+    if scan is None or scan.ori_t_ms is None:
+        scan = scan_log(log, ori=True)
+    if reference is None and not len(scan.ori_t_ms):
         raise ValueError(f"{Path(log.path).name} has no ORI lines to compare with")
-    rows = run_offline(log.samples, estimator, settings, sensors, log.session_starts)
-    if smooth and rows.has_sample.any():
-        rows.quat[rows.has_sample] = _smoothed(log, estimator, settings, sensors,
-                                               rows.t_ms[rows.has_sample])
-    starts = session_row_starts(np.fromiter((s.t_ms for s in log.samples), dtype=np.int64,
-                                            count=len(log.samples)), log.session_starts)
-    return reference_errors(rows, ori_times, intervals_ms, skip_s, starts, reference).summary
+    smoothed = smoothed_quats(log, estimator, settings, sensors) if smooth else None
+    scorer = ReferenceScorer(scan.ori_t_ms, intervals_ms, skip_s, reference)
+    done = 0
+    for rows, new_session in run_log(log, estimator, settings, sensors):
+        if smoothed is not None and rows.has_sample.any():
+            k = int(rows.has_sample.sum())
+            rows.quat[rows.has_sample] = _take_smoothed(smoothed, done,
+                                                        rows.t_ms[rows.has_sample])
+            done += k
+        scorer.add(rows)
+        if new_session:
+            scorer.end_session()
+    return scorer.summary()
 
 
-def evaluate_phone(log: LogData, truth: LogData, intervals_ms: list | None = None,
+def evaluate_phone(log: LogScan, truth: LogScan, intervals_ms: list | None = None,
                    skip_s: float = 0.0) -> ErrorSummary:
     """The phone's own estimate (the log's ORI) against the truth, scored like
-    :func:`evaluate_log` (the skip counts from the log's first GYR/ACC/MAG sample)."""
+    :func:`evaluate_log` (the skip counts from the log's first GYR/ACC/MAG sample). Both are
+    ``scan_log(.., ori=True)``'s."""
     t_phone, q_phone = orientation_series(log)
     t_ref, q_ref = orientation_series(truth)
-    a = log.to_arrays()
-    has = ~(np.isnan(a.gyr).all(1) & np.isnan(a.acc).all(1) & np.isnan(a.mag).all(1))
-    first = float(a.t_ms[has][0]) if has.any() else float(t_phone[0])
+    first = float(log.first_sensor_ms) if log.first_sensor_ms is not None else float(t_phone[0])
     return score_series(t_phone, q_phone, t_ref, q_ref, intervals_ms, first + skip_s * 1000.0)
+
+
+class ReferenceScorer:
+    """:func:`reference_errors`' summary of rows that come piece by piece (:func:`run_log`),
+    session by session (:meth:`end_session` between two): each reference time is scored once
+    the estimates around it exist, and only the angles that count are kept (three numbers per
+    scored ORI sample). The angles, and so the figures, are those of reference_errors over the
+    whole run, bit for bit."""
+
+    def __init__(self, ori_times: np.ndarray, intervals_ms: list | None = None,
+                 skip_s: float = 0.0,
+                 reference: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        self.ori_times = np.unique(np.asarray(ori_times, np.int64))     # sorted
+        self.intervals_ms = intervals_ms
+        self.skip_s = skip_s
+        self.reference = reference
+        self.estimates = 0
+        self._angles: list[np.ndarray] = []      # (k, 3) scored total, heading, inclination
+        self.end_session()
+
+    def end_session(self) -> None:
+        """The rows after this belong to a new session (its estimates start afresh)."""
+        self._first_ms: int | None = None             # the session's first estimate
+        self._last: tuple[int, np.ndarray] | None = None   # its latest estimate
+        self._pending_t = np.empty(0, np.int64)       # its ORI rows not scored yet
+        self._pending_q = np.empty((0, 4))
+
+    def add(self, rows: Rows) -> None:
+        """The next rows of the current session."""
+        if self.reference is None:
+            # the rows at ORI times (np.isin would sort the ORI times again for every piece)
+            where = np.minimum(np.searchsorted(self.ori_times, rows.t_ms),
+                               max(len(self.ori_times) - 1, 0))
+            at_ori = (self.ori_times[where] == rows.t_ms) if len(self.ori_times) \
+                else np.zeros(len(rows), bool)
+            if at_ori.any():
+                self._pending_t = np.concatenate([self._pending_t, rows.t_ms[at_ori]])
+                self._pending_q = np.concatenate([self._pending_q, rows.phone_quat[at_ori]])
+        estimates = rows.select(rows.has_sample)
+        if not len(estimates):
+            return
+        self.estimates += len(estimates)
+        t_est, q_est = estimates.t_ms, estimates.quat
+        if self._first_ms is None:
+            self._first_ms = int(t_est[0])
+        if self._last is not None:
+            t_est = np.concatenate([[self._last[0]], t_est])
+            q_est = np.concatenate([self._last[1][None], q_est])
+        newest = int(t_est[-1])
+        if self.reference is None:
+            ready = self._pending_t <= newest
+            t_ref, q_ref = self._pending_t[ready], self._pending_q[ready]
+            self._pending_t, self._pending_q = self._pending_t[~ready], self._pending_q[~ready]
+        else:
+            times, quats = self.reference
+            low = np.searchsorted(times, self._last[0], side="right") if self._last is not None \
+                else np.searchsorted(times, self._first_ms, side="left")
+            high = np.searchsorted(times, newest, side="right")
+            t_ref, q_ref = times[low:high], quats[low:high]
+        self._last = (newest, q_est[-1].copy())
+        if len(t_ref):
+            self._score(t_est, q_est, np.asarray(t_ref, np.float64), np.asarray(q_ref, float))
+
+    def _score(self, t_est: np.ndarray, q_est: np.ndarray, t_ref: np.ndarray,
+               q_ref: np.ndarray) -> None:
+        q = interpolate_quat(t_est.astype(np.float64), q_est, t_ref)
+        mask = intervals_mask(t_ref, self.intervals_ms) & (
+            t_ref >= self._first_ms + self.skip_s * 1000.0)
+        ok = mask & np.isfinite(q).all(axis=1) & np.isfinite(q_ref).all(axis=1)
+        if ok.any():
+            angles = ekf.error_angles_deg(q, q_ref)
+            self._angles.append(np.column_stack([angle[ok] for angle in angles]))
+
+    def summary(self) -> ErrorSummary:
+        """The RMSE figures of everything scored. ValueError when no row had an estimate."""
+        if not self.estimates:
+            raise ValueError("the log has no GYR/ACC/MAG samples")
+        angles = np.concatenate(self._angles) if self._angles else np.empty((0, 3))
+        return ErrorSummary(rmse(angles[:, 0]), rmse(angles[:, 1]), rmse(angles[:, 2]),
+                            len(angles))
 
 
 @dataclass

@@ -33,7 +33,6 @@ from app.engine.offline import (ReferenceErrors, reference_errors, session_row_s
                                 smooth_rows)
 from app.engine.pipeline import Pipeline
 from app.engine.runner import SENSORS, EstimatorRunner, Rows
-from app.stream.fastparse import samples_to_arrays
 from app.stream.logfile import LogData
 
 ORI_CODE = 3
@@ -53,11 +52,8 @@ class PreparedLog:
 
     @classmethod
     def from_log(cls, log: LogData) -> "PreparedLog":
-        arrays = samples_to_arrays(log.samples)
-        ori = np.unique(arrays.t_ms[arrays.tag == ORI_CODE])
-        # log.samples holds only the filter tags, so its session starts index the arrays too
-        return cls(arrays.t_ms, arrays.tag, arrays.values, ori, log.path,
-                   tuple(int(k) for k in getattr(log, "session_starts", ())))
+        return cls(log.t_ms, log.tag, log.values, np.unique(log.t_ms[log.tag == ORI_CODE]),
+                   log.path, tuple(int(k) for k in log.session_starts))
 
     @property
     def duration_s(self) -> float:

@@ -81,7 +81,7 @@ def warm_up() -> None:
     with tempfile.TemporaryDirectory() as directory:
         log = read_log(write_session(simulate(duration_s=2.0, seed=0), Path(directory) / "w.txt"))
     runner = EstimatorRunner(comparisons=True, collect_plot=True)
-    runner.feed_many(log.samples)
+    runner.feed_arrays(log.t_ms, log.tag, log.values)
     runner.finish()
     runner.take_rows()
     _done = True

@@ -1,7 +1,9 @@
 """A phone emulator: connects to the server like the Sensor Fusion app and streams a log.
 
-Lines go out verbatim, in file order, with the log's own timing (:func:`pacing_times`) scaled
-by ``speed`` (0: as fast as possible). Used by `orientation-lab send`, tests and benchmarks.
+Lines go out verbatim, in file order, with the log's own timing
+(:func:`~app.stream.lines.pacing_times`) scaled by ``speed`` (0: as fast as possible); a file is
+read and sent block by block, so memory does not grow with its size. Used by `orientation-lab
+send`, tests and benchmarks.
 """
 
 from __future__ import annotations
@@ -9,9 +11,12 @@ from __future__ import annotations
 import socket
 import threading
 import time
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from app.stream.lines import pacing_times, read_lines
+import numpy as np
+
+from app.stream.lines import Pacer, line_blocks, line_starts
 
 _BLOCK_BYTES = 1 << 18
 
@@ -57,47 +62,53 @@ class PhoneEmulator:
                      stop: threading.Event | None = None) -> int:
         """Send `lines` (each with its LF) with their original timing / speed (0: at once).
         Returns the number of lines sent; ends early when `stop` is set."""
-        pace = pacing_times(lines)
+        data = b"".join(lines)
+        return self.stream_blocks(lambda: [data], speed, loop, stop)
+
+    def stream_blocks(self, blocks: Callable[[], Iterable[bytes]], speed: float = 1.0,
+                      loop: bool = False, stop: threading.Event | None = None) -> int:
+        """Send the lines of ``blocks()`` (blocks of whole lines, :func:`~app.stream.lines.
+        line_blocks`; called again for each pass of a loop) with their original timing / speed
+        (0: at once), holding one block at a time. Returns the number of lines sent; ends early
+        when `stop` is set."""
         sent = 0
         while True:
-            if speed <= 0:
-                block: list[bytes] = []
-                size = 0
-                for line in lines:
-                    block.append(line)
-                    size += len(line)
-                    if size >= _BLOCK_BYTES:
-                        self.send(b"".join(block))
-                        block, size = [], 0
+            pacer = Pacer()
+            start_wall = time.perf_counter()
+            for block in blocks():
+                if speed <= 0 or not block.endswith(b"\n"):
+                    for first in range(0, len(block), _BLOCK_BYTES):
+                        piece = block[first:first + _BLOCK_BYTES]
+                        self.send(piece)
+                        sent += piece.count(b"\n")
                         if stop is not None and stop.is_set():
-                            return sent
-                if block:
-                    self.send(b"".join(block))
-                sent += len(lines)
-            else:
-                start_wall = time.perf_counter()
+                            return self._sent(sent)
+                    continue
+                starts = line_starts(block)
+                pace = pacer.times(block, starts)
                 index = 0
-                while index < len(lines):
+                while index < len(pace):
                     if stop is not None and stop.is_set():
-                        return sent
+                        return self._sent(sent)
                     now = (time.perf_counter() - start_wall) * speed
-                    end = index
-                    while end < len(lines) and pace[end] <= now:
-                        end += 1
+                    end = int(np.searchsorted(pace, now, side="right"))
                     if end > index:
-                        self.send(b"".join(lines[index:end]))
+                        self.send(block[starts[index]:starts[end]])
                         sent += end - index
                         index = end
                     else:
                         time.sleep(min(0.05, (pace[index] - now) / speed))
             if not loop or (stop is not None and stop.is_set()):
-                self.lines_sent = sent
-                return sent
+                return self._sent(sent)
+
+    def _sent(self, count: int) -> int:
+        self.lines_sent = count
+        return count
 
 
 def send_log(path: str | Path, host: str = "127.0.0.1", port: int = 3400, speed: float = 1.0,
              loop: bool = False, stop: threading.Event | None = None) -> int:
-    """Connect like the phone and stream a log file; returns the number of lines sent."""
-    lines = read_lines(path)
+    """Connect like the phone and stream a log file (read block by block, never whole);
+    returns the number of lines sent."""
     with PhoneEmulator(host, port) as phone:
-        return phone.stream_lines(lines, speed, loop, stop)
+        return phone.stream_blocks(lambda: line_blocks(path), speed, loop, stop)

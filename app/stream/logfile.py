@@ -1,29 +1,31 @@
-"""Read a whole log file (the phone's "log to file" output, or our ``raw.txt``) into ordered samples.
+"""Read a log file (the phone's "log to file" output, or our ``raw.txt``) into ordered samples:
+chunk by chunk (:class:`LogFile`: memory for one chunk whatever the file's size) or whole
+(:func:`read_log`). Either gives :class:`LogData`, the ordered samples as arrays (a whole log, or a
+chunk of one); no object per sample.
 
 The same compiled parser (:class:`~app.stream.fastparse.FastLineParser`) and
 :class:`~app.stream.ordering.TimeOrderer` the live stream uses, so a file and the stream it was
-recorded from give the same samples; floods of empty or junk lines cost no Python per line (50 MB
-of newlines read in about a second). A file with NUL bytes or other junk in places is read with
-those lines counted as damaged; only a file that is mostly binary is refused.
+recorded from give the same samples, and a log read in chunks of any size gives the samples it
+gives read whole; floods of empty or junk lines cost no Python per line (50 MB of newlines read
+in about a second). A file with NUL bytes or other junk in places is read with those lines
+counted as damaged; only a file that is mostly binary is refused.
 """
 
 from __future__ import annotations
 
-import gzip
-import zlib
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from app.stream.fastparse import TAG_WIDTHS, FastLineParser, ParsedArrays
-from app.stream.lines import LogError, check_text, open_log_bytes, why_unreadable
+from app.stream.fastparse import TAG_WIDTHS, FastLineParser, samples_to_arrays
+from app.stream.lines import CHUNK_BYTES, LogError, log_chunks
 from app.stream.ordering import OrderedArrays, OrderStats, TimeOrderer
 from app.stream.protocol import (DEFAULT_LIMITS, FILTER_TAGS, Limits, ParseStats, Sample,
                                  reasons_text)
 from app.stream.repeats import Last, repeats
-
-_CHUNK_BYTES = 1 << 22
+from app.stream.tags import MAX_WIDTH
 
 
 @dataclass
@@ -110,124 +112,157 @@ class LogArrays:
 
 @dataclass
 class LogData:
-    """samples: the filter tags (GYR, ACC, MAG, ORI) in release order with aligned times;
-    other: every other tag's samples in file order, times untouched; session_starts: indices
-    into samples where a new session starts (a clock that does not continue the previous one:
-    the estimators start afresh there)."""
+    """Ordered filter-tag samples as arrays: a whole log (:func:`read_log`) or a chunk of one
+    (:meth:`LogFile.chunks`, :meth:`chunks`).
+
+    t_ms (n,) int64 aligned phone ms; tag (n,) int64 codes (GYR 0, ACC 1, MAG 2, ORI 3);
+    values (n, 4) float64 (rad/s, m/s^2, uT; ORI w x y z; NaN in column 3 for the 3-value
+    tags), in release order (at equal times GYR, ACC, MAG, ORI). session_starts: indices where
+    a new session starts (a clock that does not continue the previous one: the estimators start
+    afresh there; an index may be n, before the next chunk's first sample). stats: what reading
+    the whole log found (None for a chunk).
+    """
 
     path: str
-    samples: list[Sample]
-    other: list[Sample]
-    stats: LogStats
-    session_starts: list[int] = field(default_factory=list)
+    t_ms: np.ndarray
+    tag: np.ndarray
+    values: np.ndarray
+    session_starts: tuple[int, ...] = ()
+    stats: LogStats | None = None
     _arrays: LogArrays | None = field(default=None, repr=False)
+
+    def __len__(self) -> int:
+        return len(self.t_ms)
 
     @property
     def first_bad_line_number(self) -> int | None:
-        return self.stats.first_bad_line_number
+        return None if self.stats is None else self.stats.first_bad_line_number
 
     @property
     def duration_s(self) -> float:
-        if not self.samples:
+        if not len(self.t_ms):
             return 0.0
-        return (self.samples[-1].t_ms - self.samples[0].t_ms) / 1000.0
+        return int(self.t_ms[-1] - self.t_ms[0]) / 1000.0
+
+    def chunks(self, size: int = 1 << 16) -> Iterator[LogData]:
+        """The samples in chunks of `size` (what :meth:`LogFile.chunks` gives for a file)."""
+        starts = np.asarray(self.session_starts, np.int64)
+        for first in range(0, max(len(self), 1), size):
+            last = min(first + size, len(self))
+            final = last == len(self)
+            local = starts[(starts >= first) & ((starts < last) | final)] - first
+            yield LogData(self.path, self.t_ms[first:last], self.tag[first:last],
+                          self.values[first:last], tuple(int(k) for k in local))
 
     def to_arrays(self) -> LogArrays:
         """The samples as arrays on the distinct times (see :class:`LogArrays`). Cached."""
         if self._arrays is None:
-            self._arrays = samples_to_arrays(self.samples)
+            t_ms = np.unique(self.t_ms)
+            columns = {}
+            for code, (tag, width) in enumerate(zip(FILTER_TAGS, TAG_WIDTHS)):
+                column = np.full((len(t_ms), width), np.nan)
+                chosen = self.tag == code
+                # fancy assignment: the last of duplicate rows wins
+                column[np.searchsorted(t_ms, self.t_ms[chosen])] = self.values[chosen, :width]
+                columns[tag.lower()] = column
+            self._arrays = LogArrays(t_ms, **columns)
         return self._arrays
 
+    @staticmethod
+    def from_samples(samples: Iterable[Sample], path: str = "samples") -> LogData:
+        """Samples already in time order (a simulation, a test's lines) as a LogData; other
+        tags are left out."""
+        arrays = samples_to_arrays(list(samples))
+        return LogData(path, arrays.t_ms, arrays.tag, arrays.values)
 
-def samples_to_arrays(samples: list[Sample]) -> LogArrays:
-    """Ordered filter-tag samples -> :class:`LogArrays` (other tags ignored)."""
-    times = np.fromiter((s.t_ms for s in samples if s.tag in _WIDTH), dtype=np.int64)
-    t_ms = np.unique(times)
-    columns = {tag: np.full((len(t_ms), width), np.nan) for tag, width in _WIDTH.items()}
-    for tag, width in _WIDTH.items():
-        chosen = [s for s in samples if s.tag == tag]
-        if not chosen:
-            continue
-        tag_times = np.fromiter((s.t_ms for s in chosen), dtype=np.int64, count=len(chosen))
-        values = np.array([s.values for s in chosen], dtype=np.float64).reshape(-1, width)
-        rows = np.searchsorted(t_ms, tag_times)
-        columns[tag][rows] = values   # fancy assignment: the last of duplicate rows wins
-    return LogArrays(t_ms, **{tag.lower(): column for tag, column in columns.items()})
-
-
-_WIDTH = dict(zip(FILTER_TAGS, TAG_WIDTHS))
-
-
-class _Collector:
-    """Ordered arrays from the orderer, piece by piece, with the session starts as indices
-    into the whole."""
-
-    def __init__(self, orderer: TimeOrderer) -> None:
-        self.orderer = orderer
-        self.pieces: list[OrderedArrays] = []
-        self.other: list[Sample] = []
-        self.session_starts: list[int] = []
-        self.count = 0
-        self.repeated = 0
-        self._last: Last = None
-
-    def parsed(self, parsed: ParsedArrays) -> None:
-        self.other.extend(sample for _, sample in parsed.other)
-        if len(parsed.t_ms):
-            self.ordered(self.orderer.push_arrays(parsed.t_ms, parsed.tag, parsed.values))
-
-    def ordered(self, ordered: OrderedArrays) -> None:
-        if len(ordered.session_starts):
-            self._last = None
-        mask, self._last = repeats(ordered.t_ms, ordered.tag, ordered.values, self._last)
-        self.repeated += int(mask.sum())
-        self.session_starts.extend(self.count + int(k) for k in ordered.session_starts)
-        self.pieces.append(ordered)
-        self.count += len(ordered)
-
-    def samples(self) -> list[Sample]:
-        pieces = [piece for piece in self.pieces if len(piece)]
-        if not pieces:
-            return []
-        t_ms = np.concatenate([piece.t_ms for piece in pieces]).tolist()
-        tags = np.concatenate([piece.tag for piece in pieces]).tolist()
-        values = np.concatenate([piece.values for piece in pieces]).tolist()
-        return [Sample(t, FILTER_TAGS[code], tuple(row[:TAG_WIDTHS[code]]))
-                for t, code, row in zip(t_ms, tags, values)]
+    @staticmethod
+    def concatenate(path: str, chunks: list[LogData], stats: LogStats | None = None) -> LogData:
+        """One LogData of chunks in order."""
+        starts: list[int] = []
+        count = 0
+        for chunk in chunks:
+            starts.extend(count + k for k in chunk.session_starts)
+            count += len(chunk)
+        if not chunks:
+            return LogData(path, np.empty(0, np.int64), np.empty(0, np.int64),
+                           np.empty((0, MAX_WIDTH)), tuple(starts), stats)
+        return LogData(path, np.concatenate([c.t_ms for c in chunks]),
+                       np.concatenate([c.tag for c in chunks]),
+                       np.concatenate([c.values for c in chunks]), tuple(starts), stats)
 
 
-def read_log(path: str | Path, orderer: TimeOrderer | None = None,
-             limits: Limits = DEFAULT_LIMITS) -> LogData:
-    """Read a log file into ordered samples. Damaged lines (values outside `limits` among
-    them) are counted, never fatal.
+class LogFile:
+    """A log file read chunk by chunk through the compiled parser and the time orderer: each
+    :meth:`chunks` is one pass over the file (read again), holding one chunk at a time.
+
+    Raises LogError (from the iteration) when the file is missing, unreadable, empty, mostly
+    binary, or holds no line of the phone's format at all; damaged lines (values outside
+    `limits` among them) are counted, never fatal."""
+
+    def __init__(self, path: str | Path, limits: Limits = DEFAULT_LIMITS,
+                 chunk_bytes: int = CHUNK_BYTES) -> None:
+        self.path = str(path)
+        self.limits = limits
+        self.chunk_bytes = chunk_bytes
+        self.stats: LogStats | None = None      # what the latest complete pass found
+        self._read = 0                          # bytes of the file the current pass has read
+
+    @property
+    def fraction_read(self) -> float:
+        """How much of the file the current (or latest) pass has read, 0 to 1."""
+        try:
+            size = Path(self.path).stat().st_size
+        except OSError:
+            return 0.0
+        return min(1.0, self._read / size) if size else 1.0
+
+    def _on_read(self, position: int) -> None:
+        self._read = position
+
+    def chunks(self) -> Iterator[LogData]:
+        """The ordered samples, chunk by chunk (:class:`LogData` pieces, session starts as
+        indices into each); :attr:`stats` is set when the pass completes."""
+        parser = FastLineParser(limits=self.limits)
+        orderer = TimeOrderer()
+        repeated = 0
+        last: Last = None
+
+        def piece(ordered: OrderedArrays) -> LogData:
+            nonlocal last, repeated
+            if len(ordered.session_starts):
+                last = None
+            mask, last = repeats(ordered.t_ms, ordered.tag, ordered.values, last)
+            repeated += int(mask.sum())
+            return LogData(self.path, ordered.t_ms, ordered.tag, ordered.values,
+                           tuple(int(k) for k in ordered.session_starts))
+
+        path = Path(self.path)
+        for data in log_chunks(path, self.chunk_bytes, self._on_read):
+            parsed = parser.feed_arrays(data)
+            if len(parsed.t_ms):
+                ordered = orderer.push_arrays(parsed.t_ms, parsed.tag, parsed.values)
+                if len(ordered) or len(ordered.session_starts):
+                    yield piece(ordered)
+        parsed = parser.finish_arrays()
+        for ordered in ((orderer.push_arrays(parsed.t_ms, parsed.tag, parsed.values)
+                         if len(parsed.t_ms) else None), orderer.flush_arrays()):
+            if ordered is not None and (len(ordered) or len(ordered.session_starts)):
+                yield piece(ordered)
+        if parser.stats.good == 0:
+            where = parser.stats.first_bad_line_number
+            detail = f" (line {where}: {parser.stats.first_bad_message})" if where else ""
+            raise LogError(f"{path}: no line in the phone's format{detail}")
+        self.stats = LogStats(self.path, parser.stats, orderer.stats, repeated)
+
+
+def read_log(path: str | Path, limits: Limits = DEFAULT_LIMITS,
+             chunk_bytes: int = CHUNK_BYTES) -> LogData:
+    """Read a whole log file into ordered samples (:class:`LogData`, with its stats). Damaged
+    lines (values outside `limits` among them) are counted, never fatal.
 
     Raises LogError when the file is missing, unreadable, empty, mostly binary, or holds no
     line of the phone's format at all.
     """
-    path = Path(path)
-    parser = FastLineParser(limits=limits)
-    collector = _Collector(orderer or TimeOrderer())
-    total = 0
-    try:
-        with open_log_bytes(path) as stream:
-            while True:
-                chunk = stream.read(_CHUNK_BYTES)
-                if not chunk:
-                    break
-                if total == 0:
-                    check_text(path, chunk)
-                total += len(chunk)
-                collector.parsed(parser.feed_arrays(chunk))
-    except (OSError, EOFError, zlib.error) as error:
-        raise LogError(f"{path}: cannot read ({why_unreadable(error)})") from None
-    collector.parsed(parser.finish_arrays())
-    collector.ordered(collector.orderer.flush_arrays())
-    stats = LogStats(str(path), parser.stats, collector.orderer.stats, collector.repeated)
-    if total == 0:
-        raise LogError(f"{path}: empty file")
-    if parser.stats.good == 0:
-        where = parser.stats.first_bad_line_number
-        detail = f" (line {where}: {parser.stats.first_bad_message})" if where else ""
-        raise LogError(f"{path}: no line in the phone's format{detail}")
-    return LogData(str(path), collector.samples(), collector.other, stats,
-                   collector.session_starts)
+    log = LogFile(path, limits, chunk_bytes)
+    chunks = list(log.chunks())
+    return LogData.concatenate(str(path), chunks, log.stats)

@@ -6,6 +6,9 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given
+from hypothesis import settings as hsettings
+from hypothesis import strategies as st
 
 import ekf
 from ekf.simulate import simulate
@@ -204,3 +207,25 @@ def test_a_rejected_stretch_is_a_long_run_of_rejected_readings_after_a_used_one(
     flag[:300] = True                     # rejected from the first reading on, through 6 s
     assert not rejected_stretches(t, present, flag, 1.0).any()
     assert not rejected_stretches(t, present, np.zeros(t.size, bool), 1.0).any()
+
+
+@pytest.fixture(scope="module")
+def raw_session():
+    """A raw magnetometer (hard iron the filter acquires) and a gyroscope bias: the smoother's
+    forward pass subtracts the offset and runs without the fit; rows of every kind."""
+    s = simulate(duration_s=12.0, seed=5, gyro_bias=(0.01, -0.02, 0.015))
+    t, g, a, m = s.to_batch_arrays()
+    return t, g, a, m + np.array([180.0, -120.0, 60.0])
+
+
+@given(block_rows=st.integers(1, 1300), preset=st.sampled_from(["default", "course"]))
+@hsettings(max_examples=12, deadline=None,
+           suppress_health_check=[HealthCheck.function_scoped_fixture])
+def test_the_smoothed_estimates_do_not_depend_on_the_block_size(raw_session, block_rows, preset):
+    """The forward records are held one block at a time and recorded again for the backward
+    pass: any block size gives the estimates of one block, bit for bit."""
+    t, g, a, m = raw_session
+    whole = ekf.smooth_batch(t, g, a, m, settings=preset, block_rows=len(t))
+    blocks = ekf.smooth_batch(t, g, a, m, settings=preset, block_rows=block_rows)
+    for name in ("quat", "gyro_bias", "acc_rejected", "mag_rejected", "at_rest"):
+        assert np.array_equal(getattr(whole, name), getattr(blocks, name)), name

@@ -1,14 +1,18 @@
-"""read_log: real logs, gz, errors, arrays."""
+"""read_log and LogFile: real logs, gz, errors, arrays, chunk by chunk."""
 
 from __future__ import annotations
 
 import gzip
+import re
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given
+from hypothesis import settings as hsettings
+from hypothesis import strategies as st
 
 from app.stream.lines import LogError
-from app.stream.logfile import read_log
+from app.stream.logfile import LogData, LogFile, read_log
 
 EXPECTED_DAMAGED = {"sensorLog_20221024T182616_standstill.txt": 2}
 
@@ -30,7 +34,7 @@ def test_standstill_damage_and_out_of_order_block(realphone_dir):
     assert log.first_bad_line_number == 1191
     assert log.stats.out_of_order == 420     # the 0.9 s block written late: 187 ACC, 187 GYR, 46 MAG
     assert [e[0] for e in log.stats.parse.bad_examples] == [1191, 1866]
-    assert {s.tag for s in log.other} == {"RAWGYR", "RAWMAG", "GPS"}
+    assert {"RAWGYR", "RAWMAG", "GPS"} <= set(log.stats.parse.per_tag)
     summary = log.stats.summary()
     assert "2 damaged" in summary and "first bad line 1191" in summary and "420 out of order" in summary
 
@@ -63,7 +67,7 @@ def test_gzip_and_final_line_without_newline(tmp_path):
     with gzip.open(path, "wb") as stream:
         stream.write(b"10\tACC\t1\t2\t3\r\n20\tACC\t1\t2\t3")
     log = read_log(path)
-    assert [s.t_ms for s in log.samples] == [10, 20]
+    assert log.t_ms.tolist() == [10, 20]
 
 
 @pytest.mark.parametrize("content, message", [
@@ -100,8 +104,7 @@ def test_a_log_with_nul_bytes_and_junk_in_places_is_read_with_those_lines_counte
     path.write_bytes(dirty)
     log = read_log(path)
     assert log.stats.damaged == 3 and log.stats.parse.damaged_reasons == {"binary data": 3}
-    assert len(log.samples) == len(read_log(realphone_dir / "tsrt14_lab2_rotation.txt")
-                                   .samples) - 1
+    assert len(log) == len(read_log(realphone_dir / "tsrt14_lab2_rotation.txt")) - 1
     assert len(read_lines(path)) == len(lines) + 2          # the replay and `send` read it too
     LogFileSource(path)
     mostly_binary = tmp_path / "binary.txt"
@@ -110,3 +113,68 @@ def test_a_log_with_nul_bytes_and_junk_in_places_is_read_with_those_lines_counte
         read_log(mostly_binary)
     with pytest.raises(LogError, match="binary data"):
         read_lines(mostly_binary)
+
+
+# ---- chunk by chunk ----------------------------------------------------------------------------
+
+@st.composite
+def _log_text(draw) -> bytes:
+    """A phone log with what the reader meets: sensors at their own rates, equal times, lines
+    written twice, late and out-of-order lines, other tags, junk, a clock that restarts."""
+    lines = []
+    t = draw(st.integers(1_000, 10**9))
+    for _ in range(draw(st.integers(1, 400))):
+        kind = draw(st.sampled_from(["ACC", "GYR", "MAG", "ORI", "ACC", "GYR", "again", "late",
+                                     "junk", "other", "restart"]))
+        t += draw(st.integers(0, 12))
+        if kind == "restart":
+            t = max(1, t - draw(st.integers(60_000, 10**6)))
+            continue
+        if kind == "again" and lines:
+            lines.append(lines[-1])
+            continue
+        if kind == "junk":
+            lines.append(draw(st.sampled_from([b"", b"\t\t", b"12\tACC\t1\t2\n", b"x\x00y"]))
+                         + b"\n")
+            continue
+        when = t - draw(st.integers(1, 3000)) if kind == "late" else t
+        tag = "ACC" if kind == "late" else kind
+        if kind == "other":
+            lines.append(f"{when}\tRSSWIFI\tnet\t-40\n".encode())
+            continue
+        count = 4 if tag == "ORI" else 3
+        values = draw(st.lists(st.floats(-9.0, 9.0, allow_nan=False), min_size=count,
+                               max_size=count))
+        if tag == "ORI":
+            values = [1.0, 0.0, 0.0, 0.0]
+        lines.append(("\t".join([str(when), tag] + [f"{v:.6g}" for v in values]) + "\n")
+                     .encode())
+    return b"".join(lines)
+
+
+@given(text=_log_text(), chunk_bytes=st.integers(1, 2048))
+@hsettings(max_examples=60, deadline=None,
+           suppress_health_check=[HealthCheck.function_scoped_fixture])
+def test_a_log_read_in_chunks_of_any_size_gives_what_it_gives_read_whole(tmp_path, text,
+                                                                          chunk_bytes):
+    path = tmp_path / "log.txt"
+    path.write_bytes(text)
+    try:
+        whole = read_log(path, chunk_bytes=len(text) + 1)
+    except LogError as error:
+        with pytest.raises(LogError, match=re.escape(str(error))):
+            read_log(path, chunk_bytes=chunk_bytes)
+        return
+    log = LogFile(path, chunk_bytes=chunk_bytes)
+    pieces = list(log.chunks())
+    chunked = LogData.concatenate(str(path), pieces, log.stats)
+    assert chunked.t_ms.tolist() == whole.t_ms.tolist()
+    assert chunked.tag.tolist() == whole.tag.tolist()
+    np.testing.assert_array_equal(chunked.values, whole.values)
+    assert chunked.session_starts == whole.session_starts
+    assert chunked.stats.summary() == whole.stats.summary()
+    assert chunked.stats.repeated == whole.stats.repeated
+    # and a LogData hands its samples on in chunks the same way
+    again = LogData.concatenate(str(path), list(whole.chunks(size=max(1, chunk_bytes // 7))))
+    assert again.t_ms.tolist() == whole.t_ms.tolist()
+    assert again.session_starts == whole.session_starts

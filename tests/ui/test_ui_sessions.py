@@ -360,8 +360,8 @@ def test_a_session_is_labelled_and_named_by_its_label(window, fake_engine, tmp_p
     from app.engine.session import read_session, session_label
     old = _recorded_session(tmp_path / "2026-12-01_10-00-00")          # no label: loads
     assert session_label(old) == "" and read_session(old / "session.json")
-    fake_engine.source = types.SimpleNamespace(path=str(old / "raw.txt"), kind="replay",
-                                               name="raw.txt")
+    replayed = types.SimpleNamespace(path=str(old / "raw.txt"), kind="replay", name="raw.txt")
+    fake_engine.source = types.SimpleNamespace(**vars(replayed), played=lambda: replayed)
     controls = window.sessions
     assert controls.label_session("  Lab 2:\n rotation  ")
     assert session_label(old) == "Lab 2: rotation"
@@ -373,7 +373,8 @@ def test_a_session_is_labelled_and_named_by_its_label(window, fake_engine, tmp_p
     assert controls.recent_menu.actions()[0].toolTip() == str(old)
     assert controls.label_session("")                                   # removed again
     assert session_label(old) == ""
-    fake_engine.source = types.SimpleNamespace(path=str(tmp_path / "walk.txt"), kind="replay")
+    walk = types.SimpleNamespace(path=str(tmp_path / "walk.txt"), kind="replay")
+    fake_engine.source = types.SimpleNamespace(**vars(walk), played=lambda: walk)
     assert not controls.label_session("x")                              # a phone's own log
     assert "no session.json" in controls.last_message
     for widget in QtWidgets.QApplication.topLevelWidgets():
