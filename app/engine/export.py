@@ -35,6 +35,7 @@ import dataclasses
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -152,10 +153,11 @@ def open_session(path: str | Path) -> OpenedSession:
     return OpenedSession(raw, session, raw.with_name("session.json").is_file())
 
 
-def _pipeline(opened: OpenedSession, with_cov: bool, setup: Setup | None = None) -> Pipeline:
+def _pipeline(opened: OpenedSession, with_cov: bool, setup: Setup | None = None,
+              **callbacks: Any) -> Pipeline:
     """The replay's processing at the session's start, with its configuration over time
-    (setup; None: the recorded one)."""
-    pipeline = Pipeline(EstimatorRunner(collect_plot=False, collect_cov=with_cov))
+    (setup; None: the recorded one); callbacks: the Pipeline's on_cut, on_ordered."""
+    pipeline = Pipeline(EstimatorRunner(collect_plot=False, collect_cov=with_cov), **callbacks)
     setup = session_setup(opened.session) if setup is None else _without_comparisons(setup)
     pipeline.begin(pipeline.initial_checkpoint(setup), setup.timeline)
     return pipeline
@@ -196,17 +198,16 @@ def session_pieces(opened: OpenedSession, with_cov: bool = False,
     the exports need, piece by piece (each piece whole distinct times, in order); setup: the
     configuration over time to replay it with (None: the recorded one; the window passes the
     one it replays)."""
-    pipeline = _pipeline(opened, with_cov, setup)
-    runner = pipeline.runner
     joiner = _Joiner(opened.raw, opened.markers, with_cov)
-    pipeline.on_ordered = joiner.ordered
 
     def taken(rows: Rows | None = None) -> None:
         runner.take_errors()                      # the window's error plots: not exported
         covs = runner.take_covariances() if with_cov else None
         joiner.add_rows(runner.take_rows() if rows is None else rows, covs)
 
-    pipeline.on_cut = lambda rows, _piece: taken(rows)     # a session that ended
+    pipeline = _pipeline(opened, with_cov, setup, on_ordered=joiner.ordered,
+                         on_cut=lambda rows, _piece: taken(rows))     # a session that ended
+    runner = pipeline.runner
     for block in opened.blocks(block_bytes):
         pipeline.feed_bytes(block)
         taken()
