@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,7 +24,7 @@ from app.engine.configuration import (Change, Config, Configuration, Setup, setu
 from app.engine.pipeline import Pipeline
 from app.engine.refilter import prepare_path, refilter
 from app.engine.runner import EstimatorRunner, Rows
-from app.engine.session import read_session
+from app.engine.session import SessionInfo, read_session
 from app.engine.worker import Engine
 from app.stream.protocol import Sample, format_line
 from app.stream.sources import LogFileSource
@@ -36,10 +37,11 @@ TUNED = dataclasses.replace(ekf.PRESETS["default"],
 # ---- the model ------------------------------------------------------------------------------
 
 def recorded(*changes: Change) -> Configuration:
-    configuration = Configuration(Config(), replaying=True)
-    configuration._base = Setup.of(Config(), changes)   # the recorded layer, by hand
-    configuration._recorded = True
-    return configuration
+    """A replayed recording whose session.json holds these changes and nothing else."""
+    timeline = [{"kind": c.kind, "t_ms": None, "sample": c.sample, **c.event_data()}
+                for c in changes]
+    return Configuration(Config(), SessionInfo(Path("session.json"), {}, timeline=timeline),
+                         replaying=True)
 
 
 def test_an_override_replaces_its_kind_only_and_the_way_back_restores_the_recording():
