@@ -216,6 +216,7 @@ def test_tune_difference_of_two_identical_runs_draws_along_zero(qtbot, make_wind
     # a setting that acts only past a bound this session never reaches: the same estimates
     same = dataclasses.replace(window.filter_settings, mag_reject_noise_scale=20.0)
     window.send(SetSettings(same, source="panel"))
+    window.apply_snapshot(make_snapshot(1, 0.0, settings=same))      # what the engine runs
     qtbot.waitUntil(lambda: tune.refilterer.current is not first, timeout=20_000)
     qtbot.waitUntil(lambda: tune.ab_view.table.rowCount() == 3, timeout=5000)
     tune.redraw()
