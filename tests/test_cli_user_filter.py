@@ -136,7 +136,8 @@ def test_a_file_that_cannot_be_used_is_one_line_and_exit_2(tmp_path, log, capsys
 @pytest.mark.parametrize("argv, needle", [
     (["--filter", "/no/such.py", "--exit-after", "0"], "no such filter file"),
     (["serve", "--forward", "host:99999"], "port out of range"),
-    (["serve", "--filter", "notes.txt"], "a filter file is a Python file"),
+    (["serve", "--filter", "notes.txt"],
+     "your filter is a Python file (.py) or a folder of MATLAB .m files"),
 ])
 def test_bad_filter_and_forward_options(capsys, argv, needle):
     with pytest.raises(SystemExit) as stop:

@@ -48,7 +48,10 @@ def test_the_wheel_and_the_sdist_hold_the_code_and_the_resources(built):
     names = set(zipfile.ZipFile(built["wheel"]).namelist())
     assert DEMO in names
     for module in ("app/cli/__init__.py", "app/engine/userfilter/template.py",
-                   "ekf/fast/filter.py", "app/ui/main_window.py"):
+                   "ekf/fast/filter.py", "app/ui/main_window.py",
+                   "app/engine/userfilter/octave_host/ol_host.m",
+                   "app/engine/userfilter/matlab_template/tu_qw.m",
+                   "app/engine/userfilter/matlab_template/README.md"):
         assert module in names, module
     assert not any(name.startswith(("tests/", "benchmarks/")) for name in names)
     with tarfile.open(built["sdist"]) as sdist:

@@ -16,6 +16,7 @@ from app import __version__, paths
 from app.cli import calibration, live, offline, phones
 from app.cli.options import EXIT_USAGE, Parser, add_window, source_options
 from app.engine.config import ConfigError
+from app.engine.userfilter.octave import use_octave
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -46,6 +47,7 @@ def open_window(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    use_octave(getattr(args, "octave", None))
     try:
         paths.data_dir(create=False)
         command = getattr(args, "func", None) or open_window

@@ -255,6 +255,7 @@ def _add_tune(sub) -> None:
     options.add_output(t, "the tuned settings and what the search did")
     options.add_settings(t, "settings to start from (default preset otherwise)")
     options.add_estimator(t)
+    options.add_octave(t)
     options.add_sensors(t)
     t.add_argument("--params", metavar="A,B=LO:HI,...",
                    help="settings to tune, optionally with a range (default "

@@ -291,6 +291,7 @@ def add_commands(sub) -> None:
     options.add_settings(serve)
     options.add_limits(serve)
     options.add_filter(serve)
+    options.add_octave(serve)
     options.add_forward(serve)
     serve.add_argument("--no-comparisons", action="store_true",
                        help="do not run the 7 sensor-combination comparison filters")

@@ -33,6 +33,7 @@ from app.engine.offline import (LogScan, evaluate_log, evaluate_phone, filter_ro
 from app.engine.outputs import atomic_output, check_output
 from app.engine.session import read_session, session_json_for
 from app.engine.userfilter.filter import UserFilterEstimator
+from app.engine.userfilter.matlab_template import write_matlab_template
 from app.engine.userfilter.template import write_template
 from app.stream.demo import write_session
 from app.stream.lines import LogError
@@ -227,6 +228,8 @@ def report_user_filter(estimator: object, show_traceback: bool = False) -> bool:
 
 
 def cmd_new_filter(args: argparse.Namespace) -> int:
+    if args.matlab:
+        return _new_matlab_filter(args.file)
     try:
         path = write_template(args.file)
     except FileExistsError:
@@ -239,6 +242,21 @@ def cmd_new_filter(args: argparse.Namespace) -> int:
             from None
     print(f"wrote {path}: run it with `orientation-lab --filter {path}` (the window) or "
           f"`orientation-lab evaluate LOG --estimator {path}`")
+    return 0
+
+
+def _new_matlab_filter(folder: str) -> int:
+    try:
+        path = write_matlab_template(folder)
+    except FileExistsError as error:
+        raise config.ConfigError(f"{error}; not overwritten (choose another folder)") from None
+    except NotADirectoryError as error:
+        raise config.ConfigError(str(error)) from None
+    except OSError as error:
+        raise config.ConfigError(f"cannot write {folder}: {error.strerror or error}") from None
+    print(f"wrote the course's functions to {path}: run them with `orientation-lab --filter "
+          f"{path}` (the window, in GNU Octave) or `orientation-lab evaluate LOG --estimator "
+          f"{path}`; {path / 'README.md'} says what to write")
     return 0
 
 
@@ -438,16 +456,22 @@ def _log_filter_options(parser: argparse.ArgumentParser, several: bool) -> None:
     options.add_settings(parser)
     options.add_limits(parser)
     options.add_traceback(parser)
+    options.add_octave(parser)
     options.add_smooth(parser)
 
 
 def add_commands(sub) -> None:
     n = sub.add_parser("new-filter", help="write a template for your own filter (tu_qw, mu_g, "
-                                          "mu_m, mu_normalizeQ as stubs)",
+                                          "mu_m, mu_normalizeQ as stubs), in Python or MATLAB",
                        description="Write FILE.py: the course's filterTemplate in Python, to run "
-                                   "with --filter FILE.py or --estimator FILE.py. An existing "
-                                   "file is never overwritten.")
-    n.add_argument("file", metavar="FILE.py")
+                                   "with --filter FILE.py or --estimator FILE.py; with --matlab, "
+                                   "a folder DIR of the course's .m functions, run in GNU Octave "
+                                   "with --filter DIR. An existing file is never overwritten.")
+    n.add_argument("file", metavar="FILE.py|DIR")
+    n.add_argument("--matlab", action="store_true",
+                   help="write the course's MATLAB functions (tu_qw.m, mu_g.m, mu_m.m, "
+                        "mu_normalizeQ.m, the outlier tests, the kit's helpers, a README) into "
+                        "the folder DIR")
     n.set_defaults(func=cmd_new_filter)
 
     f = sub.add_parser("filter", help="run an estimator over a log and write its estimates as CSV")

@@ -66,6 +66,7 @@ def window_size(text: str) -> tuple[int, int]:
 PORT = _checked(config.port_number)
 WINDOW_SIZE = _checked(window_size)
 FILTER_FILE = _checked(config.filter_file)
+OCTAVE = _checked(config.octave_program)
 FORWARD = _checked(config.forward_target)
 SPEED = _checked(config.replay_speed)
 NON_NEGATIVE = _checked(non_negative)
@@ -154,6 +155,14 @@ def add_filter(parser: argparse.ArgumentParser) -> None:
                              "reloaded whenever you save it")
 
 
+def add_octave(parser: argparse.ArgumentParser) -> None:
+    """--octave PATH: the GNU Octave a MATLAB filter runs in."""
+    parser.add_argument("--octave", type=OCTAVE, metavar="PATH",
+                        help="GNU Octave's octave-cli (or its folder) to run a MATLAB filter in "
+                             "(a folder of .m files as --filter or --estimator; default: "
+                             "octave-cli found on PATH)")
+
+
 def add_forward(parser: argparse.ArgumentParser) -> None:
     """--forward HOST:PORT: a copy of the phone's lines for another receiver."""
     parser.add_argument("--forward", type=FORWARD, metavar="HOST:PORT",
@@ -216,6 +225,7 @@ def add_window(parser: argparse.ArgumentParser) -> None:
     add_settings(group)
     add_limits(group)
     add_filter(group)
+    add_octave(group)
     add_forward(group)
     group.add_argument("--screenshot", metavar="PNG",
                        help="save the window to PNG after --exit-after seconds, then quit")

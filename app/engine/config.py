@@ -23,6 +23,8 @@ from app.engine.errors import ConfigError   # defined apart (profiles raise it t
 from app.engine.pipeline import check_start_state
 from app.engine.session import read_session, session_json_for
 from app.engine.userfilter.code import UserFilterError, is_filter_file
+from app.engine.userfilter.octave import (OctaveNotFound, filter_folder, find_octave,
+                                          is_matlab_filter)
 from app.engine.userfilter.filter import make_estimator as _make_estimator
 from app.stream.fastparse import FastLineParser
 from app.stream.lines import LogError, log_chunks
@@ -81,25 +83,45 @@ def estimator_names(text: str) -> list[str]:
     ConfigError; a name ending in .py is a user's filter file, which must exist."""
     names = [name.strip() for name in str(text).split(",") if name.strip()]
     bad = [name for name in names if name not in ekf.ESTIMATORS and not is_filter_file(name)]
+    for name in bad:
+        if Path(name).expanduser().is_dir():
+            filter_file(name)                # a folder without .m files: says so
     if bad or not names:
         raise ConfigError(f"--estimator: unknown {', '.join(repr(b) for b in bad) or repr(text)}; "
                           f"choose from {', '.join(ekf.ESTIMATORS)} or give your filter "
-                          "FILE.py")
+                          "FILE.py or DIR (MATLAB)")
     for name in names:
-        if is_filter_file(name):
+        if name not in ekf.ESTIMATORS and is_filter_file(name):
             filter_file(name)
     return names
 
 
 def filter_file(path: str | Path) -> str:
-    """A user's filter file that exists (``--filter``, ``--estimator FILE.py``)."""
+    """A user's filter that exists (``--filter``, ``--estimator FILE.py|DIR``): a Python file, or
+    a MATLAB filter (a folder of .m files, or a .m file in one)."""
     path = Path(path).expanduser()
     if not is_filter_file(path):
-        raise ConfigError(f"{path}: a filter file is a Python file (.py)")
+        found = " (this folder has none)" if path.is_dir() else ""
+        raise ConfigError(f"{path}: your filter is a Python file (.py) or a folder of MATLAB .m "
+                          f"files{found}")
+    if is_matlab_filter(path):
+        folder = filter_folder(path)
+        if not folder.is_dir() or (path.suffix.lower() == ".m" and not path.is_file()):
+            raise ConfigError(f"{path}: no such MATLAB filter (orientation-lab new-filter "
+                              f"--matlab {folder} writes the course's functions)")
+        return str(folder) if path.suffix.lower() == ".m" else str(path)
     if not path.is_file():
         raise ConfigError(f"{path}: no such filter file (orientation-lab new-filter {path} "
                           "writes a template)")
     return str(path)
+
+
+def octave_program(text: str) -> str:
+    """``--octave PATH``: an octave-cli that exists (or the folder it is in)."""
+    try:
+        return str(find_octave(text))
+    except OctaveNotFound as error:
+        raise ConfigError(str(error)) from None
 
 
 def make_estimator(name: str, settings: ekf.EKFSettings | None = None,

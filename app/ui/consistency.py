@@ -245,7 +245,7 @@ class ConsistencyView(QtWidgets.QWidget):
         self._dirty = False
         t, nu, S, accepted = self.series[self.selected()].arrays()
         self.stats = stats = consistency(nu, S, accepted)
-        self.summary.setText(self._summary_text(stats))
+        self._show_summary(self._summary_text(stats))
         unit = SENSOR_UNITS[self.selected()[1]]
         for plot in self.component_plots:
             plot.setLabel("left", "ν", units=unit)
@@ -268,6 +268,18 @@ class ConsistencyView(QtWidgets.QWidget):
         counts, edges = np.histogram(stats["z"], bins=50, range=(-5, 5), density=True) \
             if len(stats["z"]) else (np.zeros(50), np.linspace(-5, 5, 51))
         self.hist_curve.setData(edges, counts)
+
+    def _show_summary(self, text: str) -> None:
+        self.summary.setText(text)
+        self._fit_summary()
+
+    def _fit_summary(self) -> None:
+        """Keep every line of the summary in view: the plots below give up the height."""
+        self.summary.setMinimumHeight(self.summary.heightForWidth(max(self.summary.width(), 1)))
+
+    def resizeEvent(self, event) -> None:  # noqa: N802 (Qt name)
+        super().resizeEvent(event)
+        self._fit_summary()
 
     @staticmethod
     def _draw_component(items: dict, t: np.ndarray, nu: np.ndarray, sigma: np.ndarray,

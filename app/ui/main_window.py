@@ -274,7 +274,7 @@ class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWi
         self.comparison_dock = self._add_dock("Sensor combinations", "comparison_dock",
                                               self.comparison)
         self.connection_dock = self._add_dock("Connection", "connection_dock", self.connection)
-        self.user_panel = UserFilterPanel(self.send)
+        self.user_panel = UserFilterPanel(self.send, settings=self.settings)
         self.user_dock = self._add_dock("Your filter", "user_dock", self.user_panel)
         self.controls.uncertainty_toggled.connect(self.own_view.set_uncertainty_visible)
         self.controls.sensor_toggled.connect(self._on_sensor_toggled)

@@ -1,14 +1,17 @@
 """The YOURS panel: your own filter as the engine runs it, and the buttons to load one.
 
-Shows the file (name and content hash), what it is doing (running / paused / catching up /
+Shows the file or MATLAB folder (name and content hash), what it is doing (running / paused / catching up /
 failed to load), its three lights as the course kit's (setAccDist, setMagDist, setStandStill;
 "no data" where the filter does not report one), its time per sample (and, when it cannot keep up,
 how much of the stream it got), its error against PHONE, the course steps not written yet, and
 a problem with file, line and message, the traceback on demand and a copy button.
 
 Draws snapshots and sends commands only: ``send`` is the window's ``engine.send``.
-Mount: ``panel = UserFilterPanel(window.send)``; each frame ``panel.update_status(
-snapshot.user)``; File -> Load filter... calls ``load_filter_dialog(window, window.send)``.
+Mount: ``panel = UserFilterPanel(window.send, settings=window.settings)``; each frame
+``panel.update_status(snapshot.user)``; File -> Load filter... calls
+``load_filter_dialog(window, window.send)``. A MATLAB filter (a folder of .m files) runs in GNU
+Octave: the panel says which one, or how to install it, and its Octave… button chooses another
+(kept in the window's settings under OCTAVE_KEY; ``--octave`` wins for its session).
 """
 
 from __future__ import annotations
@@ -21,11 +24,17 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.engine.commands import LoadUserFilter, UnloadUserFilter
 from app.engine.snapshot import UserFilterStatus
+from app.engine.userfilter.matlab_template import write_matlab_template
+from app.engine.userfilter.octave import (OctaveNotFound, chosen_octave, filter_folder,
+                                          find_octave, install_hint, is_matlab_filter,
+                                          use_octave)
 from app.engine.userfilter.template import write_template
 from app.ui.lights import Light
 
 Send = Callable[[object], None]
 FILE_FILTER = "Python filter (*.py)"
+LOAD_FILTER = "Your filter: Python, or any .m file of a MATLAB folder (*.py *.m)"
+OCTAVE_KEY = "your_filter/octave"        # the window's setting: the octave-cli chosen
 PROBLEM_CHARACTERS = 240     # a longer message is cut in the panel (whole in the traceback)
 STATE_COLOURS = {"running": "#2a9d4a", "paused": "#d9412e", "catching up": "#c98a00",
                  "failed to load": "#d9412e", "loading": "#c98a00"}
@@ -34,13 +43,37 @@ PRINTED_LINES = 3              # of what your filter printed, under its numbers
 
 def load_filter_dialog(parent: QtWidgets.QWidget | None, send: Send,
                        directory: str = "") -> str | None:
-    """Ask for a filter file and send LoadUserFilter; the chosen path (None: cancelled)."""
+    """Ask for a filter file (a .py, or any .m file of a MATLAB filter's folder) and send
+    LoadUserFilter; the chosen path (the folder for a .m file; None: cancelled)."""
     path, _ = QtWidgets.QFileDialog.getOpenFileName(parent, "Load your filter", directory,
-                                                    FILE_FILTER)
+                                                    LOAD_FILTER)
     if not path:
         return None
+    if is_matlab_filter(path):
+        path = str(filter_folder(path))
     send(LoadUserFilter(path))
     return path
+
+
+def new_matlab_filter_dialog(parent: QtWidgets.QWidget | None, send: Send,
+                             directory: str = "") -> tuple[str | None, str]:
+    """Ask for a new folder, write the course's MATLAB functions into it (never over a file)
+    and load it. Returns (folder or None, what happened)."""
+    path, _ = QtWidgets.QFileDialog.getSaveFileName(
+        parent, "New MATLAB filter: a folder of the course's functions",
+        str(Path(directory) / "my_filter"), "Folder (*)",
+        options=QtWidgets.QFileDialog.Option.DontConfirmOverwrite)
+    if not path:
+        return None, ""
+    try:
+        folder = write_matlab_template(path)
+    except (FileExistsError, NotADirectoryError) as error:
+        return None, f"{error}: not overwritten (Load it instead)"
+    except OSError as error:
+        return None, f"cannot write {path}: {error.strerror or error}"
+    send(LoadUserFilter(str(folder)))
+    return str(folder), (f"wrote the course's functions to {folder.name}: open them in your "
+                         "editor (its README.md says what to write); they run in GNU Octave")
 
 
 def new_filter_dialog(parent: QtWidgets.QWidget | None, send: Send,
@@ -78,12 +111,16 @@ def _degrees(value: float) -> str:
 class UserFilterPanel(QtWidgets.QGroupBox):
     """Your filter (YOURS): status, lights, problem, and Load / New / Unload buttons."""
 
-    def __init__(self, send: Send, parent: QtWidgets.QWidget | None = None) -> None:
+    def __init__(self, send: Send, parent: QtWidgets.QWidget | None = None,
+                 settings: QtCore.QSettings | None = None) -> None:
         super().__init__("", parent)        # the dock's title says "Your filter"
         self.setFlat(True)
         self.setObjectName("user_filter_panel")
         self.send = send
+        self.settings = settings
         self.status: UserFilterStatus | None = None
+        if chosen_octave() is None and settings is not None and settings.value(OCTAVE_KEY):
+            use_octave(str(settings.value(OCTAVE_KEY)))     # --octave wins for this session
         layout = QtWidgets.QVBoxLayout(self)
         self.file_label = QtWidgets.QLabel("no filter loaded")
         self.file_label.setWordWrap(True)
@@ -119,6 +156,7 @@ class UserFilterPanel(QtWidgets.QGroupBox):
         self.printed_label.setTextInteractionFlags(
             QtCore.Qt.TextInteractionFlag.TextSelectableByMouse)
         layout.addWidget(self.printed_label)
+        layout.addLayout(self._octave_row())
         layout.addStretch(1)
         self.update_status(None)
 
@@ -129,8 +167,12 @@ class UserFilterPanel(QtWidgets.QGroupBox):
         self.load_button.clicked.connect(lambda: load_filter_dialog(self, self.send))
         self.new_button = QtWidgets.QPushButton("New…")
         self.new_button.setToolTip("Write the course template (tu_qw, mu_g, mu_m, "
-                                   "mu_normalizeQ as stubs) and run it")
-        self.new_button.clicked.connect(self._new)
+                                   "mu_normalizeQ as stubs), in Python or MATLAB, and run it")
+        menu = QtWidgets.QMenu(self.new_button)
+        self.new_python_action = menu.addAction("Python file…", self._new)
+        self.new_matlab_action = menu.addAction("MATLAB folder (runs in GNU Octave)…",
+                                                self._new_matlab)
+        self.new_button.setMenu(menu)
         self.unload_button = QtWidgets.QPushButton("Unload")
         self.unload_button.clicked.connect(lambda: self.send(UnloadUserFilter()))
         for button in (self.load_button, self.new_button, self.unload_button):
@@ -168,12 +210,61 @@ class UserFilterPanel(QtWidgets.QGroupBox):
         self.problem_box = box
         return box
 
+    def _octave_row(self) -> QtWidgets.QHBoxLayout:
+        row = QtWidgets.QHBoxLayout()
+        self.octave_label = QtWidgets.QLabel("")
+        self.octave_label.setWordWrap(True)
+        self.octave_button = QtWidgets.QPushButton("Octave…")
+        self.octave_button.setToolTip("Choose GNU Octave's octave-cli, which runs a MATLAB filter "
+                                      "(a folder of .m files); found on PATH otherwise")
+        self.octave_button.clicked.connect(self._choose_octave)
+        row.addWidget(self.octave_label, 1)
+        row.addWidget(self.octave_button)
+        self.show_octave()
+        return row
+
+    def show_octave(self) -> None:
+        """Say which Octave a MATLAB filter runs in, or how to install one."""
+        try:
+            text = f"MATLAB filters run in {find_octave()}"
+        except OctaveNotFound as error:
+            text = f"MATLAB filters: {error}"
+        self._set(self.octave_label, text)
+
     # -- actions --------------------------------------------------------------------------------
 
     def _new(self) -> None:
         _, text = new_filter_dialog(self, self.send)
         if text:
             self.action_label.setText(text)
+
+    def _new_matlab(self) -> None:
+        _, text = new_matlab_filter_dialog(self, self.send)
+        if text:
+            self.action_label.setText(text)
+
+    def _choose_octave(self) -> None:
+        path, _ = QtWidgets.QFileDialog.getOpenFileName(self, "GNU Octave's octave-cli",
+                                                        str(chosen_octave() or ""))
+        if path:
+            self.set_octave(path)
+
+    def set_octave(self, path: str) -> None:
+        """Run MATLAB filters in this octave-cli from now on (kept in the window's settings);
+        a MATLAB filter loaded now starts again in it."""
+        try:
+            found = find_octave(path)
+        except OctaveNotFound as error:
+            self.action_label.setText(str(error))
+            return
+        use_octave(found)
+        if self.settings is not None:
+            self.settings.setValue(OCTAVE_KEY, str(found))
+        self.show_octave()
+        self.action_label.setText(f"MATLAB filters run in {found} from now on")
+        status = self.status
+        if status is not None and is_matlab_filter(status.path):
+            self.send(LoadUserFilter(status.path))
 
     def _show_details(self, shown: bool) -> None:
         self.details.setVisible(shown)

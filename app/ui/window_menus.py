@@ -16,7 +16,8 @@ from PySide6 import QtCore, QtGui, QtWidgets
 from app import __version__
 from app.engine.commands import SetFollowTimeline, UnloadUserFilter
 from app.ui.controls import ESTIMATOR_CHOICES, SENSOR_LABELS
-from app.ui.user_filter_panel import load_filter_dialog, new_filter_dialog
+from app.ui.user_filter_panel import (load_filter_dialog, new_filter_dialog,
+                                      new_matlab_filter_dialog)
 
 if TYPE_CHECKING:
     from app.ui.phone_view import PhoneView
@@ -58,6 +59,9 @@ class WindowMenus:
         self.new_filter_action = self._action(
             self.file_menu, "&New filter from the course template…", None,
             lambda: new_filter_dialog(self, self.send))
+        self.new_matlab_filter_action = self._action(
+            self.file_menu, "New &MATLAB filter from the course's functions…", None,
+            lambda: new_matlab_filter_dialog(self, self.send))
         self.unload_filter_action = self._action(self.file_menu, "&Unload your filter", None,
                                                  lambda: self.send(UnloadUserFilter()))
         self.file_menu.addSeparator()

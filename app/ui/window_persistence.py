@@ -54,6 +54,34 @@ class WindowPersistence:
         self.central_splitter.setSizes([int(height * 0.36), int(height * 0.64)])
         self.views_splitter.setSizes([1, 1, 1])
         self.fit_filter_dock()
+        self.hide_stray_tab_bars()
+        QtCore.QTimer.singleShot(0, self.hide_stray_tab_bars)     # once laid out
+
+    def hide_stray_tab_bars(self) -> None:
+        """Hide the tab bars of tab groups an earlier arrangement made and this one undid (Qt
+        leaves them on screen, e.g. "Sensor combinations | Connection" after a 1280x720 layout
+        is arranged again at 1920x1080): each group keeps the one bar right below its docks."""
+        groups: dict[frozenset, list[QtWidgets.QDockWidget]] = {}
+        for dock in self.docks():
+            if self.tabifiedDockWidgets(dock):
+                group = [dock, *self.tabifiedDockWidgets(dock)]
+                groups[frozenset(member.windowTitle() for member in group)] = group
+        bars: dict[frozenset, list[QtWidgets.QTabBar]] = {}
+        for bar in self.findChildren(QtWidgets.QTabBar):
+            if bar.parentWidget() is self and bar.isVisible():
+                texts = frozenset(bar.tabText(i) for i in range(bar.count()))
+                bars.setdefault(texts, []).append(bar)
+        for texts, found in bars.items():
+            group = groups.get(texts)
+            if group is None:
+                for bar in found:
+                    bar.hide()
+                continue
+            shown = [dock for dock in group if not dock.isHidden()]
+            bottom = max((dock.geometry().bottom() for dock in shown), default=0)
+            found.sort(key=lambda bar: abs(bar.geometry().top() - bottom - 1))
+            for bar in found[1:]:
+                bar.hide()
 
     def fit_filter_dock(self) -> None:
         """The Filter dock as tall as its lights, switches and buttons (it does not scroll in

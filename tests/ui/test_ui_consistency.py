@@ -92,3 +92,24 @@ def test_it_asks_for_our_innovations_only_while_shown(view):
 def test_statistics_of_nothing():
     stats = consistency(np.empty((0, 3)), np.empty((0, 3, 3)), np.empty(0, bool))
     assert stats["n"] == 0 and np.isnan(stats["inside"])
+
+
+@pytest.mark.parametrize("width", [420, 700, 1100])
+def test_the_summary_keeps_all_its_lines_in_a_short_view(qtbot, width):
+    """The plots give up height to the summary's lines, whatever its text and width (a
+    1280x720 window's Consistency dock, shorter than the view would like, cut the summary's
+    second line while streaming)."""
+    from PySide6 import QtWidgets
+    holder = QtWidgets.QWidget()              # a dock that is shorter than the view would like
+    qtbot.addWidget(holder)
+    view = ConsistencyView(lambda command: None)
+    QtWidgets.QVBoxLayout(holder).addWidget(view)
+    holder.setFixedSize(width, 100)
+    holder.show()
+    qtbot.waitExposed(holder)
+    view.add_chunk(_chunk())
+    view.refresh()
+    needed = view.summary.heightForWidth(view.summary.width())
+    assert needed > view.fontMetrics().height()                     # more than one line
+    qtbot.waitUntil(lambda: view.summary.height() >= view.summary.heightForWidth(
+        view.summary.width()))

@@ -227,3 +227,27 @@ def test_an_elided_label_shows_the_longest_form_that_fits_and_never_widens_its_p
     assert label.shown_text() == shorter[1]
     label.resize(metrics.horizontalAdvance("REC") + 8, 20)
     assert label.shown_text().endswith("…")
+
+
+@pytest.mark.parametrize("first, then", [((1280, 720), (1920, 1080)),
+                                         ((1920, 1080), (1280, 720))],
+                         ids=["720-then-1080", "1080-then-720"])
+def test_a_layout_arranged_again_on_another_screen_leaves_no_stray_tab_bar(make_window,
+                                                                           fake_engine,
+                                                                           first, then):
+    """Arranged at one size and again at another (1280x720: three docks tabbed; 1920x1080:
+    the table above, the connection and your filter tabbed): one tab bar, naming the docks
+    tabbed together now, right below them."""
+    window = _shown(make_window(fake_engine), first)
+    window = _shown(window, then)
+    window.user_dock.raise_()
+    for _ in range(3):
+        QtWidgets.QApplication.processEvents()
+    bars = [bar for bar in window.findChildren(QtWidgets.QTabBar)
+            if bar.parentWidget() is window and bar.isVisible()]
+    tabbed = [window.connection_dock, window.user_dock]
+    if then[1] < 950:
+        tabbed.append(window.comparison_dock)
+    assert [sorted(bar.tabText(i) for i in range(bar.count())) for bar in bars] == \
+        [sorted(dock.windowTitle() for dock in tabbed)]
+    assert abs(bars[0].geometry().top() - window.user_dock.geometry().bottom()) <= 2

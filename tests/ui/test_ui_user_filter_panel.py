@@ -106,13 +106,72 @@ def test_load_new_and_unload_send_commands(qtbot, tmp_path, monkeypatch):
     new = tmp_path / "mine"
     monkeypatch.setattr(QtWidgets.QFileDialog, "getSaveFileName",
                         lambda *args, **kwargs: (str(new), ""))
-    qtbot.mouseClick(panel.new_button, CLICK)
+    panel.new_python_action.trigger()                            # New… > Python file…
     assert sent[-1] == LoadUserFilter(str(new) + ".py")
     assert "def tu_qw(x, P, omega, T, Rw):" in (tmp_path / "mine.py").read_text()
     (tmp_path / "mine.py").write_text("mine, keep")
-    qtbot.mouseClick(panel.new_button, CLICK)                    # never overwritten
+    panel.new_python_action.trigger()                            # never overwritten
     assert (tmp_path / "mine.py").read_text() == "mine, keep" and len(sent) == 2
     assert "not overwritten" in panel.action_label.text()
     panel.update_status(_running())
     qtbot.mouseClick(panel.unload_button, CLICK)
     assert sent[-1] == UnloadUserFilter()
+
+
+def test_a_matlab_filter_is_loaded_and_made_as_a_folder(qtbot, tmp_path, monkeypatch):
+    panel, sent = _panel(qtbot)
+    assert [a.text() for a in panel.new_button.menu().actions()] == [
+        "Python file…", "MATLAB folder (runs in GNU Octave)…"]
+    folder = tmp_path / "mine"
+    monkeypatch.setattr(QtWidgets.QFileDialog, "getSaveFileName",
+                        lambda *args, **kwargs: (str(folder), ""))
+    panel.new_matlab_action.trigger()
+    assert sent == [LoadUserFilter(str(folder))]
+    assert (folder / "tu_qw.m").read_text().startswith(
+        "function [x, P] = tu_qw(x, P, omega, T, Rw)")
+    assert "README.md" in panel.action_label.text()
+    (folder / "mu_g.m").write_text("% mine, keep")
+    panel.new_matlab_action.trigger()                            # never overwritten
+    assert (folder / "mu_g.m").read_text() == "% mine, keep" and len(sent) == 1
+    assert "not overwritten" in panel.action_label.text()
+    # Load…: any .m file of the folder loads the folder
+    monkeypatch.setattr(QtWidgets.QFileDialog, "getOpenFileName",
+                        lambda *args, **kwargs: (str(folder / "mu_m.m"), ""))
+    qtbot.mouseClick(panel.load_button, CLICK)
+    assert sent[-1] == LoadUserFilter(str(folder))
+
+
+def test_the_octave_matlab_filters_run_in_is_shown_chosen_and_kept(qtbot, tmp_path, monkeypatch):
+    from app.engine.userfilter import octave
+    monkeypatch.setattr(octave, "_chosen", None)
+    settings = QtCore.QSettings(str(tmp_path / "settings.ini"), QtCore.QSettings.Format.IniFormat)
+    sent = []
+    monkeypatch.setenv("PATH", str(tmp_path))                    # no Octave on PATH
+    monkeypatch.setattr(octave, "_installed_elsewhere", lambda: [])
+    panel = UserFilterPanel(sent.append, settings=settings)
+    qtbot.addWidget(panel)
+    assert panel.octave_label.text().startswith("MATLAB filters: GNU Octave is not installed")
+    assert "install" in panel.octave_label.text()
+    program = tmp_path / "octave-cli"
+    program.write_text("#!/bin/sh\n")
+    program.chmod(0o755)
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "tu_qw.m").write_text("% mine")
+    panel.update_status(_running(name="mine", path=str(folder)))
+    monkeypatch.setattr(QtWidgets.QFileDialog, "getOpenFileName",
+                        lambda *args, **kwargs: (str(program), ""))
+    qtbot.mouseClick(panel.octave_button, CLICK)
+    assert panel.octave_label.text() == f"MATLAB filters run in {program}"
+    assert settings.value("your_filter/octave") == str(program)
+    assert octave.chosen_octave() == str(program)
+    assert sent == [LoadUserFilter(str(folder))]                 # the MATLAB filter restarts in it
+    panel.set_octave(str(tmp_path / "nothing"))
+    assert "Octave not found at" in panel.action_label.text()
+    assert octave.chosen_octave() == str(program)
+    # the next window starts with the Octave chosen
+    monkeypatch.setattr(octave, "_chosen", None)
+    again = UserFilterPanel(sent.append, settings=settings)
+    qtbot.addWidget(again)
+    assert octave.chosen_octave() == str(program)
+    octave.use_octave(None)

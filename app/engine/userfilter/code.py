@@ -33,6 +33,7 @@ from typing import Any, Callable
 import numpy as np
 
 from app.engine.user_problem import UserProblem
+from app.engine.userfilter.octave import is_matlab_filter
 from app.engine.userfilter.protocol import INNOVATION_SENSORS
 from app.engine.userfilter.watchdog import UserCodeTimeout, guard
 
@@ -58,8 +59,9 @@ class UserFilterError(Exception):
 
 
 def is_filter_file(name: str | Path) -> bool:
-    """Whether an estimator name is a user's filter file (ends in .py) rather than a built-in."""
-    return str(name).lower().endswith(".py")
+    """Whether an estimator name is a user's filter rather than a built-in: a Python file (ends
+    in .py) or a MATLAB filter (a .m file, or a folder: app.engine.userfilter.octave)."""
+    return str(name).lower().endswith(".py") or is_matlab_filter(name)
 
 
 def _one_line(text: str) -> str:

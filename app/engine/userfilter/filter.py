@@ -45,6 +45,7 @@ from ekf.estimator import batch_rows
 from ekf.settings import EKFSettings, resolve_settings
 from app.engine.user_problem import UserProblem
 from app.engine.userfilter.code import UserFilterError, is_filter_file
+from app.engine.userfilter.octave_remote import load_filter_process
 from app.engine.userfilter.remote import BlockResult, RemoteFilter, filter_settings
 from app.engine.userfilter.watchdog import DEFAULT_LIMIT_S
 
@@ -104,8 +105,8 @@ class UserFilterEstimator:
         if isinstance(source, RemoteFilter):
             self.remote, self._owner = source, False
         else:
-            self.remote = RemoteFilter.load(source, self.settings, step_limit_s=step_limit_s,
-                                            on_output=on_output, deadline_s=deadline_s)
+            self.remote = load_filter_process(source, self.settings, step_limit_s=step_limit_s,
+                                              on_output=on_output, deadline_s=deadline_s)
             self._owner = True
             weakref.finalize(self, self.remote.close)
             self.wait_started()
@@ -330,7 +331,8 @@ class UserFilterEstimator:
             while starts and len(sent) < AHEAD and remote.usable:
                 start = starts.pop(0)
                 end = min(n, start + BLOCK_ROWS)
-                block = remote.send_rows(t[start:end], given[start:end], values[start:end])
+                block = remote.send_rows(t[start:end], given[start:end], values[start:end],
+                                         innovations=self.collect_innovations)
                 if block is not None:
                     sent[block] = start
             if not sent:
@@ -408,6 +410,6 @@ def make_estimator(name: str | ekf.Estimator, settings: EKFSettings | None = Non
     UserFilterError when it cannot be loaded), or an estimator object as it is."""
     if not isinstance(name, str):
         return name
-    if is_filter_file(name):
+    if name not in ekf.ESTIMATORS and is_filter_file(name):
         return UserFilterEstimator(name, settings, sensors)
     return ekf.make_estimator(name, settings, sensors)

@@ -52,6 +52,8 @@ from app.engine.snapshot import Comparison, UserFilterStatus, UserHistory, UserP
 from app.engine.userfilter.code import UserFilterError
 from app.engine.userfilter.filter import UserFilterEstimator
 from app.engine.userfilter.lane import UserLane
+from app.engine.userfilter.octave import MatlabFolder, filter_folder, is_matlab_filter
+from app.engine.userfilter.octave_remote import load_filter_process
 from app.engine.userfilter.remote import RemoteFilter
 from app.stream.fastparse import FastLineParser
 from app.stream.lines import read_lines
@@ -71,7 +73,11 @@ LOG_LINES_PER_S = 20
 log = logging.getLogger("orientation_lab.your_filter")
 
 
-def _stat(path: Path) -> tuple[int, int] | None:
+def _stat(path: Path) -> tuple | None:
+    """What changes when the filter is saved: the file's modification time and size (a MATLAB
+    filter: those of each .m file in its folder, and their names)."""
+    if is_matlab_filter(path):
+        return MatlabFolder.stat(path)
     try:
         st = path.stat()
     except OSError:
@@ -278,6 +284,8 @@ class UserFilterHost:
         """Load (or reload) the file in a new process (the previous one ends); problems end up
         in the status, never raised."""
         path = Path(path).expanduser().resolve()
+        if is_matlab_filter(path):
+            path = filter_folder(path)            # a .m file names its folder
         self._cancel_job()
         self.path, self._stat = path, _stat(path)
         self.generation += 1
@@ -287,7 +295,8 @@ class UserFilterHost:
             self.runner.set_user_lane(self.lane)
         self._close_remote()
         try:
-            remote = RemoteFilter.load(path, self.runner.settings, on_output=PrintedLog(path.name))
+            remote = load_filter_process(path, self.runner.settings,
+                                         on_output=PrintedLog(path.name))
         except UserFilterError as error:
             self.load_problem = error.problem
             self.lane.replace(None)

@@ -75,6 +75,7 @@ class FilterProcess:
         self._exit_seen: float | None = None
         self._closing = False
         self.output: deque[str] = deque(maxlen=MAX_OUTPUT_LINES)
+        self._partial_text = b""
         self.lines_total = 0
         self.stack: list[tuple[str, int, str]] | None = None
         self.error = ""                      # a protocol error: the child is not usable
@@ -143,7 +144,7 @@ class FilterProcess:
                                 self._owed.popleft()
                             self._replies.append((header, arrays))
                         self.changed.notify_all()
-            self._output_text(reader.pending_text())
+            self._output_text(reader.pending_text(), end=True)
         except ProtocolError as error:
             self.error = f"your filter's process spoke garbage: {error}"
         except (OSError, ValueError):
@@ -172,8 +173,14 @@ class FilterProcess:
         if partial:
             self._line(partial)
 
-    def _output_text(self, data: bytes) -> None:
-        for line in data.splitlines():
+    def _output_text(self, data: bytes, end: bool = False) -> None:
+        """Text between frames (an Octave host's prints): whole lines, however the pipe cut
+        them (the rest of a line waits for its end, or for the end of the stream)."""
+        *lines, self._partial_text = (self._partial_text + data).split(b"\n")
+        if end and self._partial_text:
+            lines.append(self._partial_text)
+            self._partial_text = b""
+        for line in lines:
             self._line(line)
 
     _in_dump = False

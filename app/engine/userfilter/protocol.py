@@ -11,8 +11,9 @@ Requests (engine -> child), each answered by exactly one reply with the same ``o
 ``start``    header: path, name, settings (:func:`settings_to_wire`), step_limit_s, load_limit_s;
              array ``source`` (the file's bytes, the ones the engine hashed). Reply: problem
              (None, or the file does not load / ``Filter()`` failed), missing, notes.
-``rows``     header: id, epoch; arrays ``t`` (n,) seconds, ``given`` (n, 3) which of gyr, acc,
-             mag each row gives your filter (1) or passes as None (0), ``values`` (n, 9) the
+``rows``     header: id, epoch, innovations (false: nobody shows this block's innovations, a
+             host may leave them out); arrays ``t`` (n,) seconds, ``given`` (n, 3) which of gyr,
+             acc, mag each row gives your filter (1) or passes as None (0), ``values`` (n, 9) the
              three sensors' values. Reply: id, epoch, run (rows stepped), seconds (time in your
              step), elapsed (the block's time in the child), paused_at (the row where it paused,
              -1: not paused), last_out (the row whose output is the latest, -1: none in this

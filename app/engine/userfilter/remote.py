@@ -166,7 +166,8 @@ class RemoteFilter:
 
     @classmethod
     def load(cls, path: str | Path, settings: EKFSettings, **options: Any) -> RemoteFilter:
-        """Read the file and start its process; UserFilterError when it cannot be read."""
+        """Read the file and start its process; UserFilterError when it cannot be read. (A
+        filter in either language: app.engine.userfilter.octave_remote.load_filter_process.)"""
         path = Path(path).expanduser().resolve()
         try:
             source = path.read_bytes()
@@ -220,16 +221,19 @@ class RemoteFilter:
 
     # -- requests (never wait) ------------------------------------------------------------------
 
-    def send_rows(self, t_s: np.ndarray, given: np.ndarray, values: np.ndarray) -> int | None:
+    def send_rows(self, t_s: np.ndarray, given: np.ndarray, values: np.ndarray,
+                  innovations: bool = True) -> int | None:
         """Hand rows over: t_s (n,) [s], given (n, 3) bool (gyr, acc, mag given to the filter),
-        values (n, 9); the block's id (None: not sent, the process is not usable)."""
+        values (n, 9); the block's id (None: not sent, the process is not usable). innovations
+        False: nobody shows the innovations of these rows (a host may skip computing them)."""
         if not self.usable:
             return None
         block = next(self._ids)
         t_s = np.ascontiguousarray(t_s, dtype=np.float64)
         given = np.ascontiguousarray(given, dtype=bool)
         self._sent[block] = _Sent(t_s, given, self.epoch, time.monotonic())
-        self.process.request({"op": "rows", "id": block, "epoch": self.epoch},
+        self.process.request({"op": "rows", "id": block, "epoch": self.epoch,
+                              "innovations": bool(innovations)},
                              {"t": t_s, "given": given.astype(np.uint8),
                               "values": np.ascontiguousarray(values, dtype=np.float64)})
         return block
@@ -328,10 +332,8 @@ class RemoteFilter:
         error = self.process.error
         code = self.process.ended()
         if error or code is not None:
-            how = error or (f"your filter ended the process it runs in ({exit_words(code)}: "
-                            "os._exit() or a crash in its code)")
             self.engine_problem = UserProblem(
-                "ended", _one_line(f"{self.name}: {how}: paused; save the file to reload"),
+                "ended", _one_line(self._ended_message(error, code)),
                 "\n".join(self.process.output), str(self.path), None, None, self._at())
             return
         op = self.process.owed_op
@@ -341,7 +343,7 @@ class RemoteFilter:
         if self.process.quiet_s() > limit:
             self._stuck_op = op
             self._stuck_limit = limit
-            self.process.ask_where()
+            self._ask_where()
             self._say_stuck()
 
     def _say_stuck(self) -> None:
@@ -355,9 +357,23 @@ class RemoteFilter:
         details = ("Where it is (most recent call first):\n" + "".join(
             f'  File "{f}", line {n}, in {fn}\n' for f, n, fn in stack)) if stack else ""
         self.engine_problem = UserProblem(
-            "stuck", _one_line(f"your filter has not {what} for {self._stuck_limit:g} s "
-                               f"({where}): paused; save the file to reload"),
+            "stuck", _one_line(self._stuck_message(what, where, self._stuck_limit)),
             details, str(self.path), line, function, self._at())
+
+    # -- what a host of another language says differently (app.engine.userfilter.octave_remote) --
+
+    def _ended_message(self, error: str, code: int | None) -> str:
+        how = error or (f"your filter ended the process it runs in ({exit_words(code)}: "
+                        "os._exit() or a crash in its code)")
+        return f"{self.name}: {how}: paused; save the file to reload"
+
+    def _stuck_message(self, what: str, where: str, limit: float) -> str:
+        return (f"your filter has not {what} for {limit:g} s ({where}): paused; save the file to "
+                "reload")
+
+    def _ask_where(self) -> None:
+        """Ask the process for the line it is at (a Python host prints its stack)."""
+        self.process.ask_where()
 
     def _at(self) -> float | None:
         """The phone time of the row the process is at (None: not in a block)."""
