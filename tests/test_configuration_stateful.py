@@ -354,8 +354,11 @@ class ConfigurationMachine(RuleBasedStateMachine):
         assert status.settings == SETTINGS[want["settings"]]
         reference = model_run(self.session, self.model, position)
         runner = self.engine.runner
-        assert np.array_equal(runner.main.quat, reference.main.quat)
-        assert runner.latest_t_ms == reference.latest_t_ms
+        where = (f"at sample {position} of {len(self.session.t_ms)}; overrides "
+                 f"{self.model.overrides}, changes made {self.model.added}; replay "
+                 f"{self.engine.snapshot_now().replay}")
+        assert np.array_equal(runner.main.quat, reference.main.quat), where
+        assert runner.latest_t_ms == reference.latest_t_ms, where
 
     @invariant()
     def every_consumer_sees_the_same_configuration(self) -> None:
