@@ -18,6 +18,15 @@ late or torn lines), bounded in count and time. Then it prints a table:
   raw.txt (the recorder flushes every 0.4 s; the baseline's own delay is printed with it);
 - check: what the scenario is about (the phone's estimates as if alone, a time axis not
   shifted, out-of-order counts, the recording's stop reason, ...).
+
+Then the offline commands against hostile outputs and inputs, one subprocess each in a scratch
+folder (a second table: exit status, one line on stderr, what the scenario checks): `-o` into
+a character device, a full device, a FIFO (read to its end, or closed by its reader), a
+symlink, a dangling symlink, a folder; settings, session.json and interval files a program
+could choke on; out-of-range numbers. Devices are copies made with mknod in the scratch
+folder (as root; without root those scenarios are skipped): the system's /dev/null and
+/dev/full are never an output here, and the run checks at its end that they are still the
+devices they were.
 """
 
 from __future__ import annotations
@@ -29,6 +38,7 @@ import resource
 import shutil
 import signal
 import socket
+import stat
 import subprocess
 import sys
 import tempfile
@@ -158,7 +168,9 @@ class Serve:
 
 
 class PacedPhone(threading.Thread):
-    """The phone: connects and streams its lines with their timing / speed."""
+    """The phone: connects and streams its lines with their timing / speed. Each item of
+    `lines` is due at the time of its first line (an item of several lines goes out whole:
+    phone_variant's bad time stamps ride on the line before them, never pacing the stream)."""
 
     def __init__(self, port: int, lines: list[bytes], speed: float) -> None:
         super().__init__(daemon=True)
@@ -169,9 +181,21 @@ class PacedPhone(threading.Thread):
 
     def run(self) -> None:
         try:
+            pace = pacing_times(self.lines)
             with PhoneEmulator("127.0.0.1", self.port, timeout=30.0) as phone:
                 self.first_sent = time.monotonic()
-                phone.stream_lines(self.lines, self.speed)
+                start = time.perf_counter()
+                index = 0
+                while index < len(self.lines):
+                    now = (time.perf_counter() - start) * self.speed
+                    end = index
+                    while end < len(self.lines) and pace[end] <= now:
+                        end += 1
+                    if end > index:
+                        phone.send(b"".join(self.lines[index:end]))
+                        index = end
+                    else:
+                        time.sleep(min(0.05, (pace[index] - now) / self.speed))
                 self.last_sent = time.monotonic()
         except OSError as error:
             self.error = f"phone: {error}"
@@ -316,6 +340,20 @@ def phone_variant(kind: str, lines: list[bytes]) -> tuple[list[bytes], list[byte
     if kind == "late-block":
         sent = late_block(lines, 3.0 if len(lines) > 3000 else 0.5, 0.9, 2.9)
         return sent, sent
+    if kind == "fullwidth":
+        t = _time_tag(lines[half])[0]
+        bad = ["%d\tACC\t\uff19.81\t0.0\t0.0\n" % t, "%d\tGYR\t0.0\t0.\u0663\t0.0\n" % t]
+        return lines[:half] + [b.encode() for b in bad] + lines[half:], lines
+    if kind == "bad-stamp":
+        t = _time_tag(lines[half])[0]
+        year = 365 * 24 * 3600 * 1000
+        bad = [b"0\tGYR\t0.01\t0.02\t0.03\n"] + [
+            b"%d\tACC\t0.1\t0.2\t9.8\n" % (t + year + 10 * k) for k in range(5)]
+        # each sent with the line before it (the phone's pacing follows that line's time)
+        sent = lines[:half - 1] + [lines[half - 1] + bad[0]] + lines[half:half + 39] \
+            + [lines[half + 39] + b"".join(bad[1:])] + lines[half + 40:]
+        good = lines[:half] + bad[:1] + lines[half:half + 40] + bad[1:] + lines[half + 40:]
+        return sent, good                     # they parse: recorded verbatim, never filtered
     if kind == "torn-ori":
         k = next(i for i in range(half, len(lines)) if b"\tORI\t" in lines[i])
         torn = lines[k].rsplit(b"\t", 1)[0] + b"\n"
@@ -449,10 +487,22 @@ def _old_session(record: Path, tmp: Path) -> None:
 
 def _readable_recording(result) -> str:
     done = subprocess.run([sys.executable, "-m", "app", "filter", str(result.record_dir), "-o",
-                           os.devnull], cwd=ROOT, capture_output=True, text=True, timeout=120)
+                           str(result.tmp / "filtered.csv")], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
     damaged = re.search(r"\d+ damaged \([^)]*\)", _final(result))
     return (f"{damaged.group(0) if damaged else 'no damage'}; recording read by filter: "
             f"{'yes' if done.returncode == 0 else 'NO: ' + done.stderr.strip()[:60]}")
+
+
+def check_bad_stamps(result) -> str:
+    """Six bad time stamps: dropped and counted, no clock quirk, no new session."""
+    final = _final(result)
+    order = re.search(r"(\d+) out of order", final)
+    quirks = [q for q in final.split(" | ") if q.startswith("clock:")]
+    ok = order is not None and order.group(1) == "6" and "new sessions" not in final \
+        and not quirks
+    return (f"{order.group(1) if order else 0} out of order, "
+            f"{'no new session, no quirk' if ok else 'NO: ' + final[:120]}")
 
 
 def _both(*checks):
@@ -502,6 +552,10 @@ SCENARIOS = [
              check=check_out_of_order),
     Scenario("torn-ori", "an ORI line torn to 3 values", lines="torn-ori",
              check=check_counts("1 damaged (1 value count)")),
+    Scenario("fullwidth", "digits of other scripts in the phone's stream (\uff19.81, 0.\u0663)",
+             lines="fullwidth", check=check_counts("2 damaged (2 bad number)")),
+    Scenario("bad-stamp", "one sample at t = 0 and 5 a year ahead in the phone's stream",
+             lines="bad-stamp", check=check_bad_stamps),
 ]
 QUICK = ["baseline", "absurd", "stranger-during", "flood-before", "disk-full"]
 
@@ -579,6 +633,295 @@ SCENARIOS += [
              "up and reconnects", before=_trickle_at_reconnect, check=check_trickle),
 ]
 
+
+
+# ---- offline commands: hostile outputs and inputs -----------------------------------------------
+
+NULL, FULL = (1, 3), (1, 7)          # the character devices /dev/null and /dev/full (Linux)
+
+
+def _root() -> bool:
+    return hasattr(os, "geteuid") and os.geteuid() == 0
+
+
+def _device(path: Path, numbers: tuple[int, int]) -> None:
+    os.mknod(path, 0o666 | stat.S_IFCHR, os.makedev(*numbers))
+
+
+def _is_device(path: Path, numbers: tuple[int, int]) -> bool:
+    try:
+        info = os.lstat(path)
+    except OSError:
+        return False
+    return stat.S_ISCHR(info.st_mode) and info.st_rdev == os.makedev(*numbers)
+
+
+class _Reader(threading.Thread):
+    """Reads a FIFO to its end, or opens it and closes it at once."""
+
+    def __init__(self, path: Path, close_at_once: bool) -> None:
+        super().__init__(daemon=True)
+        self.path, self.close_at_once, self.data = path, close_at_once, b""
+
+    def run(self) -> None:
+        with open(self.path, "rb") as fifo:
+            if not self.close_at_once:
+                self.data = fifo.read()
+
+    def stop(self) -> None:
+        if self.is_alive():                 # nobody opened it for writing: let it go
+            try:
+                os.close(os.open(self.path, os.O_WRONLY | os.O_NONBLOCK))
+            except OSError:
+                pass
+        self.join(timeout=30)
+
+
+@dataclass
+class Offline:
+    """`orientation-lab ARGV` in a scratch folder ({name} in ARGV: a file there); `expect` its
+    exit status; `needle` in its last stderr line; `out` the output kind prepared first:
+    "null", "full" (device copies), "fifo", "fifo-closed", "link", "dangling", "folder"."""
+
+    name: str
+    title: str
+    argv: list[str]
+    expect: int = 2
+    needle: str = ""
+    out: str = ""
+    root: bool = False                # needs root (mknod)
+
+
+_SEEDED = {"walk.txt", "rest.txt", "turning.txt", "rest_gyr_z.txt", "constant.txt"}
+_WRITTEN = ("cal.json", "sim.txt", "tuned.json", "e.csv")     # outputs a refusal never leaves
+
+OFFLINE = [
+    # item 1: -o paths
+    Offline("out-null-filter", "filter -o a character device (a copy of /dev/null)",
+            ["filter", "{walk}", "-o", "{out}"], 0, out="null", root=True),
+    Offline("out-null-export", "export mat -o a character device",
+            ["export", "{walk}", "--format", "mat", "-o", "{out}"], 0, out="null",
+            root=True),
+    Offline("out-null-calibrate", "calibrate -o a character device",
+            ["calibrate", "{rest}", "-o", "{out}"], 0, out="null", root=True),
+    Offline("out-null-calibrate-mag", "calibrate-mag -o a character device",
+            ["calibrate-mag", "{turning}", "-o", "{out}"], 0, out="null", root=True),
+    Offline("out-null-tune", "tune -o a character device",
+            ["tune", "{walk}", "--max-evals", "3", "--no-check", "-o", "{out}"], 0,
+            out="null", root=True),
+    Offline("out-null-simulate", "simulate -o a character device",
+            ["simulate", "--duration", "5", "-o", "{out}"], 0, out="null", root=True),
+    Offline("out-full-filter", "filter -o a full device (a copy of /dev/full)",
+            ["filter", "{walk}", "-o", "{out}"], 2, "No space left on device", "full",
+            root=True),
+    Offline("out-full-export", "export csv -o a full device",
+            ["export", "{walk}", "--format", "csv", "-o", "{out}"], 2,
+            "No space left on device", "full", root=True),
+    Offline("out-full-simulate", "simulate -o a full device",
+            ["simulate", "--duration", "5", "-o", "{out}"], 2, "No space left on device",
+            "full", root=True),
+    Offline("out-fifo", "filter -o a FIFO read to its end",
+            ["filter", "{walk}", "-o", "{out}"], 0, out="fifo"),
+    Offline("out-fifo-closed", "simulate -o a FIFO its reader closes at once",
+            ["simulate", "--duration", "60", "-o", "{out}"], 2, "Broken pipe",
+            out="fifo-closed"),
+    Offline("out-link", "filter -o a symlink to an older output",
+            ["filter", "{walk}", "-o", "{out}"], 0, out="link"),
+    Offline("out-dangling", "filter -o a dangling symlink",
+            ["filter", "{walk}", "-o", "{out}"], 0, out="dangling"),
+    Offline("out-folder", "filter -o a folder",
+            ["filter", "{walk}", "-o", "{out}"], 2, "is a folder", "folder"),
+    Offline("out-input", "filter -o its own input",
+            ["filter", "{walk}", "-o", "{walk}"], 2, "is the input"),
+    # item 5: tracebacks before
+    Offline("in-settings-brackets", "--settings of 100,000 '['",
+            ["filter", "{walk}", "--settings", "{brackets}"], 2, "nested too deeply"),
+    Offline("in-session-brackets", "a session.json of 100,000 '['",
+            ["filter", "{session}"], 2, "nested too deeply"),
+    Offline("in-intervals-letters", 'evaluate --intervals ["ab", "cd"]',
+            ["evaluate", "{walk}", "--intervals", "{letters}"], 2, "interval 1 is"),
+    Offline("in-constant-axis", "calibrate --settings course on a constant gyroscope axis",
+            ["calibrate", "{rest_gyr_z}", "--settings", "course", "-o", "{cal}"], 2,
+            "gyr z is constant"),
+    Offline("in-seed", "simulate --seed -1",
+            ["simulate", "--seed", "-1", "-o", "{sim}"], 2, "whole number >= 0"),
+    Offline("in-duration", "simulate --duration 1e9",
+            ["simulate", "--duration", "1e9", "-o", "{sim}"], 2, "a session may have"),
+    Offline("in-rate", "simulate --rate 1e9",
+            ["simulate", "--rate", "1e9", "-o", "{sim}"], 2, "at most 1000 Hz"),
+    Offline("in-record-max-mb", "serve --record-max-mb 1e308",
+            ["serve", "--record-max-mb", "1e308"], 2, "size in MB from 0"),
+    # item 6: exit 0 with nothing usable before
+    Offline("in-intervals-reversed", "evaluate with a reversed interval",
+            ["evaluate", "{walk}", "--intervals", "{reversed}"], 2,
+            "ends before it starts"),
+    Offline("in-intervals-nan", "evaluate with a NaN interval",
+            ["evaluate", "{walk}", "--intervals", "{nan}"], 2, "two finite numbers"),
+    Offline("in-skip", "evaluate --skip 1e308",
+            ["evaluate", "{walk}", "--skip", "1e308"], 2, "no reference sample"),
+    Offline("in-tune-range", "tune --range 500:600 on a 22 s log",
+            ["tune", "{walk}", "--range", "500:600"], 2, "after the log's end"),
+    Offline("in-tune-params", "tune --params acc_noise_cov=1e300:1e308 -o S",
+            ["tune", "{walk}", "--params", "acc_noise_cov=1e300:1e308", "-o",
+             "{tuned}"], 2, "is not allowed"),
+    Offline("in-tune-absurd", "tune --params acc_noise_cov=1e200:1e300 -o S",
+            ["tune", "{walk}", "--params", "acc_noise_cov=1e200:1e300", "--max-evals",
+             "4", "--no-check", "-o", "{tuned}"], 2, "nothing written"),
+    Offline("in-rate-low", "simulate --rate 0.001",
+            ["simulate", "--rate", "0.001", "-o", "{sim}"], 2, "fewer than 2 samples"),
+    Offline("in-bias-nan", "simulate --gyro-bias nan 0 0",
+            ["simulate", "--gyro-bias", "nan", "0", "0", "-o", "{sim}"], 2,
+            "finite number"),
+    Offline("in-constant", "calibrate on constant data",
+            ["calibrate", "{constant}"], 2, "are constant"),
+    # item 11: messages
+    Offline("in-export-range", "export --from 1e308 --to 1e308",
+            ["export", "{walk}", "--format", "csv", "-o", "{e}", "--from", "1e308",
+             "--to", "1e308"], 2, "no samples from 1e+308 s to 1e+308 s"),
+    Offline("in-allow", "serve --allow 10.0.0.0/99",
+            ["serve", "--allow", "10.0.0.0/99"], 2, "argument --allow: not an address"),
+]
+
+
+def _offline_files(folder: Path) -> None:
+    from ekf.simulate import simulate
+    from app.stream.demo import write_session
+    write_session(simulate(duration_s=22, seed=3), folder / "walk.txt")
+    write_session(simulate(duration_s=6, script="rest", seed=4), folder / "rest.txt")
+    turning = simulate(duration_s=30, seed=5)
+    turning.mag.values = turning.mag.values + [30.0, -25.0, 200.0]
+    write_session(turning, folder / "turning.txt")
+    rest = (folder / "rest.txt").read_text().splitlines()
+    fixed = {"GYR": ["0.001", "0.002", "0.003"], "ACC": ["0.1", "0.2", "9.8"],
+             "MAG": ["10.0", "20.0", "-30.0"]}
+    zero_z, constant = [], []
+    for line in rest:
+        fields = line.split("\t")
+        zero_z.append("\t".join(fields[:4] + ["0.0"]) if fields[1] == "GYR" else line)
+        constant.append("\t".join(fields[:2] + fixed[fields[1]]) if fields[1] in fixed
+                        else line)
+    (folder / "rest_gyr_z.txt").write_text("\n".join(zero_z) + "\n")
+    (folder / "constant.txt").write_text("\n".join(constant) + "\n")
+    (folder / "brackets.json").write_text("[" * 100_000)
+    (folder / "session").mkdir()
+    shutil.copy(folder / "walk.txt", folder / "session" / "raw.txt")
+    (folder / "session" / "session.json").write_text("[" * 100_000)
+    for name, intervals in (("letters", '["ab", "cd"]'), ("reversed", "[[5000, 1000]]"),
+                            ("nan", "[[NaN, 1000]]")):
+        (folder / f"{name}.json").write_text('{"score_intervals_ms": %s}' % intervals)
+
+
+@dataclass
+class OfflineResult:
+    scenario: Offline
+    code: int | None = None
+    lines: int = 0
+    check: str = ""
+
+
+def _prepare_output(kind: str, out: Path) -> tuple[_Reader | None, Path | None]:
+    reader, target = None, None
+    if kind in ("null", "full"):
+        _device(out, NULL if kind == "null" else FULL)
+    elif kind in ("fifo", "fifo-closed"):
+        os.mkfifo(out)
+        reader = _Reader(out, close_at_once=kind == "fifo-closed")
+        reader.start()
+    elif kind == "link":
+        target = out.with_name("older.csv")
+        target.write_text("an older output\n")
+        out.symlink_to(target.name)
+    elif kind == "dangling":
+        target = out.with_name("made.csv")
+        out.symlink_to(target.name)
+    elif kind == "folder":
+        out.mkdir()
+    return reader, target
+
+
+def _output_check(kind: str, out: Path, reader: _Reader | None, target: Path | None) -> str:
+    if kind in ("null", "full"):
+        return "device kept" if _is_device(out, NULL if kind == "null" else FULL) \
+            else "NO: the device was replaced"
+    if kind in ("fifo", "fifo-closed"):
+        ok = stat.S_ISFIFO(os.lstat(out).st_mode)
+        got = f"; {len(reader.data)} bytes read" if reader and kind == "fifo" else ""
+        if kind == "fifo" and reader and not reader.data.startswith(b"t_ms,"):
+            return "NO: the reader got no CSV"
+        return ("FIFO kept" if ok else "NO: the FIFO was replaced") + got
+    if kind in ("link", "dangling"):
+        ok = out.is_symlink() and target is not None and target.is_file() \
+            and target.read_text().startswith("t_ms,")
+        return "link kept, its target written" if ok else "NO: link or target wrong"
+    if kind == "folder":
+        return "folder kept" if out.is_dir() and not any(out.iterdir()) else "NO: folder changed"
+    return ""
+
+
+def run_offline(scenario: Offline, folder: Path) -> OfflineResult:
+    result = OfflineResult(scenario)
+    if scenario.root and not _root():
+        result.check = "skipped (needs root for mknod)"
+        return result
+    work = Path(tempfile.mkdtemp(prefix=scenario.name + "-", dir=folder))
+    out = work / "out"
+    reader, target = _prepare_output(scenario.out, out) if scenario.out else (None, None)
+    names = {Path(name).stem: str(folder / name) for name in _SEEDED | {
+        "brackets.json", "letters.json", "reversed.json", "nan.json", "session"}}
+    names.update({Path(name).stem: str(work / name) for name in _WRITTEN})
+    argv = [part.format(out=out, **names) for part in scenario.argv]
+    try:
+        done = subprocess.run([sys.executable, "-m", "app", *argv], cwd=ROOT,
+                              capture_output=True, text=True, timeout=300)
+    finally:
+        if reader is not None:
+            reader.stop()
+    err = done.stderr.strip().splitlines()
+    result.code = done.returncode
+    errors = [line for line in err if "error" in line or "Traceback" in line]
+    result.lines = len(errors)
+    checks = []
+    if done.returncode != scenario.expect:
+        checks.append(f"NO: exit {done.returncode}, expected {scenario.expect}")
+    if "Traceback" in done.stderr:
+        checks.append("NO: a traceback")
+    if scenario.expect == 2 and (len(errors) != 1 or scenario.needle not in errors[-1]):
+        checks.append("NO: " + (errors[-1][:100] if errors else "no error line"))
+    if scenario.expect == 2 and errors and re.search(r"\d{20}", errors[-1]):
+        checks.append("NO: a number of 20 digits or more")
+    written = [p.name for p in work.iterdir() if p.name in _WRITTEN]
+    if scenario.expect == 2 and written:
+        checks.append(f"NO: {', '.join(written)} written")
+    if scenario.out:
+        checks.append(_output_check(scenario.out, out, reader, target))
+    elif not checks:
+        said = errors[-1].split("error: ", 1)[-1].replace(f"{folder}/", "") if errors else "ok"
+        checks.append(said[:80])
+    result.check = "; ".join(c for c in checks if c)
+    return result
+
+
+def offline_table(results: list[OfflineResult]) -> str:
+    rows = [("offline scenario", "exit", "error lines", "check")]
+    for r in results:
+        rows.append((f"{r.scenario.name}: {r.scenario.title}",
+                     "-" if r.code is None else str(r.code), str(r.lines), r.check))
+    widths = [max(len(row[k]) for row in rows) for k in range(4)]
+    lines = [" | ".join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip()
+             for row in rows]
+    lines.insert(1, "-+-".join("-" * width for width in widths))
+    return "\n".join(lines)
+
+
+def offline_problems(results: list[OfflineResult]) -> list[str]:
+    return [f"{r.scenario.name}: {r.check}" for r in results if "NO" in r.check.split()
+            or "NO:" in r.check]
+
+
+def system_devices() -> dict[str, bool]:
+    """/dev/null and /dev/full: still the character devices they are?"""
+    return {"/dev/null": _is_device(Path("/dev/null"), NULL),
+            "/dev/full": _is_device(Path("/dev/full"), FULL)}
 
 
 # ---- running --------------------------------------------------------------------------------
@@ -703,34 +1046,64 @@ def verdict(results: list[Result]) -> list[str]:
     return problems
 
 
+QUICK_OFFLINE = ["out-null-filter", "out-full-filter", "out-fifo", "in-settings-brackets",
+                 "in-skip"]
+
+
 def main() -> int:
+    devices = system_devices()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=12.0,
                         help="length of the phone's session (default 12)")
     parser.add_argument("--speed", type=float, default=2.0,
                         help="the phone streams at this many times its original pace (default 2)")
-    parser.add_argument("--only", help="comma-separated scenario names")
+    parser.add_argument("--only", help="comma-separated scenario names (either table)")
     parser.add_argument("--quick", action="store_true",
-                        help=f"a smoke run: {', '.join(QUICK)} with 3 s of phone data")
+                        help=f"a smoke run: {', '.join(QUICK + QUICK_OFFLINE)} with 3 s of "
+                             "phone data")
     args = parser.parse_args()
-    chosen = SCENARIOS
+    chosen, offline = SCENARIOS, OFFLINE
     if args.quick:
         args.seconds = 3.0
         chosen = [s for s in SCENARIOS if s.name in QUICK]
+        offline = [s for s in OFFLINE if s.name in QUICK_OFFLINE]
     if args.only:
         names = args.only.split(",")
-        chosen = [s for s in SCENARIOS if s.name in names or s.name == "baseline"]
-    lines = phone_lines(args.seconds)
-    print(f"phone: {len(lines)} lines, {args.seconds:g} s of a simulated session at "
-          f"{args.speed:g}x; one `serve --record` subprocess per scenario", flush=True)
-    results = []
+        chosen = [s for s in SCENARIOS if s.name in names]
+        chosen = ([s for s in SCENARIOS if s.name == "baseline" and s not in chosen]
+                  + chosen) if chosen else []
+        offline = [s for s in OFFLINE if s.name in names]
+    results, offline_results = [], []
     with tempfile.TemporaryDirectory(prefix="chaos-") as root:
-        for scenario in chosen:
-            started = time.monotonic()
-            results.append(run_scenario(scenario, lines, args.speed, Path(root)))
-            print(f"  {scenario.name}: {time.monotonic() - started:.1f} s", flush=True)
-    print(table(results))
-    problems = verdict(results)
+        if chosen:
+            lines = phone_lines(args.seconds)
+            print(f"phone: {len(lines)} lines, {args.seconds:g} s of a simulated session at "
+                  f"{args.speed:g}x; one `serve --record` subprocess per scenario", flush=True)
+            for scenario in chosen:
+                started = time.monotonic()
+                results.append(run_scenario(scenario, lines, args.speed, Path(root)))
+                print(f"  {scenario.name}: {time.monotonic() - started:.1f} s", flush=True)
+        if offline:
+            folder = Path(root) / "offline"
+            folder.mkdir()
+            _offline_files(folder)
+            print(f"offline: {len(offline)} commands, one subprocess each"
+                  f"{'' if _root() else ' (not root: the device scenarios are skipped)'}",
+                  flush=True)
+            for scenario in offline:
+                started = time.monotonic()
+                offline_results.append(run_offline(scenario, folder))
+                print(f"  {scenario.name}: {time.monotonic() - started:.1f} s", flush=True)
+    problems = []
+    if results:
+        print(table(results))
+        problems += verdict(results)
+    if offline_results:
+        print(offline_table(offline_results))
+        problems += offline_problems(offline_results)
+    after = system_devices()
+    problems += [f"{name} is no longer the device it was" for name, ok in after.items()
+                 if devices[name] and not ok]
     print("\n".join(["problems:"] + problems) if problems else "every scenario passed")
     return 1 if problems else 0
 

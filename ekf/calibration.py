@@ -116,6 +116,20 @@ class CalibrationResult:
     def sensor(self, name: str) -> SensorStatistics | None:
         return getattr(self, name)
 
+    def constant_axes(self) -> list[tuple[str, str, float]]:
+        """(sensor, axis, value) of every axis whose samples all hold one value: no noise to
+        measure (a zero variance, a covariance no filter accepts, NaN normality statistics)."""
+        out = []
+        for name in REPORT_ORDER:
+            stats = self.sensor(name)
+            if stats is None:
+                continue
+            for k, axis in enumerate(AXES):
+                column = stats.samples[:, k]
+                if column.min() == column.max():
+                    out.append((name, axis, float(column[0])))
+        return out
+
     def histograms(self, bins: int = 40, pdf_points: int = 200) -> dict[str, list[Histogram]]:
         """Per available sensor ("acc", "gyr", "mag"), one :class:`Histogram` per axis x, y, z."""
         out: dict[str, list[Histogram]] = {}

@@ -350,7 +350,10 @@ def read_json(path: str | Path, limit: int = MAX_FILE_BYTES) -> Any:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as error:
         raise ValueError(f"not UTF-8 text (byte {error.start})") from None
-    return json.loads(text)
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise ValueError("JSON nested too deeply to be a settings or session file") from None
 
 
 COURSE = EKFSettings()

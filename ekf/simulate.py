@@ -20,6 +20,7 @@ determined by the seed.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -50,6 +51,14 @@ EARTH_FIELD_UT = (0.0, 15.5, -48.0)
 """m0 [uT] in ENU, roughly Linköping: no east component, north and (downward) vertical."""
 
 SCRIPTS = ("standard", "rest")
+
+MAX_RATE_HZ = 1000.0
+"""The highest rate a sensor may have: time stamps are whole milliseconds."""
+
+MAX_SAMPLES = 20_000_000
+"""The most samples (all sensors together) a session may have: about 16 h at the default
+rates. The session is computed in memory (about 120 bytes a sample), so a request beyond it is
+refused before anything is allocated."""
 
 
 @dataclass(frozen=True)
@@ -384,6 +393,35 @@ def _with_defaults(defaults: Mapping[str, Any], given: Mapping[str, Any] | None,
     return out
 
 
+def _check_arguments(duration_s: float, rates: Mapping[str, float], seed: Any, g: float) -> None:
+    """ValueError, before anything is allocated, for a duration or g that is not a finite
+    number > 0, a seed that is not a whole number >= 0, a rate that is not a number from 0 to
+    MAX_RATE_HZ or a session of more than MAX_SAMPLES samples."""
+    if not 0 < duration_s < math.inf:
+        raise ValueError(f"duration {duration_s:g} s: must be a finite number > 0")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed {seed!r}: must be a whole number >= 0")
+    if not 0 < g < math.inf:
+        raise ValueError(f"g {g:g}: must be a finite number > 0")
+    for sensor, rate in rates.items():
+        if not 0 <= rate <= MAX_RATE_HZ:
+            raise ValueError(f"{sensor} rate {rate:g} Hz: must be from 0 to {MAX_RATE_HZ:g} Hz "
+                             "(time stamps are whole milliseconds)")
+    per_second = sum(rates.values())
+    if duration_s * per_second > MAX_SAMPLES:
+        raise ValueError(f"{duration_s:g} s at {per_second:g} samples/s is "
+                         f"{duration_s * per_second:.3g} samples, more than the "
+                         f"{MAX_SAMPLES:,} a session may have (about "
+                         f"{MAX_SAMPLES / per_second / 3600:.3g} h at these rates)")
+
+
+def _finite_vector(value: ArrayLike, name: str) -> np.ndarray:
+    vector = np.asarray(value, dtype=float).reshape(3)
+    if not np.isfinite(vector).all():
+        raise ValueError(f"{name} {tuple(float(v) for v in vector)}: must be finite numbers")
+    return vector
+
+
 def _intervals_ms(intervals: list[tuple[float, float]], duration_s: float,
                   t0_ms: int) -> np.ndarray:
     """Script intervals [s] as phone-time rows (start_ms, end_ms), cut at the session's end."""
@@ -440,16 +478,15 @@ def simulate(
         east.
     g, m0: gravity magnitude [m/s^2] and Earth field (3,) in ENU [uT].
     """
-    if not duration_s > 0:
-        raise ValueError("duration_s must be positive")
     if script not in SCRIPTS:
         raise ValueError(f"unknown script {script!r}; choose one of {', '.join(SCRIPTS)}")
     rates = _with_defaults(DEFAULT_RATES_HZ, {k: float(v) for k, v in (rates_hz or {}).items()},
                            "rates_hz")
+    _check_arguments(duration_s, rates, seed, g)
     noise_spec = _with_defaults(DEFAULT_NOISE_STD, noise, "noise")
     chol = {k: _noise_cholesky(v) for k, v in noise_spec.items()}
-    bias = np.asarray(gyro_bias, dtype=float).reshape(3)
-    m0 = np.asarray(m0, dtype=float).reshape(3)
+    bias = _finite_vector(gyro_bias, "gyro_bias")
+    m0 = _finite_vector(m0, "m0")
     g0 = np.array([0.0, 0.0, float(g)])
     q_initial = normalize(from_euler(np.deg2rad(30.0), 0.0, 0.0) if initial_quat is None
                           else np.asarray(initial_quat, dtype=float))

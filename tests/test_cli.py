@@ -202,11 +202,3 @@ def test_filter_into_a_pipe_closed_early_ends_quietly(tmp_path):
     assert process.returncode == 0, err
     assert b"error" not in err and b"Traceback" not in err
 
-
-def test_simulate_never_replaces_a_file_unless_asked(tmp_path, capsys):
-    log = tmp_path / "sim.txt"
-    log.write_text("mine\n")
-    assert cli.main(["simulate", "-o", str(log), "--duration", "2"]) == 2
-    assert "exists already" in capsys.readouterr().err and log.read_text() == "mine\n"
-    assert cli.main(["simulate", "-o", str(log), "--duration", "2", "--force"]) == 0
-    assert "ACC" in log.read_text()

@@ -8,25 +8,31 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import ekf
+from ekf.calibration import CalibrationResult
 from app.cli import options
-from app.cli.offline import intervals_of, read_log, warn_absent
+from app.cli.offline import FiniteCheck, intervals_of, read_log, warn_absent
 from app.engine import config, profiles, tuning
 from app.engine.calibration import RestCalibration, mag_from_log, rest_from_log
-from app.engine.outputs import atomic_output, check_output
-from app.engine.refilter import PreparedLog
+from app.engine.outputs import check_output, write_output
+from app.engine.refilter import PreparedLog, refilter
 
 
 def _write_json(path: str, payload: dict[str, Any], *inputs: str | None) -> None:
+    """The settings file, written only when `--settings` would accept what it holds."""
     check_output(path, *inputs)
+    text = json.dumps(profiles._jsonable(payload), indent=2) + "\n"
     try:
-        with atomic_output(path, "w", encoding="utf-8") as stream:
-            stream.write(json.dumps(profiles._jsonable(payload), indent=2) + "\n")
-    except OSError as error:
-        raise config.ConfigError(f"cannot write {path}: {error.strerror or error}") from None
+        ekf.EKFSettings.from_file_value(json.loads(text))
+    except ValueError as error:
+        raise config.ConfigError(f"not written to {path}: the settings would be refused: "
+                                 f"{error}") from None
+    write_output(path, text)
     print(f"settings written to {path}")
 
 
@@ -95,20 +101,50 @@ def _print_rest(rest: RestCalibration, t0: float) -> None:
         print(rest.allan.format_table())
 
 
+def _measured(make: Callable[[], ekf.EKFSettings]) -> ekf.EKFSettings:
+    """The settings made from measured values, or a one-line ConfigError when the filter would
+    refuse them (a value outside its setting's declaration)."""
+    try:
+        return make()
+    except ValueError as error:
+        raise config.ConfigError(f"nothing written: the measured values are no settings the "
+                                 f"filter accepts: {error}") from None
+
+
+def _refuse_constant(result: CalibrationResult) -> None:
+    """ConfigError (one line) when a sensor axis holds one value over the whole interval: it
+    has no noise to measure, so its statistics (and a covariance from them) mean nothing."""
+    constant = result.constant_axes()
+    if constant:
+        names = ", ".join(f"{sensor} {axis}" for sensor, axis, _ in constant)
+        sensor, axis, value = constant[0]
+        raise config.ConfigError(
+            f"calibrate: {names} {'is' if len(constant) == 1 else 'are'} constant over the "
+            f"interval ({sensor} {axis} = {value:g} in every sample): a reading that never "
+            "changes has no noise to measure (a stuck axis, or data not from a sensor)")
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
     _plots_folder(args.plots)
     if args.output:
         check_output(args.output, args.log)
     log = read_log(args.log, args.limits)
     start, end = args.range if args.range else (None, None)
-    rest = rest_from_log(log, start, None if end == float("inf") else end, whole=args.whole)
-    _print_rest(rest, float(log.to_arrays().t_s[0]))
+    with warnings.catch_warnings(record=True) as caught:     # kept until the data is checked
+        warnings.simplefilter("always")
+        rest = rest_from_log(log, start, None if end == float("inf") else end, whole=args.whole)
     result = rest.analysis.result
+    _refuse_constant(result)
+    for warning in caught:
+        warnings.warn_explicit(warning.message, warning.category, warning.filename,
+                               warning.lineno)
+    _print_rest(rest, float(log.to_arrays().t_s[0]))
     calibration = {"rest": result.to_dict(), "analysis": rest.analysis.to_dict(),
                    "allan": rest.allan.to_dict() if rest.allan else None}
     if args.output:
         base = config.load_settings(args.settings) or ekf.PRESETS["default"]
-        _write_json(args.output, {"settings": result.to_settings(base).to_dict(),
+        settings = _measured(lambda: result.to_settings(base))
+        _write_json(args.output, {"settings": settings.to_dict(),
                                   "calibration": calibration, "source": str(args.log)},
                     args.log)
     if args.profile:
@@ -132,7 +168,7 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
     print(result.format_report())
     if args.output:
         base = config.load_settings(args.settings) or ekf.PRESETS["default"]
-        settings = base.with_changes(**result.settings_changes())
+        settings = _measured(lambda: base.with_changes(**result.settings_changes()))
         _write_json(args.output, {"settings": settings.to_dict(),
                                   "calibration": {"mag": result.to_dict()},
                                   "source": str(args.log)}, args.log)
@@ -145,7 +181,14 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
 
 # ---- tune -----------------------------------------------------------------------------------------
 
-def _range_ms(prepared: PreparedLog, span: tuple[float, float]) -> list[list[float]]:
+def _range_ms(prepared: PreparedLog, span: tuple[float, float],
+              flag: str = "--range") -> list[list[float]]:
+    """A START:END range in seconds as phone-time ms; ConfigError when it starts at or after
+    the log's end."""
+    if span[0] >= prepared.duration_s:
+        end = "" if span[1] == float("inf") else f"{span[1]:g}"
+        raise config.ConfigError(f"tune: {flag} {span[0]:g}:{end} starts after the log's end "
+                                 f"({prepared.duration_s:.1f} s)")
     start = prepared.start_ms
     hi = min(span[1], prepared.duration_s)
     return [[start + span[0] * 1000.0, start + hi * 1000.0]]
@@ -166,7 +209,7 @@ def _targets(args: argparse.Namespace, prepared: PreparedLog) -> tuple[tuning.Ta
         check_ms = config.read_intervals(args.check_intervals)
         check_label = check_label or f"intervals {Path(args.check_intervals).name}"
     elif args.check_range:
-        check_ms = _range_ms(check_prepared, args.check_range)
+        check_ms = _range_ms(check_prepared, args.check_range, "--check-range")
         check_label = check_label or "range %g:%g s" % args.check_range
     elif args.check_log:
         check_ms = None
@@ -180,6 +223,20 @@ def _targets(args: argparse.Namespace, prepared: PreparedLog) -> tuple[tuning.Ta
             tuning.Target(check_prepared, check_ms, args.skip, check_label))
 
 
+def _check_computable(prepared: PreparedLog, result: tuning.TuneResult, estimator: str,
+                      sensors: tuple[str, ...]) -> None:
+    """ConfigError (one line) when the best settings found give an estimate that is not finite
+    somewhere in the log: `filter` would refuse them, so they are neither written nor kept."""
+    rows = refilter(prepared, result.best, estimator, sensors).rows
+    rows = rows.select(rows.has_sample)
+    try:
+        FiniteCheck(estimator, result.best).check(rows.quat, rows.t_ms)
+    except config.ConfigError as error:
+        ranges = ", ".join(f"{p.name}={p.low:g}:{p.high:g}" for p in result.parameters)
+        raise config.ConfigError(f"tune: nothing written: {error} (searched {ranges}; narrow "
+                                 "--params)") from None
+
+
 def cmd_tune(args: argparse.Namespace) -> int:
     sensors = config.sensor_list(args.sensors)
     names = config.estimator_names(args.estimator)
@@ -187,6 +244,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
         raise config.ConfigError("tune: give one EKF --estimator (ekf or course)")
     base = config.load_settings(args.settings) or ekf.PRESETS["default"]
     parameters = tuning.parse_parameters(args.params, base)
+    if args.output:                                  # before the search, not after it
+        check_output(args.output, args.log, args.check_log)
     log = read_log(args.log, args.limits)
     prepared = PreparedLog.from_log(log)
     if len(prepared.ori_times) == 0:
@@ -202,6 +261,11 @@ def cmd_tune(args: argparse.Namespace) -> int:
         print(f"orientation-lab: not tuning {names_left}: the filter runs without "
               f"{'its sensor' if len(left_alone) == 1 else 'their sensors'}", file=sys.stderr)
     target, check = _targets(args, prepared)
+    for where, chosen in (("the tuning range", target), ("the check range", check)):
+        if chosen is not None and not chosen.evaluate(base, names[0], sensors).samples:
+            raise config.ConfigError(f"tune: no ORI reference sample to score in {where} "
+                                     f"({chosen.label or 'whole log'}"
+                                     f"{f', after --skip {args.skip:g} s' if args.skip else ''})")
     print(f"tuning {', '.join(p.name for p in parameters)} on {args.log} "
           f"({target.label or 'whole log'}), at most {args.max_evals} runs ...", flush=True)
     try:
@@ -210,6 +274,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     except ValueError as error:
         raise config.ConfigError(f"tune: {error}") from None
     print(result.format_report())
+    _check_computable(prepared, result, names[0], sensors)
     payload = {"settings": result.best.to_dict(), "tuning": result.to_dict(),
                "source": str(args.log)}
     if args.output:

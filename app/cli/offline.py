@@ -25,17 +25,18 @@ from pathlib import Path
 import numpy as np
 
 import ekf
-from ekf.simulate import simulate
+from ekf.metrics import intervals_mask
+from ekf.simulate import MAX_RATE_HZ, simulate
 from app.cli import options
 from app.engine import config, estimates
 from app.engine.offline import (LogScan, evaluate_log, evaluate_phone, filter_rows, scan_log,
                                 sibling_truth)
-from app.engine.outputs import atomic_output, check_output
+from app.engine.outputs import check_output, open_output
 from app.engine.session import read_session, session_json_for
 from app.engine.userfilter.filter import UserFilterEstimator
 from app.engine.userfilter.matlab_template import write_matlab_template
 from app.engine.userfilter.template import write_template
-from app.stream.demo import write_session
+from app.stream.demo import write_session_to
 from app.stream.lines import LogError
 from app.stream.logfile import LogData, LogFile, LogStats
 
@@ -300,9 +301,9 @@ def _filter_with(args: argparse.Namespace, names: list[str], settings, which: st
     finite = None if isinstance(estimator, UserFilterEstimator) else FiniteCheck(
         names[0], settings or ekf.PRESETS["default"])
     # The rows are written as they come, to the output's temporary file (or, for stdout, a
-    # spooled one): nothing is written when the run fails on the way.
+    # spooled one): a file is not written when the run fails on the way.
     try:
-        with (atomic_output(args.output, "w", encoding="ascii", newline="\n") if args.output
+        with (open_output(args.output, "w", encoding="ascii", newline="\n") if args.output
               else tempfile.SpooledTemporaryFile(1 << 23, "w+", encoding="ascii",
                                                  newline="\n")) as stream:
             stream.write(estimates.HEADER + "\n")
@@ -364,6 +365,34 @@ def _row(name: str, s, width: int = 16) -> str:
             f"{s.inclination_rmse_deg:>11.2f}")
 
 
+def _reference_times(log: LogScan, truth: LogScan | None) -> np.ndarray:
+    """The times [ms] of the reference orientations (the truth's, else the log's ORI) that
+    are finite."""
+    reference = truth if truth is not None else log
+    if reference.ori_t_ms is None:
+        return np.empty(0)
+    return reference.ori_t_ms[np.isfinite(reference.ori_quat[:, 0])].astype(float)
+
+
+def _references(log: LogScan, truth: LogScan | None, intervals: list | None,
+                skip_s: float) -> int:
+    """How many reference orientations lie in the intervals and after the skip (counted from
+    the log's first GYR/ACC/MAG sample)."""
+    t_ms = _reference_times(log, truth)
+    if not len(t_ms):
+        return 0
+    first = float(log.first_sensor_ms) if log.first_sensor_ms is not None else t_ms[0]
+    scored = intervals_mask(t_ms, intervals) & (t_ms >= first + skip_s * 1000.0)
+    return int(scored.sum())
+
+
+def _nothing_to_score(log: LogScan, truth: LogScan | None, where: str, skip: str) -> str:
+    t_ms = _reference_times(log, truth)
+    span = (f"its reference runs {(t_ms[-1] - t_ms[0]) / 1000.0:.1f} s, phone time "
+            f"{int(t_ms[0])} to {int(t_ms[-1])} ms") if len(t_ms) else "no reference sample"
+    return f"evaluate: no reference sample to score in the {where}{skip} ({span})"
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     estimators: list = []
     try:
@@ -404,13 +433,20 @@ def _evaluate(args: argparse.Namespace, estimators: list) -> int:
                 print(f"{label:<{width}}{'stopped: see above':>20}", flush=True)
                 status = 1
                 continue
-            if not isinstance(estimator, UserFilterEstimator) and s.samples and not (
-                    math.isfinite(s.total_rmse_deg)):
-                raise config.ConfigError(f"the {label} estimate is not finite: the settings "
-                                         "are beyond what the filter can compute")
+            if not s.samples and not _references(found, truth, intervals, args.skip):
+                raise config.ConfigError(_nothing_to_score(found, truth, where, skip))
+            builtin = not isinstance(estimator, UserFilterEstimator)
+            if not s.samples or (builtin and not math.isfinite(s.total_rmse_deg)):
+                raise config.ConfigError(
+                    f"the {label} estimate is not finite where it is scored"
+                    + (": the settings are beyond what the filter can compute" if builtin
+                       else ""))
             print(_row(label, s, width), flush=True)
         if truth is not None:
-            print(_row("phone (ORI)", evaluate_phone(found, truth, intervals, args.skip), width))
+            phone = evaluate_phone(found, truth, intervals, args.skip)
+            if not phone.samples:
+                raise config.ConfigError(_nothing_to_score(found, truth, where, skip))
+            print(_row("phone (ORI)", phone, width))
     except ValueError as error:
         raise config.ConfigError(f"evaluate: {error}") from None
     return status
@@ -419,19 +455,27 @@ def _evaluate(args: argparse.Namespace, estimators: list) -> int:
 # ---- simulate -----------------------------------------------------------------------------------
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    if Path(args.output).exists() and not args.force:
-        raise config.ConfigError(f"{args.output} exists already; not overwritten (--force "
-                                 "replaces it)")
+    if args.force:
+        print("orientation-lab: note: --force is no longer needed: -o replaces an output file "
+              "(it is accepted and ignored)", file=sys.stderr)
     check_output(args.output)
     rates = {"gyr": args.rate, "acc": args.rate, "mag": args.mag_rate or args.rate / 2,
              "ori": args.rate}
-    session = simulate(duration_s=args.duration, rates_hz=rates, seed=args.seed,
-                       gyro_bias=tuple(args.gyro_bias))
+    for option, rate in (("--rate", args.rate), ("--mag-rate", rates["mag"])):
+        if rate > MAX_RATE_HZ:
+            raise config.ConfigError(f"simulate: {option} {rate:g} Hz: at most "
+                                     f"{MAX_RATE_HZ:g} Hz (time stamps are whole milliseconds)")
+        if rate * args.duration < 2:
+            raise config.ConfigError(f"simulate: {option} {rate:g} Hz gives fewer than 2 samples "
+                                     f"in {args.duration:g} s; give at least "
+                                     f"{2 / args.duration:.3g} Hz or a longer --duration")
     try:
-        write_session(session, args.output)   # float32 text like the phone's; .gz compresses
-    except OSError as error:
-        raise config.ConfigError(f"cannot write {args.output}: {error.strerror or error}") \
-            from None
+        session = simulate(duration_s=args.duration, rates_hz=rates, seed=args.seed,
+                           gyro_bias=tuple(args.gyro_bias))
+    except ValueError as error:
+        raise config.ConfigError(f"simulate: {error}") from None
+    with open_output(args.output, "wb") as stream:    # float32 text like the phone's
+        write_session_to(session, stream, compress=str(args.output).endswith(".gz"))
     return 0
 
 
@@ -513,12 +557,13 @@ def add_commands(sub) -> None:
                                         "orientation")
     s.add_argument("-o", "--output", required=True, metavar="LOG")
     s.add_argument("--duration", type=options.POSITIVE, default=120.0, metavar="S")
-    s.add_argument("--seed", type=int, default=0, metavar="N")
+    s.add_argument("--seed", type=options.SEED, default=0, metavar="N",
+                   help="random seed, a whole number >= 0 (default 0)")
     s.add_argument("--rate", type=options.POSITIVE, default=100.0, metavar="HZ",
-                   help="GYR/ACC/ORI rate (default 100)")
+                   help="GYR/ACC/ORI rate, at most 1000 (default 100)")
     s.add_argument("--mag-rate", type=options.POSITIVE, default=None, metavar="HZ",
-                   help="MAG rate (default rate/2)")
-    s.add_argument("--gyro-bias", type=float, nargs=3, default=(0.0, 0.0, 0.0),
+                   help="MAG rate, at most 1000 (default rate/2)")
+    s.add_argument("--gyro-bias", type=options.FINITE, nargs=3, default=(0.0, 0.0, 0.0),
                    metavar=("BX", "BY", "BZ"), help="gyroscope bias, rad/s")
-    s.add_argument("--force", action="store_true", help="replace LOG when it exists")
+    s.add_argument("--force", action="store_true", help=argparse.SUPPRESS)
     s.set_defaults(func=cmd_simulate)

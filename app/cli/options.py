@@ -9,6 +9,8 @@ rules).
 from __future__ import annotations
 
 import argparse
+import math
+import re
 from collections.abc import Callable
 from typing import Any
 
@@ -26,12 +28,13 @@ class Parser(argparse.ArgumentParser):
 
 
 def _checked(check: Callable[[str], Any]) -> Callable[[str], Any]:
-    """An argparse type from a config check (ConfigError -> argparse's one-line error)."""
+    """An argparse type from a config check (ConfigError -> argparse's one-line error, which
+    names the option itself: a check's own "--option: " prefix is left out)."""
     def convert(text: str) -> Any:
         try:
             return check(text)
         except config.ConfigError as error:
-            raise argparse.ArgumentTypeError(str(error)) from None
+            raise argparse.ArgumentTypeError(re.sub(r"^--[\w-]+: ", "", str(error))) from None
     convert.__name__ = check.__name__
     return convert
 
@@ -53,6 +56,26 @@ def positive(text: str) -> float:
     return value
 
 
+def finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise config.ConfigError(f"not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise config.ConfigError(f"expected a finite number, got {text}")
+    return value
+
+
+def seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise config.ConfigError(f"expected a whole number >= 0, got {text!r}") from None
+    if value < 0:
+        raise config.ConfigError(f"expected a whole number >= 0, got {text}")
+    return value
+
+
 def window_size(text: str) -> tuple[int, int]:
     try:
         width, height = (int(part) for part in text.lower().split("x"))
@@ -71,6 +94,8 @@ FORWARD = _checked(config.forward_target)
 SPEED = _checked(config.replay_speed)
 NON_NEGATIVE = _checked(non_negative)
 POSITIVE = _checked(positive)
+FINITE = _checked(finite)
+SEED = _checked(seed)
 ALLOW = _checked(config.allowed_network)
 LIMITS = _checked(config.sensor_limits)
 MEGABYTES = _checked(config.megabytes)

@@ -12,7 +12,7 @@ import threading
 from pathlib import Path
 
 from app.engine import config
-from app.engine.outputs import atomic_output, check_output
+from app.engine.outputs import check_output, open_output
 from app.stream.phyphox_emulator import PhyphoxPhone
 from app.stream.phyphox_experiment import FILE_NAME, experiment_xml, qr_code
 from app.stream.sensor_logger_emulator import PLATFORMS, SensorLoggerPhone, parse_push_url
@@ -24,11 +24,8 @@ APPS = ("sensor-fusion", "phyphox", "sensor-logger")
 
 def _write(path: str, write) -> None:
     check_output(path)
-    try:
-        with atomic_output(path, "wb") as stream:
-            write(stream)
-    except OSError as error:
-        raise config.ConfigError(f"cannot write {path}: {error.strerror or error}") from None
+    with open_output(path, "wb") as stream:
+        write(stream)
 
 
 def cmd_phyphox_experiment(args: argparse.Namespace) -> int:

@@ -221,14 +221,18 @@ def allowed_networks(text: str | Iterable[str] | None) -> tuple[str, ...]:
     return tuple(allowed_network(part) for part in parts if str(part).strip())
 
 
+MAX_MEGABYTES = 1e12          # a million terabytes
+
+
 def megabytes(value: float | str) -> int:
     """A size in MB (>= 0; 0 = no limit) -> bytes."""
     try:
         number = float(value)
     except (TypeError, ValueError):
         raise ConfigError(f"not a size in MB: {value!r}") from None
-    if not 0.0 <= number < math.inf:
-        raise ConfigError(f"expected a size in MB >= 0, got {value}")
+    if not 0.0 <= number <= MAX_MEGABYTES:
+        raise ConfigError(f"expected a size in MB from 0 (no limit) to {MAX_MEGABYTES:.0e}, "
+                          f"got {value}")
     return int(number * 2**20)
 
 
@@ -369,17 +373,34 @@ def open_log(path: str | Path, limits: Limits = DEFAULT_LIMITS) -> LogData:
 
 
 def read_intervals(path: str | Path) -> list[list[float]]:
-    """score_intervals_ms from a JSON file (the shared trials' NAME.json)."""
+    """score_intervals_ms from a JSON file (the shared trials' NAME.json): a non-empty list of
+    [start, end] pairs of finite numbers (phone ms), each ending after it starts."""
     try:
-        data = json.loads(Path(path).read_text())
-        intervals = data["score_intervals_ms"]
-        if not all(len(pair) == 2 for pair in intervals):
-            raise ValueError("score_intervals_ms must be a list of [start, end] pairs")
+        data = read_json(path)
+        intervals = data["score_intervals_ms"] if isinstance(data, dict) else None
+        if not isinstance(intervals, list) or not intervals:
+            raise ValueError("score_intervals_ms must be a non-empty list of [start, end] pairs")
+        for k, pair in enumerate(intervals, 1):
+            _check_interval(k, pair)
     except FileNotFoundError:
         raise ConfigError(f"intervals file not found: {path}") from None
     except (OSError, ValueError, KeyError, TypeError) as error:
-        raise ConfigError(f"bad intervals file {path}: {error}") from None
-    return intervals
+        raise ConfigError(f"bad intervals file {path}: "
+                          f"{getattr(error, 'strerror', None) or error}") from None
+    return [[float(start), float(end)] for start, end in intervals]
+
+
+def _check_interval(k: int, pair: object) -> None:
+    def number(value: object) -> bool:
+        return isinstance(value, (int, float)) and not isinstance(value, bool) \
+            and math.isfinite(value)
+
+    if not (isinstance(pair, list) and len(pair) == 2 and all(number(v) for v in pair)):
+        shown = json.dumps(pair)
+        raise ValueError(f"interval {k} is {shown[:60] + '...' if len(shown) > 60 else shown}: "
+                         "expected [start, end], two finite numbers (phone ms)")
+    if not pair[0] < pair[1]:
+        raise ValueError(f"interval {k} [{pair[0]:g}, {pair[1]:g}] ends before it starts")
 
 
 # ---- the source --------------------------------------------------------------------------------

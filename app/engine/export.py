@@ -43,7 +43,7 @@ import ekf
 from app.engine import config
 from app.engine.config import ConfigError
 from app.engine.matfile import MatStructs, check_size
-from app.engine.outputs import atomic_output, check_output
+from app.engine.outputs import check_output, open_output
 from app.engine.configuration import Config, Setup, recorded_setup
 from app.engine.pipeline import Pipeline
 from app.engine.runner import SENSORS, EstimatorRunner, Rows
@@ -344,11 +344,18 @@ def time_range(data: SessionData | SessionSpan, from_marker: str | None = None,
     if to_s is not None:
         end = float(to_s)
     if end < start:
-        raise ConfigError(f"the range ends ({end:.3f} s) before it starts ({start:.3f} s)")
+        raise ConfigError(f"the range ends ({_seconds(end)}) before it starts "
+                          f"({_seconds(start)})")
     if len(data) and not ((data.t_s >= start - 1e-9) & (data.t_s <= end + 1e-9)).any():
-        raise ConfigError(f"no samples from {start:.3f} s to {end:.3f} s: the session runs "
-                          f"from {float(data.t_s[0]):.3f} s to {float(data.t_s[-1]):.3f} s")
+        raise ConfigError(f"no samples from {_seconds(start)} to {_seconds(end)}: the session "
+                          f"runs from {_seconds(float(data.t_s[0]))} to "
+                          f"{_seconds(float(data.t_s[-1]))}")
     return start, end
+
+
+def _seconds(value: float) -> str:
+    """"12.345 s"; a time far beyond any session in three significant digits ("1e+308 s")."""
+    return f"{value:.3f} s" if abs(value) < 1e7 else f"{value:.3g} s"
 
 
 # ---- writers -----------------------------------------------------------------------------------
@@ -395,7 +402,7 @@ def write_csv(pieces: Iterator[SessionData], out: Path, start: float, end: float
               separator: str = ",", decimal_comma: bool = False) -> int:
     """Rows of the range as CSV, piece by piece; returns the row count."""
     count = 0
-    with atomic_output(out, "w", encoding="ascii", newline="\n") as stream:
+    with open_output(out, "w", encoding="ascii", newline="\n") as stream:
         stream.write(csv_header(separator) + "\n")
         for data in pieces:
             text, rows = csv_text(data, start, end, separator, decimal_comma)
@@ -409,7 +416,7 @@ def write_log(opened: OpenedSession, out: Path, start: float, end: float) -> int
     verbatim, block by block; returns the line count."""
     pacer = Pacer()
     count = 0
-    with atomic_output(out, "wb") as stream:
+    with open_output(out, "wb") as stream:
         for block in opened.blocks():
             starts = line_starts(block)
             pace = pacer.times(block, starts)
@@ -429,7 +436,7 @@ def write_mat(pieces: Iterator[SessionData], out: Path, start: float, end: float
             mat.append({"meas": {"t": part.t_s, "acc": part.acc, "gyr": part.gyr,
                                  "mag": part.mag, "orient": part.ori},
                         "xhat": {"t": part.t_s, "x": part.quat, "P": cov}})
-        with atomic_output(out, "wb") as stream:
+        with open_output(out, "wb") as stream:
             mat.write(stream)
         return mat.columns
 
@@ -450,8 +457,6 @@ def export_session(path: str | Path, fmt: str, out: str | Path,
     if fmt == "csv" and decimal_comma and sep == ",":
         raise ConfigError("a decimal comma needs another separator: semicolon or tab")
     out = check_output(out, path)
-    if out.is_dir():
-        raise ConfigError(f"{out}: is a folder; give a file name to write")
     opened = open_session(path)
     span = session_span(opened)
     if not len(span):
@@ -475,4 +480,5 @@ def export_session(path: str | Path, fmt: str, out: str | Path,
             what = f"{count} samples (meas, xhat)"
     except OSError as error:
         raise ConfigError(f"cannot write {out}: {error.strerror or error}") from None
-    return f"{out}: {what} from {start:.1f} s to {end:.1f} s"
+    last = float(span.t_s[-1]) if len(span) else end
+    return f"{out}: {what} from {start:.1f} s to {min(end, last):.1f} s"

@@ -159,6 +159,13 @@ def _bounds(name: str, text: str, base: ekf.EKFSettings) -> tuple[float, float]:
         low, high = value / 10.0, value * 10.0
     if not (math.isfinite(low) and math.isfinite(high) and low < high):
         raise ConfigError(f"--params: {name}: bad range {low:g}:{high:g}")
+    for end in (low, high):        # both ends are values the setting's declaration allows
+        try:
+            with np.errstate(over="ignore", invalid="ignore"):
+                Parameter(name, low, high).apply(base, end)
+        except ValueError as error:
+            raise ConfigError(f"--params {name}={low:g}:{high:g}: {end:g} is not allowed "
+                              f"({error})") from None
     return low, high
 
 

@@ -8,11 +8,12 @@ Regenerate it with ``python -m app.stream.demo``.
 
 from __future__ import annotations
 
+import contextlib
 import gzip
-import io
 import sys
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -28,34 +29,55 @@ DEMO_GYRO_BIAS = (0.003, -0.002, 0.004)
 the demo) while the filters hold."""
 
 
-def session_lines(session: SimulatedSession) -> Iterator[str]:
+def session_lines(session: SimulatedSession, chunk: int = 1 << 16) -> Iterator[str]:
     """A simulated session's phone lines (without LF), in time order, ties GYR, ACC, MAG, ORI.
 
     Values are rounded to float32 first, as the phone sends them, and handed to the formatter as
     the float64 of the float32's shortest digits (what parsing the phone's text gives), so the
-    text has the phone's digits (``9.784376``, not ``9.78437614440918``).
+    text has the phone's digits (``9.784376``, not ``9.78437614440918``). Made `chunk` lines
+    at a time, so a long session never has all its lines in memory at once.
     """
     t_ms, sensor, row = session.merged_order()
-    values32 = [[[float(str(v)) for v in values]
-                 for values in session.series(tag).values.astype(np.float32)]
-                for tag in SENSOR_TAGS]
-    for t, s, r in zip(t_ms.tolist(), sensor.tolist(), row.tolist()):
-        yield format_line(Sample(t, SENSOR_TAGS[s], tuple(values32[s][r])))
+    values32 = [session.series(tag).values.astype(np.float32) for tag in SENSOR_TAGS]
+    for start in range(0, len(t_ms), chunk):
+        times = t_ms[start:start + chunk].tolist()
+        sensors = sensor[start:start + chunk]
+        rows = row[start:start + chunk]
+        texts, firsts = [], []
+        for code, values in enumerate(values32):
+            mine = rows[sensors == code]
+            first = int(mine[0]) if len(mine) else 0
+            last = int(mine[-1]) + 1 if len(mine) else 0
+            texts.append([[float(str(v)) for v in vector] for vector in values[first:last]])
+            firsts.append(first)
+        for t, s, r in zip(times, sensors.tolist(), rows.tolist()):
+            yield format_line(Sample(t, SENSOR_TAGS[s], tuple(texts[s][r - firsts[s]])))
+
+
+def write_session_to(session: SimulatedSession, stream: BinaryIO, compress: bool = False) -> None:
+    """Write a simulated session's phone lines (LF line ends, only known tags, no header: the
+    course's MATLAB reader accepts it) to a binary stream, gzipped reproducibly when
+    `compress` (no time stamp or name in the header, so equal sessions give identical bytes)."""
+    target = (gzip.GzipFile(filename="", mode="wb", fileobj=stream, mtime=0, compresslevel=9)
+              if compress else contextlib.nullcontext(stream))
+    with target as out:
+        batch: list[str] = []
+        for line in session_lines(session):
+            batch.append(line)
+            if len(batch) == 4096:
+                out.write(("\n".join(batch) + "\n").encode("ascii"))
+                batch.clear()
+        if batch:
+            out.write(("\n".join(batch) + "\n").encode("ascii"))
 
 
 def write_session(session: SimulatedSession, path: str | Path) -> Path:
-    """Write a simulated session as a phone log (LF line ends, only known tags, no header: the
-    course's MATLAB reader accepts it). A path ending in ``.gz`` is gzipped reproducibly (no time
-    stamp or name in the header, so equal sessions give identical bytes). Returns the path."""
+    """Write a simulated session as a phone log (see :func:`write_session_to`), gzipped when
+    the path ends in ``.gz``; its folder is made when missing. Returns the path."""
     path = Path(path)
-    data = "".join(line + "\n" for line in session_lines(session)).encode("ascii")
-    if path.suffix == ".gz":
-        buffer = io.BytesIO()
-        with gzip.GzipFile(filename="", mode="wb", fileobj=buffer, mtime=0, compresslevel=9) as gz:
-            gz.write(data)
-        data = buffer.getvalue()
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(data)
+    with open(path, "wb") as stream:
+        write_session_to(session, stream, compress=path.suffix == ".gz")
     return path
 
 

@@ -34,7 +34,13 @@ through untouched (RSSWIFI/GPS may carry epoch ms and never reach a filter's dt)
 - A jump of a tag's own clock by more than ``gap_ms`` (forward: a pause; backward beyond the
   horizon: a reboot or another phone) or a :meth:`restart` call (reconnect) starts a new
   segment: pending samples are released, alignment is learned again (within one stream the
-  reference tag keeps its offset). A segment whose clock continues the previous one's (later
+  reference tag keeps its offset). A jump is held (the samples wait beside the buffer) until
+  it is confirmed: another tag jumps to within ``gap_ms`` of it, the tag's own samples stay on
+  the new clock for more than ``gap_ms``, no other tag is seen in the segment, or the hold is
+  full. When the tag's next sample continues its old clock instead, the held samples were bad
+  time stamps (a sample at t = 0, a burst a year ahead): they are dropped and counted in
+  ``stats.out_of_order``, and nothing else changes (no new segment, no clock quirk). Held
+  samples still unconfirmed at the end of a stream are dropped too. A segment whose clock continues the previous one's (later
   than the last released time, by at most ``session_gap_ms``) continues its time axis: the
   filters keep their orientation. One that starts before the last released time (another
   phone, a reboot, an earlier connection's fake clock) or much later starts a new *session*:
@@ -54,7 +60,8 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from app.stream.ordering_kernels import (K, K_COLUMNS, PARAMETERS, S, flush_all, new_segment,
+from app.stream.ordering_kernels import (K, K_COLUMNS, PARAMETERS, S, SUSPECT_COLUMNS, U,
+                                         clear_suspects, flush_all, new_segment,
                                          oldest_pending_sequence, push_run)
 from app.stream.ordering_reference import (_MAX_QUIRKS, OrderOptions, OrderStats,
                                            ReferenceTimeOrderer, _append_bounded,
@@ -119,6 +126,8 @@ class TimeOrderer:
         capacity = self.max_pending + 2
         self._keys = np.zeros((capacity, K_COLUMNS), np.int64)
         self._values = np.zeros((capacity, MAX_WIDTH))
+        self._suspects = np.zeros((capacity, len(SUSPECT_COLUMNS)), np.int64)
+        self._suspect_values = np.zeros((capacity, MAX_WIDTH))
         self._payloads: dict[int, Sample] = {}     # Sample face: payload id -> Sample
         self._next_payload = 0
 
@@ -135,13 +144,25 @@ class TimeOrderer:
         if payload is None:
             payload = np.full(n, -1, np.int64)
         state = self._state
-        out_keys = np.empty((n + int(state[S.heap_n]), K_COLUMNS), np.int64)
-        out_values = np.empty((len(out_keys), MAX_WIDTH))
-        n_out, index = 0, 0
+        capacity = n + int(state[S.heap_n]) + int(state[S.suspects])
+        out_keys = np.empty((capacity, K_COLUMNS), np.int64)
+        out_values = np.empty((capacity, MAX_WIDTH))
+        n_out, index, counted = 0, 0, 0
         session_starts: list[int] = []
         while True:
-            n_out, index = push_run(state, self._keys, self._values, t_ms, tag, values,
-                                     payload, index, self._params, out_keys, out_values, n_out)
+            n_out, index, held = push_run(state, self._keys, self._values, self._suspects,
+                                          self._suspect_values, t_ms, tag, values, payload,
+                                          index, counted, self._params, out_keys, out_values,
+                                          n_out)
+            if held:
+                # a confirmed jump: the held samples start the new segment, then the rest
+                suspects = self._suspects[:held]
+                t_ms = np.concatenate([suspects[:, U.raw], t_ms[index:]])
+                tag = np.concatenate([suspects[:, U.tag], tag[index:]])
+                payload = np.concatenate([suspects[:, U.payload], payload[index:]])
+                values = np.concatenate([self._suspect_values[:held], values[index:]])
+                n, index, counted = len(t_ms), 0, held
+                continue
             if index >= n:
                 break
             self._sync_segment()
@@ -152,7 +173,10 @@ class TimeOrderer:
         return OrderedArrays.from_keys(out_keys, out_values, n_out, session_starts)
 
     def flush_arrays(self) -> OrderedArrays:
-        """Release everything pending (end of stream). The segment stays open."""
+        """Release everything pending (end of stream). The segment stays open; samples whose
+        jump no other sample confirmed are dropped (counted)."""
+        self._state[S.out_of_order] += self._state[S.suspects]
+        clear_suspects(self._state)
         count = int(self._state[S.heap_n])
         out_keys = np.empty((count, K_COLUMNS), np.int64)
         out_values = np.empty((count, MAX_WIDTH))
@@ -172,8 +196,10 @@ class TimeOrderer:
 
     @property
     def oldest_pending_sequence(self) -> int:
-        """The push sequence number of the oldest sample still held (next one when none):
-        every sample pushed before it has been released or dropped."""
+        """The push sequence number of the oldest sample still in the reorder buffer (the
+        next one when none): every sample that entered the buffer before it has been released.
+        (A sample held because its own clock jumped enters the buffer once the jump is
+        confirmed.)"""
         return int(oldest_pending_sequence(self._state, self._keys))
 
     @property
@@ -186,20 +212,29 @@ class TimeOrderer:
         clock offsets), to continue later from exactly here with :meth:`restore` (a replay's
         checkpoints). Statistics are not part of it."""
         held = int(self._state[S.heap_n])
+        suspects = int(self._state[S.suspects])
         return {"state": self._state.copy(), "keys": self._keys[:held].copy(),
-                "values": self._values[:held].copy(), "segment_id": self._segment_id,
-                "offsets": dict(self._offsets), "continue_time": self._continue_time}
+                "values": self._values[:held].copy(),
+                "suspects": self._suspects[:suspects].copy(),
+                "suspect_values": self._suspect_values[:suspects].copy(),
+                "segment_id": self._segment_id, "offsets": dict(self._offsets),
+                "continue_time": self._continue_time}
 
     def restore(self, snapshot: dict) -> None:
         """Continue from a :meth:`snapshot` of an orderer with the same parameters (the counters
         in :attr:`stats` follow the restored state)."""
         state = np.asarray(snapshot["state"], np.int64)
         held = len(snapshot["keys"])
-        if state.shape != (S.size,) or held > len(self._keys) or held != state[S.heap_n]:
+        suspects = len(snapshot.get("suspects", ()))
+        if state.shape != (S.size,) or held > len(self._keys) or held != state[S.heap_n] \
+                or suspects > len(self._suspects) or suspects != state[S.suspects]:
             raise ValueError("not a snapshot of this orderer")
         self._state[:] = state
         self._keys[:held] = snapshot["keys"]
         self._values[:held] = snapshot["values"]
+        if suspects:
+            self._suspects[:suspects] = snapshot["suspects"]
+            self._suspect_values[:suspects] = snapshot["suspect_values"]
         self._segment_id = int(snapshot["segment_id"])
         self._offsets = dict(snapshot["offsets"])
         self.stats.offsets_ms = self._offsets
@@ -240,7 +275,7 @@ class TimeOrderer:
 
     @property
     def pending(self) -> int:
-        return int(self._state[S.heap_n])
+        return int(self._state[S.heap_n]) + int(self._state[S.suspects])
 
     @property
     def last_released_ms(self) -> int | None:
@@ -265,7 +300,8 @@ class TimeOrderer:
         if not self.pending:
             self._payloads.clear()
         elif len(self._payloads) > 2 * self.pending + 1024:
-            held = set(self._keys[:self.pending, K.payload].tolist())
+            held = set(self._keys[:int(self._state[S.heap_n]), K.payload].tolist()) | set(
+                self._suspects[:int(self._state[S.suspects]), U.payload].tolist())
             self._payloads = {key: s for key, s in self._payloads.items() if key in held}
         return released
 

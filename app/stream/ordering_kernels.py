@@ -40,6 +40,7 @@ SCALARS: tuple[tuple[str, str], ...] = (
     ("resume", "1: the next sample was counted and its offset just learned"),
     ("lag_bucket", "the phone-time bucket of lag_current"),
     ("has_lag_bucket", "1: lag_bucket is set"),
+    ("suspects", "samples held because their own clock jumped (rows of the suspect arrays)"),
 )
 #: The state's blocks with one slot per filter tag code: name, meaning.
 PER_TAG: tuple[tuple[str, str], ...] = (
@@ -53,6 +54,9 @@ PER_TAG: tuple[tuple[str, str], ...] = (
     ("lag_previous", "... in the previous bucket"),
     ("previous_offset", "the offset of the previous segment of this stream"),
     ("has_previous_offset", "1: previous_offset applies"),
+    ("suspect_count", "the tag's held samples"),
+    ("suspect_first", "the aligned time of the first of them"),
+    ("suspect_last", "the aligned time of the latest of them"),
 )
 #: The parameters array: OrderOptions fields in this order.
 PARAMETERS = ("window_ms", "gap_ms", "max_pending", "startup_hold_ms", "max_window_ms",
@@ -60,6 +64,9 @@ PARAMETERS = ("window_ms", "gap_ms", "max_pending", "startup_hold_ms", "max_wind
 #: A held sample's key columns, compared lexicographically up to payload.
 KEY_COLUMNS = ("t", "priority", "seq", "payload")
 K_COLUMNS = len(KEY_COLUMNS)
+#: A suspect's columns (a sample whose own clock jumped, as it was pushed): its raw time,
+#: tag code and the caller's payload id; its values are kept beside them.
+SUSPECT_COLUMNS = ("raw", "tag", "payload")
 
 
 def _offsets() -> dict[str, int]:
@@ -77,6 +84,7 @@ def _offsets() -> dict[str, int]:
 S = namedtuple("StateLayout", _offsets())(**_offsets())
 P = namedtuple("Parameters", PARAMETERS)(*range(len(PARAMETERS)))
 K = namedtuple("KeyColumns", KEY_COLUMNS)(*range(K_COLUMNS))
+U = namedtuple("SuspectColumns", SUSPECT_COLUMNS)(*range(len(SUSPECT_COLUMNS)))
 
 
 
@@ -269,10 +277,66 @@ def _lags_behind_newcomer(st, tag, t, max_window):
 
 
 @jit
-def push_run(st, keys, values, t_in, tag_in, v_in, payload_in, start, params, out_keys,
-              out_values, n_out):
+def _hold_suspect(st, sus, sus_values, raw, tag, t, payload, v, params):
+    """ReferenceTimeOrderer._suspect up to the decision: keep the sample; True when the jump
+    is confirmed."""
+    k = st[S.suspects]
+    sus[k, U.raw] = raw
+    sus[k, U.tag] = tag
+    sus[k, U.payload] = payload
+    for c in range(MAX_WIDTH):
+        sus_values[k, c] = v[c]
+    st[S.suspects] = k + 1
+    if st[S.suspect_count + tag] == 0:
+        st[S.suspect_first + tag] = t
+    st[S.suspect_last + tag] = t
+    st[S.suspect_count + tag] += 1
+    gap = params[P.gap_ms]
+    alone = True
+    for other in range(N_FILTER_TAGS):
+        if other == tag:
+            continue
+        if st[S.suspect_count + other] > 0 and abs(t - st[S.suspect_last + other]) <= gap:
+            return True
+        if st[S.has_last + other]:
+            alone = False
+    return (alone or abs(t - st[S.suspect_first + tag]) > gap
+            or st[S.suspects] + st[S.heap_n] > params[P.max_pending])
+
+
+@jit
+def refute_suspects(st, sus, sus_values, tag):
+    """ReferenceTimeOrderer._refute: the tag's held samples are dropped (counted)."""
+    kept = 0
+    for k in range(st[S.suspects]):
+        if sus[k, U.tag] == tag:
+            continue
+        if kept != k:
+            for c in range(sus.shape[1]):
+                sus[kept, c] = sus[k, c]
+            for c in range(MAX_WIDTH):
+                sus_values[kept, c] = sus_values[k, c]
+        kept += 1
+    st[S.out_of_order] += st[S.suspects] - kept
+    st[S.suspects] = kept
+    st[S.suspect_count + tag] = 0
+
+
+@jit
+def clear_suspects(st):
+    st[S.suspects] = 0
+    for tag in range(N_FILTER_TAGS):
+        st[S.suspect_count + tag] = 0
+
+
+@jit
+def push_run(st, keys, values, sus, sus_values, t_in, tag_in, v_in, payload_in, start, counted,
+             params, out_keys, out_values, n_out):
     """ReferenceTimeOrderer._push for samples start.. until one needs its clock offset learned
-    (done in Python). Returns (entries in out, index of that sample or len(t_in))."""
+    (done in Python) or held samples start a new segment. Samples before index `counted` are
+    such held samples pushed again (not counted in pushed). Returns (entries in out, index of
+    the sample to learn or of the next one after a confirmed jump or len(t_in), the number of
+    held samples to push again before it: 0 unless a jump was confirmed)."""
     n = t_in.shape[0]
     i = start
     while i < n:
@@ -284,20 +348,30 @@ def push_run(st, keys, values, t_in, tag_in, v_in, payload_in, start, params, ou
             t = raw + st[S.offset + tag]
             st[S.last_new_tag] = t
         else:
-            st[S.pushed] += 1
+            if i >= counted:
+                st[S.pushed] += 1
             if st[S.has_offset + tag] == 0:
-                return n_out, i
+                return n_out, i, 0
             t = raw + st[S.offset + tag]
             verdict = _own_clock(st, tag, t, params)
+            if verdict == 2:
+                # A pause, a reboot or another phone -- or one bad time stamp: held until
+                # another sample confirms the new clock or the tag's old clock goes on.
+                if _hold_suspect(st, sus, sus_values, raw, tag, t, payload_in[i], v_in[i],
+                                 params):
+                    held = st[S.suspects]
+                    clear_suspects(st)
+                    n_out = _release_all(st, keys, values, out_keys, out_values, n_out)
+                    new_segment(st, 1)
+                    return n_out, i + 1, held
+                i += 1
+                continue
+            if st[S.suspect_count + tag] > 0:
+                refute_suspects(st, sus, sus_values, tag)
             if verdict == 1:
                 st[S.out_of_order] += 1
                 i += 1
                 continue
-            if verdict == 2:
-                # A pause, a reboot or another phone: a new time base.
-                n_out = _release_all(st, keys, values, out_keys, out_values, n_out)
-                new_segment(st, 1)
-                return n_out, i
         if st[S.has_newest]:
             lateness = st[S.newest] - t
             if 0 < lateness <= params[P.max_window_ms] and lateness > st[S.lag_current + tag]:
@@ -324,7 +398,7 @@ def push_run(st, keys, values, t_in, tag_in, v_in, payload_in, start, params, ou
                 continue
             st[S.warm] = 1
         n_out = _release(st, keys, values, params, out_keys, out_values, n_out)
-    return n_out, n
+    return n_out, n, 0
 
 
 @jit

@@ -101,6 +101,8 @@ class ReferenceTimeOrderer:
         self.last_released_ms: int | None = None
         self._offsets: dict[str, int] = {}
         self._continue_time = False
+        self._suspects: list[Sample] = []             # samples that jumped, in arrival order
+        self._suspect_span: dict[str, tuple[int, int]] = {}   # tag -> (first, latest) time
         self._new_segment(first=True, keep_offsets=False)
 
     # -- public ------------------------------------------------------------------------------
@@ -125,8 +127,12 @@ class ReferenceTimeOrderer:
         return out
 
     def flush(self) -> list[Sample]:
-        """Release everything pending (end of stream). The segment stays open."""
+        """Release everything pending (end of stream). The segment stays open; samples whose
+        jump no other sample confirmed are dropped (counted)."""
         out: list[Sample] = []
+        self.stats.out_of_order += len(self._suspects)
+        self._suspects = []
+        self._suspect_span = {}
         self._release_all(out)
         return out
 
@@ -142,7 +148,7 @@ class ReferenceTimeOrderer:
 
     @property
     def pending(self) -> int:
-        return len(self._heap)
+        return len(self._heap) + len(self._suspects)
 
     # -- internals -----------------------------------------------------------------------------
 
@@ -255,21 +261,26 @@ class ReferenceTimeOrderer:
         return "ok"
 
     def _push(self, sample: Sample, out: list[Sample]) -> None:
+        self.stats.pushed += 1
+        self._place(sample, out)
+
+    def _place(self, sample: Sample, out: list[Sample]) -> None:
         stats = self.stats
-        stats.pushed += 1
         tag = sample.tag
         offset = self._offsets.get(tag)
         if offset is not None:
             t = sample.t_ms + offset
             verdict = self._own_clock(tag, t)
+            if verdict == "segment":
+                # A pause, a reboot or another phone -- or one bad time stamp: held until
+                # another sample confirms the new clock or the tag's old clock goes on.
+                self._suspect(sample, t, out)
+                return
+            if tag in self._suspect_span:
+                self._refute(tag)
             if verdict == "drop":
                 stats.out_of_order += 1
                 return
-            if verdict == "segment":
-                # A pause, a reboot or another phone: a new time base.
-                self._release_all(out)
-                self._new_segment(first=False, keep_offsets=True)
-                offset = None
         first_of_tag = offset is None
         if first_of_tag:
             offset = self._learn_offset(sample)
@@ -305,6 +316,37 @@ class ReferenceTimeOrderer:
                 return
             self._warm = True
         self._release(out)
+
+    def _suspect(self, sample: Sample, t: int, out: list[Sample]) -> None:
+        """Hold a sample whose own clock jumped (aligned time t on the segment's clocks);
+        start the new segment with the held samples once the jump is confirmed: by another
+        tag jumping to within gap_ms of it, by the tag's own samples on the new clock for more
+        than gap_ms, or at once when no other tag is seen in the segment (or the hold is
+        full)."""
+        tag = sample.tag
+        first = self._suspect_span.get(tag, (t, t))[0]
+        self._suspect_span[tag] = (first, t)
+        self._suspects.append(sample)
+        confirmed = (
+            any(other != tag and abs(t - latest) <= self.gap_ms
+                for other, (_, latest) in self._suspect_span.items())
+            or all(other == tag for other in self._last)
+            or abs(t - first) > self.gap_ms
+            or len(self._suspects) + len(self._heap) > self.max_pending)
+        if not confirmed:
+            return
+        held, self._suspects, self._suspect_span = self._suspects, [], {}
+        self._release_all(out)
+        self._new_segment(first=False, keep_offsets=True)
+        for suspect in held:
+            self._place(suspect, out)
+
+    def _refute(self, tag: str) -> None:
+        """The tag's clock went on where it was: its held samples were bad time stamps."""
+        kept = [s for s in self._suspects if s.tag != tag]
+        self.stats.out_of_order += len(self._suspects) - len(kept)
+        self._suspects = kept
+        del self._suspect_span[tag]
 
     def _holding(self) -> bool:
         # Hold until two tags are there and no new tag has shown up for window_ms (a sensor

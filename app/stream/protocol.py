@@ -3,7 +3,8 @@ incremental byte-stream parser.
 
 A line is ``<time>\\t<TAG>\\t<v1>\\t...\\t<vn>`` ending in LF (CRLF accepted). Fields are split
 on TAB only (Wi-Fi names contain spaces). Numbers are Java float text (``3.2043457E-4``,
-``-0.0``). Times are integer milliseconds on the phone's clock.
+``-0.0``) in ASCII: digits of other scripts (a full-width ``９``) make a line damaged ("bad
+number"). Times are integer milliseconds on the phone's clock.
 
 Bad lines are never fatal: :func:`parse_line` raises :class:`ParseError` with a ``kind``
 ("damaged", "unknown_tag", "empty", "too_long") and :class:`LineParser` counts them; a damaged
@@ -220,10 +221,12 @@ def parse_line(line: str, limits: Limits = DEFAULT_LIMITS) -> Sample:
 
 
 def _to_float(text: str) -> float:
-    # float() also accepts "1_0", " 1", "inf", "nan": Java never writes those, and a
-    # non-finite value would poison a filter.
+    # float() also accepts "1_0", " 1", "inf", "nan" and digits of other scripts ("９",
+    # "٣"): Java never writes those, and a non-finite value would poison a filter.
+    if not text.isascii() or "_" in text or text != text.strip():
+        raise ValueError(f"bad number {_preview(text)}")
     value = float(text)
-    if not math.isfinite(value) or "_" in text or text != text.strip():
+    if not math.isfinite(value):
         raise ValueError(f"bad number {_preview(text)}")
     return value
 

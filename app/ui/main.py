@@ -20,6 +20,7 @@ from typing import Any
 
 from app import paths
 from app.engine.config import ConfigError, SourceOptions, load_settings, make_source, open_replay
+from app.engine.outputs import write_output
 from app.engine.shutdown import on_finishing_signals
 from app.engine.worker import Engine
 from app.stream.forwarder import LineForwarder
@@ -238,6 +239,17 @@ def run_gui(options: WindowOptions) -> int:
         restore_signals()
 
 
+def _png(image: Any) -> bytes:
+    """A QImage as the bytes of a PNG file."""
+    from PySide6 import QtCore
+    data = QtCore.QByteArray()
+    buffer = QtCore.QBuffer(data)
+    buffer.open(QtCore.QIODevice.OpenModeFlag.WriteOnly)
+    image.save(buffer, "PNG")
+    buffer.close()
+    return bytes(data)
+
+
 def _run_event_loop(app: Any, window: Any, options: WindowOptions,
                     finishing: list[bool]) -> int:
     from PySide6 import QtCore
@@ -246,9 +258,10 @@ def _run_event_loop(app: Any, window: Any, options: WindowOptions,
     def finish() -> None:
         if options.screenshot:
             image = window.grab().toImage()   # the 3D views show offscreen renders: included
-            if not image.save(str(options.screenshot)):
-                print(f"orientation-lab: error: cannot write {options.screenshot}",
-                      file=sys.stderr)
+            try:
+                write_output(options.screenshot, _png(image))
+            except ConfigError as error:
+                print(f"orientation-lab: error: {error}", file=sys.stderr)
                 status["code"] = 1
         window.close()
         app.quit()

@@ -14,6 +14,7 @@ the settings change elsewhere (the calibration workspace, the tuner), without se
 
 from __future__ import annotations
 
+import json
 import re
 from collections.abc import Callable
 from pathlib import Path
@@ -25,6 +26,7 @@ import ekf
 from ekf.settings import format_value
 from app.engine import config
 from app.engine.commands import SetSettings
+from app.engine.outputs import check_output, write_output
 from app.engine.profiles import Profile, ProfileStore
 
 COLUMNS = ("setting", "value", "unit", "default", "course")
@@ -251,9 +253,9 @@ class SettingsPanel(QtWidgets.QWidget):
 
     def save_to(self, path: str | Path) -> None:
         try:
-            self.settings.save(path)
-        except OSError as error:
-            self.message.setText(f"cannot save {path}: {error.strerror or error}")
+            write_output(check_output(path), json.dumps(self.settings.to_dict(), indent=2) + "\n")
+        except config.ConfigError as error:
+            self.message.setText(str(error))
             return
         self.message.setText(f"saved {path}")
 

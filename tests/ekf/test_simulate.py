@@ -236,6 +236,12 @@ def test_twenty_minutes_at_500_hz_is_fast():
 @pytest.mark.parametrize("kwargs", [
     {"duration_s": 0.0}, {"script": "dance"}, {"rates_hz": {"baro": 10}},
     {"noise": {"acc": [[1.0, 2.0]]}}, {"noise": {"gps": 1.0}},
+    # refused before anything is allocated (were a ValueError from numpy, NaN samples, a
+    # MemoryError after 3.6 GB and a request for 74.5 GiB)
+    {"seed": -1}, {"seed": 1.5}, {"gyro_bias": (float("nan"), 0.0, 0.0)},
+    {"duration_s": float("inf")}, {"duration_s": float("nan")}, {"duration_s": 1e9},
+    {"rates_hz": {"gyr": 1e9}}, {"rates_hz": {"acc": float("nan")}}, {"rates_hz": {"mag": -1}},
+    {"g": float("inf")}, {"m0": (0.0, float("nan"), 0.0)},
 ])
 def test_bad_arguments_raise_value_error(kwargs):
     with pytest.raises(ValueError):

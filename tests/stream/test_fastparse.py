@@ -74,6 +74,8 @@ _FRAGMENTS = [b"\t", b"\n", b"\r\n", b"\r", b"GYR", b"ACC", b"MAG", b"ORI", b"GP
               b"1e160", b"2000.0", b"2000.0001", b"100.0", b"1.0E20", b"10.0", b"0.7071068",
               b"0.70710677", b"-0.5", b"1.0000001", b"\x00", b"\x01", b"\x7f", b"\x1c", b"\x0b",
               b"\x0c", b"\x1b", b"\t\t", b"  ", b"\n\n\n", b"\xc2\xa0", b"\xc2\x85",
+              # digits of other scripts: full-width nine and one, Arabic-Indic three
+              b"\xef\xbc\x99", b"\xef\xbc\x91.0", b"\xd9\xa3", b"1000\tACC\t\xef\xbc\x99.8\t0\t0\n",
               b"5\tORI\t0.5\t0.5\t0.5\t0.5\n", b"5\tORI\t-0.5\t0.5\t-0.5\t0.5\n",
               b"6\tORI\t0.9\t0.9\t0.9\n", b"7\tACC\t1e160\t0\t0\n", b"8\tGYR\t1.0E20\t0\t0\n",
               b"9\tMAG\t5000.0\t5000.0\t5000.0\n", b"10\tRAWGYR\t1\t2\t3\t4\t5\t500\n"]
@@ -107,6 +109,18 @@ def test_a_time_beyond_int64_is_a_damaged_line_not_a_crash(end):
     assert fast == _reference(data, [], 4096)
     samples, stats = fast[0], fast[1]
     assert stats.damaged == 1 and len(samples) == (1 if end else 0)
+
+
+@pytest.mark.parametrize("digits", ["\uff19.8", "9.\uff18", "\u0669.8", "\u09ef.8"])
+def test_digits_of_other_scripts_are_a_bad_number_never_recorded(digits):
+    """Was: "９.8" (a full-width nine) was read as 9.8 and recorded, by both parsers."""
+    data = (f"1000\tACC\t{digits}\t0.0\t0.0\n1010\tACC\t9.8\t0.0\t0.0\n").encode()
+    fast = _fast(data, [], 4096)
+    assert fast == _reference(data, [], 4096)
+    samples, stats, recorded, _ = fast
+    assert [t for t, *_ in samples] == [1010]
+    assert stats.damaged_reasons == {"bad number": 1}
+    assert recorded == b"1010\tACC\t9.8\t0.0\t0.0\n"
 
 
 def test_fast_parser_equals_line_parser_on_real_logs(realphone_dir):

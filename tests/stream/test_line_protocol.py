@@ -46,6 +46,9 @@ def test_ori_three_values_gets_w_and_four_values_get_w_nonnegative():
     ("123\tACC\t1\tabc\t3", "damaged"),                # bad number
     ("123\tACC\t1\tnan\t3", "damaged"),                # non-finite
     ("123\tACC\t1\t1_0\t3", "damaged"),
+    ("123\tACC\t\uff19.8\t0\t0", "damaged"),          # full-width digit nine
+    ("123\tGYR\t0.\u0663\t0\t0", "damaged"),           # Arabic-Indic digit three
+    ("123\tORI\t\uff11.0\t0.0\t0.0\t0.0", "damaged"),
     ("123 ACC 1 2 3", "damaged"),                      # spaces are not separators
     ("123\tNEWTAG\t1", "unknown_tag"),
     ("123\tAC\ufffdC\t1\t2\t3", "damaged"),            # a broken tag is not a new tag

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import random
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -249,6 +250,94 @@ def test_a_clock_that_really_goes_back_starts_a_new_session_after_gap_ms():
         assert len(out) + dropped == len(first) + len(again)
 
 
+YEAR_MS = 365 * 24 * 3600 * 1000
+
+
+def _with_outliers(kind: str) -> tuple[list[Sample], list[Sample]]:
+    """A 4-tag stream with bad time stamps inserted in its middle (and those samples)."""
+    stream = _arriving({"MAG": 40}, seconds=8.0)
+    at = len(stream) // 2
+    t = stream[at].t_ms
+    bad = {"zero": [_s(0, "GYR")],
+           "year": [_s(t + YEAR_MS, "ACC")],
+           "year-burst": [_s(t + YEAR_MS + 10 * k, "ACC") for k in range(5)],
+           "ahead": [_s(t + 5000, "MAG")],
+           "behind": [_s(t - 30_000, "ORI")],
+           "two-tags-apart": [_s(0, "GYR"), _s(t + YEAR_MS, "ACC")]}[kind]
+    return stream[:at] + bad + stream[at:], bad
+
+
+@pytest.mark.parametrize("cls", [ReferenceTimeOrderer, TimeOrderer])
+@pytest.mark.parametrize("kind", ["zero", "year", "year-burst", "ahead", "behind",
+                                  "two-tags-apart"])
+def test_a_bad_time_stamp_is_dropped_never_a_clock_quirk_or_new_session(cls, kind):
+    """Was: one sample at t = 0 (or a burst a year ahead) started two new sessions and was
+    reported as clock quirks ("GYR clock -31536000000 ms vs ACC"): the tag's clock went on
+    where it was, so the samples are dropped and counted, and nothing else changes."""
+    stream, bad = _with_outliers(kind)
+    clean = [s for s in stream if s not in bad]
+    orderer = cls()
+    out = _run(orderer, stream)
+    assert out == _run(cls(), clean)
+    assert orderer.stats.out_of_order == len(bad)
+    assert orderer.stats.clock_quirks == [] and orderer.stats.sessions == 0
+    assert orderer.stats.restarts == 0
+
+
+@pytest.mark.parametrize("cls", [ReferenceTimeOrderer, TimeOrderer])
+def test_a_bad_time_stamp_at_the_end_is_dropped(cls):
+    stream = _arriving({}, seconds=3.0)
+    orderer = cls()
+    out = _run(orderer, stream + [_s(0, "GYR")])
+    assert out == _run(cls(), stream) and orderer.stats.out_of_order == 1
+    assert orderer.pending == 0 and orderer.stats.sessions == 0
+
+
+@pytest.mark.parametrize("cls", [ReferenceTimeOrderer, TimeOrderer])
+def test_one_tag_moving_to_another_clock_is_followed_after_gap_ms(cls):
+    """A tag whose samples stay on a new clock for more than gap_ms (the others going on on
+    the old one) really changed clock: a new segment aligns it, nothing is lost."""
+    stream = [s if s.tag != "MAG" or s.t_ms < 4000 else s._replace(t_ms=s.t_ms + 7000)
+              for s in _arriving({}, seconds=8.0)]
+    orderer = cls()
+    out = _run(orderer, stream)
+    assert orderer.stats.restarts == 1 and orderer.stats.out_of_order == 0
+    assert len(out) == len(stream)
+    assert any("7000 ms" in quirk for quirk in orderer.stats.clock_quirks)
+
+
+def test_a_checkpoint_taken_while_a_jump_is_held_continues_the_same():
+    stream, _ = _with_outliers("year-burst")
+    at = next(k for k, s in enumerate(stream) if s.t_ms > YEAR_MS) + 2     # inside the burst
+    whole = TimeOrderer()
+    expected = whole.push_arrays(*_arrays(stream))
+    first = TimeOrderer()
+    released = first.push_arrays(*_arrays(stream[:at]))
+    assert first.pending > first.snapshot()["keys"].shape[0]           # the burst is held
+    second = TimeOrderer()
+    second.restore(first.snapshot())
+    rest = second.push_arrays(*_arrays(stream[at:]))
+    assert np.concatenate([released.t_ms, rest.t_ms]).tolist() == expected.t_ms.tolist()
+    assert second.stats.out_of_order == whole.stats.out_of_order == 5
+
+
+def test_filter_with_one_bad_time_stamp_gives_the_logs_estimates(realphone_dir, tmp_path,
+                                                                  capsys):
+    from app import cli
+    log = realphone_dir / "tsrt14_lab2_rotation.txt"
+    lines = log.read_text().splitlines(keepends=True)
+    at = next(k for k in range(len(lines) // 2, len(lines)) if "\tGYR\t" in lines[k])
+    bad = tmp_path / "bad.txt"
+    bad.write_text("".join(lines[:at] + ["0\tGYR\t0.01\t0.02\t0.03\n"] + lines[at:]))
+    assert cli.main(["filter", str(log), "-o", str(tmp_path / "good.csv")]) == 0
+    capsys.readouterr()
+    assert cli.main(["filter", str(bad), "-o", str(tmp_path / "bad.csv")]) == 0
+    summary = capsys.readouterr().err.splitlines()[0]
+    assert "1 out of order" in summary
+    assert "quirk" not in summary and "session" not in summary and "restart" not in summary
+    assert (tmp_path / "bad.csv").read_bytes() == (tmp_path / "good.csv").read_bytes()
+
+
 @settings(max_examples=60, deadline=None)
 @given(st.integers(min_value=1, max_value=30), st.integers(min_value=0, max_value=2**31))
 def test_output_is_time_sorted_and_accounts_for_every_sample(batch, seed):
@@ -289,6 +378,11 @@ def _phone_like_stream(rng: random.Random, n: int) -> list[Sample]:
             arrival += 1
             delay = late_by // 10 if tag == late_tag else 0        # arrival in ~10 ms steps
             out.append((arrival + delay, len(out), _s(clocks[tag], tag)))
+            if rng.random() < 0.01:
+                # a bad time stamp or a short burst of them; the clock goes on where it was
+                wild = rng.choice([-clocks[tag], 5000, -30_000, YEAR_MS])
+                for k in range(rng.choice([1, 1, 3])):
+                    out.append((arrival + delay, len(out), _s(clocks[tag] + wild + k, tag)))
     return [sample for *_, sample in sorted(out)]
 
 
