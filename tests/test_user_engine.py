@@ -260,13 +260,13 @@ def test_the_re_run_reads_a_log_as_the_engine_feeds_it(realphone_dir):
     t_ms, tag, values = ordered_log(path)
     fed = []
     engine = Engine(LogFileSource(path, speed=0), comparisons=False)
-    original = engine._runner.feed_arrays
+    original = engine.runner.feed_arrays
 
     def spy(t, g, v):
         fed.append((t.copy(), g.copy(), v.copy()))
         return original(t, g, v)
 
-    engine._runner.feed_arrays = spy
+    engine.runner.feed_arrays = spy
     with engine:
         _wait(engine, _finished)
     live = [np.concatenate([f[i] for f in fed]) for i in range(3)]
