@@ -296,6 +296,8 @@ class Engine:
         waits in the backlog) and publish (at once after a command)."""
         applied = self._applied
         self._apply_commands()
+        if self._applied != applied:
+            self.waiting_since = None        # idle counts from after the latest command
         self._user.tick()
         self.replay_lane.tick()
         if self._backlog:
