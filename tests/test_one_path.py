@@ -176,7 +176,7 @@ def test_the_window_accepts_a_preset_name_and_a_file(tmp_path, settings):
     engine = build_engine(WindowOptions(source=config.SourceOptions(demo=True, port=0),
                                         settings=settings))
     expected = 1.5 if settings.endswith(".json") else ekf.PRESETS["course"].acc_gate
-    assert engine._runner.settings.acc_gate == expected
+    assert engine.runner.settings.acc_gate == expected
 
 
 def test_the_window_without_a_display_says_so_in_one_line():
@@ -217,7 +217,7 @@ def _lines(seconds: float = 3.0) -> list[bytes]:
 def test_a_failing_batch_is_reported_and_the_engine_goes_on(monkeypatch, caplog):
     # 60 s: several chunks of at most 4096 lines, the first of which fails
     engine = Engine(LineReplaySource(_lines(60.0), "synthetic", speed=0), comparisons=False)
-    runner = engine._runner
+    runner = engine.runner
     original = runner.feed_arrays
     calls = {"n": 0}
 
@@ -248,7 +248,7 @@ def test_repeated_failures_stop_the_engine_cleanly(monkeypatch):
     def always(*args, **kwargs):
         raise _Boom("always")
 
-    monkeypatch.setattr(engine._runner, "feed_arrays", always)
+    monkeypatch.setattr(engine.runner, "feed_arrays", always)
     with engine:
         final = _wait(engine, lambda s: s.failures and s.failures[-1].fatal, timeout=30)
         wait_until(lambda: not engine.running, 5, what="the engine to stop")

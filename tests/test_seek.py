@@ -12,7 +12,8 @@ from waiting import wait_for_snapshot, wait_until
 from ekf.simulate import simulate
 from app.engine.checkpoints import comparison_vectors
 from app.engine.commands import ReplayControl
-from app.engine.pipeline import Pipeline, Setup
+from app.engine.configuration import Setup
+from app.engine.pipeline import Pipeline
 from app.engine.runner import EstimatorRunner
 from app.engine.session_index import SessionIndex
 from app.engine.worker import Engine
@@ -54,9 +55,9 @@ def assert_same_state(engine: Engine, reference: Pipeline) -> None:
     assert np.array_equal(got.orderer["state"], want.orderer["state"])
     assert np.array_equal(got.orderer["keys"], want.orderer["keys"])
     assert (got.t0_ms, got.fed, got.parser) == (want.t0_ms, want.fed, want.parser)
-    np.testing.assert_array_equal(engine._runner.main.quat, reference.runner.main.quat)
+    np.testing.assert_array_equal(engine.runner.main.quat, reference.runner.main.quat)
     # the comparisons' running errors: the same samples compared (sums to rounding)
-    for mine, theirs in zip(engine._runner.comparisons, reference.runner.comparisons):
+    for mine, theirs in zip(engine.runner.comparisons, reference.runner.comparisons):
         assert mine.errors.count == theirs.errors.count
         np.testing.assert_allclose(mine.errors.rmse(), theirs.errors.rmse(), rtol=1e-12)
 
@@ -167,8 +168,7 @@ def _session(tmp_path, lines, timeline):
 
 def reference_with(data: bytes, setup: Setup):
     pipeline = Pipeline(EstimatorRunner(collect_plot=True))
-    pipeline.restore(pipeline.initial_checkpoint(setup))
-    pipeline.timeline = setup.timeline
+    pipeline.begin(pipeline.initial_checkpoint(setup), setup.timeline)
     pipeline.feed_bytes(data)
     pipeline.take_output()
     return pipeline
@@ -184,7 +184,7 @@ def test_seek_in_a_session_applies_its_recorded_timeline(lines, tmp_path):
         replay = wait_indexed(engine)
         assert replay["following_timeline"] and replay["has_timeline"]
         setup = engine.replay_lane.manager.setup
-        assert [e["kind"] for e in setup.timeline] == ["sensor", "estimator"]
+        assert [c.kind for c in setup.timeline] == ["sensor", "estimator"]
         for position in (25.0, 8.0, 2.0):            # after both events, between, before
             engine.send(ReplayControl(seek_s=position))
             assert engine.wait_idle()
@@ -196,8 +196,9 @@ def test_seek_in_a_session_applies_its_recorded_timeline(lines, tmp_path):
         assert status.estimator == "course" and status.sensors_enabled["mag"] is False
 
 
-def test_a_user_change_while_replaying_applies_from_the_start_once_indexed(lines, tmp_path):
+def test_a_user_switch_while_replaying_overrides_that_switch_only_once_indexed(lines, tmp_path):
     from app.engine.commands import SetSensorEnabled
+    from app.engine.configuration import Change
     folder = _session(tmp_path, lines, [{"kind": "sensor", "sensor": "mag", "enabled": False,
                                          "t_ms": None, "sample": 3500}])
     source = LogFileSource(folder / "raw.txt", paused=True)
@@ -205,16 +206,21 @@ def test_a_user_change_while_replaying_applies_from_the_start_once_indexed(lines
         wait_indexed(engine)
         engine.send(ReplayControl(seek_s=15.0))
         assert engine.wait_idle()
-        engine.send(SetSensorEnabled("acc", False))          # the user's own set-up now
+        engine.send(SetSensorEnabled("acc", False))          # yours, for the whole replay
         assert engine.wait_idle()                            # applied: indexing again
         wait_until(lambda: not engine.replay_lane.manager.resync
                    and engine.snapshot_now().replay["indexed"], 30, what="indexed again")
         assert engine.wait_idle()
-        replay = engine.snapshot_now().replay
-        assert not replay["following_timeline"]
-        assert any("recorded timeline off" in w for w in engine.snapshot_now().health.warnings)
-        # mag stays as it was at the change (out), acc out, both from the start; no timeline
-        setup = Setup("ekf", ("gyr",), None, comparisons=False)
+        snapshot = engine.snapshot_now()
+        assert not snapshot.replay["following_timeline"]
+        assert snapshot.configuration.overridden == ("acc",)
+        assert snapshot.configuration.summary == \
+            "accelerometer switch: yours; other switches, estimator, settings, combinations: " \
+            "recorded"
+        assert any("accelerometer switch: yours" in w for w in snapshot.health.warnings)
+        # acc out from the start; the recorded magnetometer switch stays where it was recorded
+        setup = Setup("ekf", ("gyr", "mag"), None, comparisons=False,
+                      timeline=(Change(3500, "sensor", sensor="mag", enabled=False),))
         target = source.line_at(15.0)
         assert source.line_index == target
         assert_same_state(engine, reference_with(source.data[:source.starts[target]], setup))

@@ -1,10 +1,12 @@
-"""The engine's command table: each command type and its handler(engine, command), which
+"""The engine's command table: each command type and its handler(parts, command), which
 returns True when the command moved a replay (a seek: what was read before is dropped). A
 command is looked up along its class's bases, so a subclass is handled as its base.
 
-A handler hands its command to the part of the engine it is for: the runner (set-up, reset,
-heading), the replay lane (seeks, the recorded timeline), the recording lane, the markers, your
-filter's host, the source (connection commands) or the forward."""
+A handler works on the engine's parts (:class:`~app.engine.parts.EngineParts`) and hands its
+command to the part it is for: the configuration (set-up changes, through the replay lane,
+which makes them overrides or changes at the current sample), the replay lane (seeks, back to
+the recording), the recording lane, the markers, your filter's host, the source (connection
+commands) or the forward."""
 
 from __future__ import annotations
 
@@ -13,15 +15,14 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from app.engine.commands import (AddMarker, AlignHeading, LoadUserFilter, ReplayControl,
-                                 ResetFilter, SetConsistencyEnabled, SetFollowTimeline,
-                                 SetForward, SetMarkerLabel, StartRecording, StopRecording,
-                                 UnloadUserFilter)
-from app.engine.filter_commands import SETUP_HANDLERS, SetupContext
-from app.engine.forwarding import switch_forward
+from app.engine.commands import (AddMarker, LoadUserFilter, ReplayControl,
+                                 SetConsistencyEnabled, SetFollowTimeline, SetForward,
+                                 SetMarkerLabel, StartRecording, StopRecording, UnloadUserFilter)
+from app.engine.filter_commands import SETUP_CHANGES
+from app.engine.parts import EngineParts
 from app.stream.events import CONNECTION_COMMANDS
 
-Handler = Callable[[Any, Any], bool]
+Handler = Callable[[EngineParts, Any], bool]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,95 +32,71 @@ class Mark:
     event: threading.Event
 
 
-def _setup(engine: Any, command: Any) -> bool:
-    """A sensor switch, estimator, settings or comparisons command (refused: nothing changes)."""
-    context = SetupContext(engine._runner, engine.recording_lane.event,
-                           lambda text: engine._health.warn("command", text, force=True),
-                           engine.recording, engine.pipeline.fed_total)
-    if not SETUP_HANDLERS[type(command)](context, command):
-        return False
-    return engine.replay_lane.setup_changed()
-
-
-def _align_heading(engine: Any, command: AlignHeading) -> bool:
-    turned = engine._runner.align_heading()
-    if turned is None:
-        engine._health.warn("align", "align heading: no PHONE orientation (ORI) yet",
-                            force=True)
-    else:
-        engine.recording_lane.event("align_heading", turned_deg=round(turned, 2))
-        engine._health.warn("align", f"heading aligned with PHONE: OWN turned by "
-                                     f"{turned:+.1f}° about up", force=True)
+def _setup(parts: EngineParts, command: Any) -> bool:
+    """A set-up command: a change of the configuration (refused: nothing changes)."""
+    change = SETUP_CHANGES[type(command)](command, lambda text: parts.say("command", text))
+    if change is not None:
+        parts.replay.change(change)
     return False
 
 
-def _reset(engine: Any, command: ResetFilter) -> None:
-    engine._runner.reset()
-    engine.recording_lane.event("reset")
+def _start_recording(parts: EngineParts, command: StartRecording) -> None:
+    live = parts.source.capabilities.reconnect
+    parts.recordings.start(command, parts.source.kind, parts.connection.peer if live else None,
+                           parts.output.flush)
 
 
-def _start_recording(engine: Any, command: StartRecording) -> None:
-    live = engine.source.capabilities.reconnect
-    engine.recording_lane.start(command, engine.source.kind, engine._peer if live else None,
-                                engine.output.flush)
+def _stop_recording(parts: EngineParts, command: StopRecording) -> None:
+    parts.recordings.stop(parts.output.flush, parts.publisher.latest.health)
 
 
-def _stop_recording(engine: Any, command: StopRecording) -> None:
-    if engine.recording_lane.stop(engine.output.flush, engine.publisher.latest.health):
-        engine.replay_lane.recording_stopped()
+def _add_marker(parts: EngineParts, command: AddMarker) -> None:
+    pipeline = parts.pipeline
+    note = parts.markers.add(command.label, pipeline.runner.latest_t_ms, pipeline.t0_ms,
+                             parts.recordings.current, parts.replay.shown, pipeline.fed_total)
+    parts.say("marker", note)
 
 
-def _add_marker(engine: Any, command: AddMarker) -> None:
-    pipeline = engine.pipeline
-    note = engine.markers.add(command.label, engine._runner.latest_t_ms, pipeline.t0_ms,
-                              engine.recording, engine.replay_lane.shown, pipeline.fed_total)
-    engine._health.warn("marker", note, force=True)
-
-
-def _set_marker_label(engine: Any, command: SetMarkerLabel) -> None:
-    note = engine.markers.set_label(command.id, command.label, engine.recording,
-                                    engine.replay_lane.shown)
+def _set_marker_label(parts: EngineParts, command: SetMarkerLabel) -> None:
+    note = parts.markers.set_label(command.id, command.label, parts.recordings.current,
+                                   parts.replay.shown)
     if note and "(" in note:
-        engine._health.warn("markers", note.strip(" ()"), force=True)
+        parts.say("markers", note.strip(" ()"))
 
 
-def _set_forward(engine: Any, command: SetForward) -> None:
+def _set_forward(parts: EngineParts, command: SetForward) -> None:
     """Stop the running forward (if any), start one to the command's target (if given)."""
-    engine.forwarder, line, changed = switch_forward(engine.forwarder, command.target,
-                                                     engine.source.capabilities.forward)
-    engine._health.warn("forward", line, force=True)
+    line, changed = parts.forward.switch(command.target, parts.source.capabilities.forward)
+    parts.say("forward", line)
     if changed:
-        forwarder = engine.forwarder
-        engine.recording_lane.event("forward", target=None if forwarder is None else
-                                    f"{forwarder.host}:{forwarder.port}")
+        parts.recordings.event("forward", target=parts.forward.target())
 
 
-def _never_moves(action: Callable[[Any, Any], None]) -> Handler:
+def _never_moves(action: Callable[[EngineParts, Any], None]) -> Handler:
     """The handler of a command that never moves a replay."""
-    def handler(engine: Any, command: Any) -> bool:
-        action(engine, command)
+    def handler(parts: EngineParts, command: Any) -> bool:
+        action(parts, command)
         return False
     return handler
 
 
 TABLE: dict[type, Handler] = {
-    ReplayControl: lambda engine, command: engine.replay_lane.control(command),
-    **{kind: _setup for kind in SETUP_HANDLERS},
-    ResetFilter: _never_moves(_reset),
-    AlignHeading: _align_heading,
+    ReplayControl: lambda parts, command: parts.replay.control(command),
+    **{kind: _setup for kind in SETUP_CHANGES},
     StartRecording: _never_moves(_start_recording),
     StopRecording: _never_moves(_stop_recording),
     AddMarker: _never_moves(_add_marker),
     SetMarkerLabel: _never_moves(_set_marker_label),
-    SetFollowTimeline: lambda engine, command: engine.replay_lane.set_follow(command.enabled),
-    **{kind: _never_moves(lambda engine, command: engine.source.control(command))
+    SetFollowTimeline: _never_moves(
+        lambda parts, command: parts.replay.set_follow(command.enabled)),
+    **{kind: _never_moves(lambda parts, command: parts.source.control(command))
        for kind in CONNECTION_COMMANDS},
-    LoadUserFilter: _never_moves(lambda engine, command: engine._user.load(command.path)),
-    UnloadUserFilter: _never_moves(lambda engine, _: engine._user.unload()),
+    LoadUserFilter: _never_moves(lambda parts, command: parts.user.load(command.path)),
+    UnloadUserFilter: _never_moves(lambda parts, _: parts.user.unload()),
     SetConsistencyEnabled: _never_moves(
-        lambda engine, command: engine._runner.set_consistency_enabled(command.enabled)),
+        lambda parts, command: parts.pipeline.runner.set_consistency_enabled(command.enabled)),
     SetForward: _never_moves(_set_forward),
-    Mark: _never_moves(lambda engine, command: engine.publisher.add_mark(command.event)),
+    Mark: _never_moves(lambda parts, command: parts.publisher.add_mark(command.event)),
 }
 
 

@@ -126,7 +126,8 @@ class SetMarkerLabel:
 
 @dataclass(frozen=True)
 class SetFollowTimeline:
-    """Replaying a recorded session: apply its recorded sensor switches, settings and estimator
-    changes (True, the default) or the window's own choices from the start (False)."""
+    """Replaying a recorded session: back to the recording (True: its recorded set-up and
+    timeline, none of your overrides and changes), or every kind of its configuration yours, at
+    the values running now, for the whole replay (False). See app.engine.configuration."""
 
     enabled: bool

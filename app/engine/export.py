@@ -1,9 +1,9 @@
 """Exports of a session (or a phone's log): CSV, the phone's own text format, MATLAB .mat.
 
 The estimates come from the replay's own processing (:class:`~app.engine.pipeline.Pipeline`)
-with the session's set-up and recorded timeline, so an export holds what replaying the
-session shows. The window's File → Export and ``orientation-lab export`` both call
-:func:`export_session`.
+with the session's configuration over time (:mod:`app.engine.configuration`: the recorded one,
+or the one the window replays), so an export holds what replaying the session shows. The
+window's File → Export and ``orientation-lab export`` both call :func:`export_session`.
 
 An export reads the log twice as a stream, never whole: a first pass (parser and orderer only)
 finds the session's times, so a range is checked before anything is written; the second replays
@@ -31,9 +31,11 @@ replay's timing) falls in the range.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -42,7 +44,8 @@ from app.engine import config
 from app.engine.config import ConfigError
 from app.engine.matfile import MatStructs, check_size
 from app.engine.outputs import check_output, open_output
-from app.engine.pipeline import Pipeline, Setup
+from app.engine.configuration import Config, Setup, recorded_setup
+from app.engine.pipeline import Pipeline
 from app.engine.runner import SENSORS, EstimatorRunner, Rows
 from app.engine.session import Marker, SessionInfo, read_session, session_json_for
 from app.stream.lines import CHUNK_BYTES, LogError, Pacer, line_blocks, line_starts
@@ -126,16 +129,16 @@ class OpenedSession:
 
 def session_setup(session: SessionInfo | None, estimator: str = "ekf",
                   settings: ekf.EKFSettings | None = None) -> Setup:
-    """The set-up a replay of this session starts with (its recorded one, timeline included)."""
-    setup = Setup(estimator, SENSORS, settings, comparisons=False)
-    if session is None:
-        return setup
-    sensors = SENSORS
-    if isinstance(session.sensors, dict):
-        sensors = tuple(s for s in SENSORS if session.sensors.get(s, True))
-    return Setup(session.estimator or estimator, sensors, session.settings or settings,
-                 comparisons=False, timeline=tuple(session.filter_events),
-                 start_state=session.start_state, start_state_id=id(session))
+    """The set-up a replay of this session starts with: its recorded configuration over time
+    (app.engine.configuration; the comparisons, which exports do not hold, off)."""
+    setup = recorded_setup(session, Config(estimator, SENSORS, settings or ekf.PRESETS["default"]))
+    return _without_comparisons(setup)
+
+
+def _without_comparisons(setup: Setup) -> Setup:
+    return dataclasses.replace(setup, comparisons=False,
+                               timeline=tuple(c for c in setup.timeline
+                                              if c.kind != "comparisons"))
 
 
 def open_session(path: str | Path) -> OpenedSession:
@@ -150,12 +153,13 @@ def open_session(path: str | Path) -> OpenedSession:
     return OpenedSession(raw, session, raw.with_name("session.json").is_file())
 
 
-def _pipeline(opened: OpenedSession, with_cov: bool) -> Pipeline:
-    """The replay's processing at the session's start (its set-up and timeline)."""
-    pipeline = Pipeline(EstimatorRunner(collect_plot=False, collect_cov=with_cov))
-    setup = session_setup(opened.session)
-    pipeline.restore(pipeline.initial_checkpoint(setup))
-    pipeline.timeline = setup.timeline
+def _pipeline(opened: OpenedSession, with_cov: bool, setup: Setup | None = None,
+              **callbacks: Any) -> Pipeline:
+    """The replay's processing at the session's start, with its configuration over time
+    (setup; None: the recorded one); callbacks: the Pipeline's on_cut, on_ordered."""
+    pipeline = Pipeline(EstimatorRunner(collect_plot=False, collect_cov=with_cov), **callbacks)
+    setup = session_setup(opened.session) if setup is None else _without_comparisons(setup)
+    pipeline.begin(pipeline.initial_checkpoint(setup), setup.timeline)
     return pipeline
 
 
@@ -188,20 +192,22 @@ def session_span(opened: OpenedSession, block_bytes: int = CHUNK_BYTES) -> Sessi
 
 
 def session_pieces(opened: OpenedSession, with_cov: bool = False,
-                   block_bytes: int = CHUNK_BYTES) -> Iterator[SessionData]:
+                   block_bytes: int = CHUNK_BYTES,
+                   setup: Setup | None = None) -> Iterator[SessionData]:
     """Replay the session once, as fast as the kernels go, block by block, and hand on what
-    the exports need, piece by piece (each piece whole distinct times, in order)."""
-    pipeline = _pipeline(opened, with_cov)
-    runner = pipeline.runner
+    the exports need, piece by piece (each piece whole distinct times, in order); setup: the
+    configuration over time to replay it with (None: the recorded one; the window passes the
+    one it replays)."""
     joiner = _Joiner(opened.raw, opened.markers, with_cov)
-    pipeline.on_ordered = joiner.ordered
 
     def taken(rows: Rows | None = None) -> None:
         runner.take_errors()                      # the window's error plots: not exported
         covs = runner.take_covariances() if with_cov else None
         joiner.add_rows(runner.take_rows() if rows is None else rows, covs)
 
-    pipeline.on_cut = lambda rows, _piece: taken(rows)     # a session that ended
+    pipeline = _pipeline(opened, with_cov, setup, on_ordered=joiner.ordered,
+                         on_cut=lambda rows, _piece: taken(rows))     # a session that ended
+    runner = pipeline.runner
     for block in opened.blocks(block_bytes):
         pipeline.feed_bytes(block)
         taken()
@@ -211,11 +217,13 @@ def session_pieces(opened: OpenedSession, with_cov: bool = False,
     yield from joiner.pieces(final=True)
 
 
-def load_session(path: str | Path, with_cov: bool = False) -> SessionData:
+def load_session(path: str | Path, with_cov: bool = False,
+                 setup: Setup | None = None) -> SessionData:
     """Replay a session (folder, raw.txt, session.json) or a phone's log once and keep what
-    the exports need, whole. ConfigError for anything else."""
+    the exports need, whole; setup as for :func:`session_pieces`. ConfigError for anything
+    else."""
     opened = open_session(path)
-    pieces = list(session_pieces(opened, with_cov))
+    pieces = list(session_pieces(opened, with_cov, setup=setup))
     if not pieces:
         raise ConfigError(f"{opened.raw}: no GYR, ACC, MAG or ORI samples to export")
     return SessionData(opened.raw, *(np.concatenate([getattr(p, name) for p in pieces])
@@ -436,9 +444,11 @@ def write_mat(pieces: Iterator[SessionData], out: Path, start: float, end: float
 def export_session(path: str | Path, fmt: str, out: str | Path,
                    from_marker: str | None = None, to_marker: str | None = None,
                    from_s: float | None = None, to_s: float | None = None,
-                   separator: str = ",", decimal_comma: bool = False) -> str:
+                   separator: str = ",", decimal_comma: bool = False,
+                   setup: Setup | None = None) -> str:
     """Export a session; returns one line saying what was written. ConfigError for bad
-    arguments (a one-line message)."""
+    arguments (a one-line message). setup: the configuration over time its estimates are
+    computed with (None: the recorded one; the window passes the one it replays)."""
     if fmt not in FORMATS:
         raise ConfigError(f"--format: expected one of {', '.join(FORMATS)}, got {fmt!r}")
     sep = SEPARATORS.get(separator)
@@ -454,7 +464,8 @@ def export_session(path: str | Path, fmt: str, out: str | Path,
     start, end = time_range(span, from_marker, to_marker, from_s, to_s)
     try:
         if fmt == "csv":
-            count = write_csv(session_pieces(opened), out, start, end, sep, decimal_comma)
+            count = write_csv(session_pieces(opened, setup=setup), out, start, end, sep,
+                              decimal_comma)
             what = f"{count} rows"
         elif fmt == "log":
             what = f"{write_log(opened, out, start, end)} lines"
@@ -465,7 +476,7 @@ def export_session(path: str | Path, fmt: str, out: str | Path,
             except ValueError as error:
                 raise ConfigError(f"cannot export {columns} samples to MATLAB: {error}") \
                     from None
-            count = write_mat(session_pieces(opened, with_cov=True), out, start, end)
+            count = write_mat(session_pieces(opened, with_cov=True, setup=setup), out, start, end)
             what = f"{count} samples (meas, xhat)"
     except OSError as error:
         raise ConfigError(f"cannot write {out}: {error.strerror or error}") from None

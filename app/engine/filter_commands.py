@@ -1,75 +1,61 @@
-"""The set-up commands (a sensor switch, the estimator, the settings, the comparisons) applied
-to the runner, each with its timeline entry for a recording: one handler per command type in
-`SETUP_HANDLERS`."""
+"""The set-up commands (a sensor switch, the estimator, the settings, the comparisons, a reset,
+a heading alignment) as changes of the configuration (:class:`~app.engine.configuration.Change`):
+one maker per command type in `SETUP_CHANGES`; a maker returns None when it refuses (saying
+why through `refuse`). The engine hands the change to its replay lane, which makes it an
+override or a change at the current sample (:meth:`ReplayLane.change
+<app.engine.replay_lane.ReplayLane.change>`)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import ekf
-from app.engine.commands import (SetComparisonsEnabled, SetEstimator, SetSensorEnabled,
-                                 SetSettings)
+from app.engine.commands import (AlignHeading, ResetFilter, SetComparisonsEnabled, SetEstimator,
+                                 SetSensorEnabled, SetSettings)
+from app.engine.configuration import Change
+
+Refuse = Callable[[str], None]
 
 
-@dataclass(frozen=True)
-class SetupContext:
-    """What a set-up handler works on. record(kind, **data) writes the timeline entry;
-    refuse(text) says why a command is refused; recording: the recording in progress (or
-    None), which starts with new settings given before its first sample; fed: the samples fed
-    so far."""
-
-    runner: Any
-    record: Callable[..., None]
-    refuse: Callable[[str], None]
-    recording: Any
-    fed: int
+def _sensor(command: SetSensorEnabled, refuse: Refuse) -> Change | None:
+    if command.sensor not in ekf.SENSORS:
+        refuse(f"unknown sensor {command.sensor!r}")
+        return None
+    return Change.of(command.sensor, bool(command.enabled))
 
 
-def _sensor(context: SetupContext, command: SetSensorEnabled) -> bool:
-    context.runner.set_sensor_enabled(command.sensor, command.enabled)
-    context.record("sensor", sensor=command.sensor, enabled=command.enabled)
-    return True
-
-
-def _estimator(context: SetupContext, command: SetEstimator) -> bool:
+def _estimator(command: SetEstimator, refuse: Refuse) -> Change | None:
     if command.name not in ekf.ESTIMATORS:
-        context.refuse(f"unknown estimator {command.name!r}")
-        return False
-    context.runner.set_estimator(command.name)
-    context.record("estimator", name=command.name)
-    return True
+        refuse(f"unknown estimator {command.name!r}")
+        return None
+    return Change.of("estimator", command.name)
 
 
-def _settings(context: SetupContext, command: SetSettings) -> bool:
-    context.runner.set_settings(command.settings)
-    details = {"source": command.source} if command.source else {}
+def _settings(command: SetSettings, refuse: Refuse) -> Change | None:
+    if not isinstance(command.settings, ekf.EKFSettings):
+        refuse(f"settings: expected filter settings, got {type(command.settings).__name__}")
+        return None
+    note: list[tuple[str, Any]] = [("source", command.source)] if command.source else []
     if command.calibration is not None:
-        details["profile"] = command.calibration.get("name")
-    recording = context.recording
-    if recording is not None and recording.active:
-        recording.set_settings(command.settings, command.calibration, context.fed)
-    context.record("settings", settings=command.settings.to_dict()
-                   if hasattr(command.settings, "to_dict") else None, **details)
-    return True
+        note.append(("profile", command.calibration.get("name")))
+    return Change(0, "settings", settings=command.settings, note=tuple(note),
+                  calibration=command.calibration)
 
 
-def _comparisons(context: SetupContext, command: SetComparisonsEnabled) -> bool:
+def _comparisons(command: SetComparisonsEnabled, refuse: Refuse) -> Change | None:
     if command.estimator is not None and command.estimator not in ekf.ESTIMATORS:
-        context.refuse(f"unknown estimator {command.estimator!r}")
-        return False
-    runner = context.runner
-    runner.set_comparisons_enabled(command.enabled, command.estimator)
-    context.record("comparisons", enabled=command.enabled,
-                   estimator=runner.comparison_estimator)
-    return True
+        refuse(f"unknown estimator {command.estimator!r}")
+        return None
+    return Change(0, "comparisons", enabled=bool(command.enabled), name=command.estimator)
 
 
-SETUP_HANDLERS: dict[type, Callable[[SetupContext, Any], bool]] = {
+SETUP_CHANGES: dict[type, Callable[[Any, Refuse], Change | None]] = {
     SetSensorEnabled: _sensor,
     SetEstimator: _estimator,
     SetSettings: _settings,
     SetComparisonsEnabled: _comparisons,
+    ResetFilter: lambda command, refuse: Change(0, "reset"),
+    AlignHeading: lambda command, refuse: Change(0, "align_heading"),
 }
-"""Each set-up command type and its handler; a handler returns False when it refuses."""
+"""Each set-up command type and the change it makes (None: refused)."""

@@ -1,5 +1,6 @@
 """Forwarding the phone's lines to another receiver (``--forward``, the window's Forward menu):
-switching it on, over or off, as the engine's SetForward command does."""
+switching it on, over or off, as the engine's SetForward command does (:class:`Forward` holds
+the one the engine runs)."""
 
 from __future__ import annotations
 
@@ -29,3 +30,20 @@ def switch_forward(current: LineForwarder | None, target: str | None,
     note = "" if live else " (the phone's lines only: nothing to forward while not streaming " \
                            "live)"
     return forwarder, f"forwarding the phone's lines to {address[0]}:{address[1]}{note}", True
+
+
+class Forward:
+    """The forward the engine runs: :attr:`current` (None: none)."""
+
+    def __init__(self, current: LineForwarder | None = None) -> None:
+        self.current = current
+
+    def switch(self, target: str | None, live: bool) -> tuple[str, bool]:
+        """SetForward: see :func:`switch_forward`; (the status line, whether it changed)."""
+        self.current, line, changed = switch_forward(self.current, target, live)
+        return line, changed
+
+    def target(self) -> str | None:
+        """"HOST:PORT" of the running forward (None: none)."""
+        current = self.current
+        return None if current is None else f"{current.host}:{current.port}"

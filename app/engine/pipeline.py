@@ -2,51 +2,36 @@
 index and the exports share (so all three give the same estimates, bit for bit).
 
 :class:`Pipeline` holds the compiled parser, the time orderer and the estimator runner, the
-session's time origin (the plots count seconds from it) and, for a replayed recording, the
-recorded timeline: sensor switches, estimator and settings changes at the sample positions
-where they happened live (``sample``: samples fed to the estimators since the recording
-started), applied at exactly those positions. Its whole state is one :class:`Checkpoint
-<app.engine.checkpoints.Checkpoint>` (:meth:`checkpoint`, :meth:`restore`).
+session's time origin (the plots count seconds from it) and the changes of the configuration
+over time that the current pass applies (:mod:`app.engine.configuration`): sensor switches,
+estimator, settings and comparisons changes, resets and alignments at their sample positions
+(``fed``: samples fed to the estimators since the pass started), applied at exactly those
+positions. Its whole state is one :class:`Checkpoint <app.engine.checkpoints.Checkpoint>`
+(:meth:`checkpoint`, :meth:`restore`).
 
-The owner gives two callbacks: ``on_cut(rows, piece)`` gets the output of a session that ended
-(a clock that does not continue: the estimators start afresh, the time origin is set again),
-``on_event(kind, **data)`` a "session" event for the recording's timeline.
+The owner hands it its callbacks when it makes it: ``on_cut(rows, piece)`` gets the output of
+a session that ended (a clock that does not continue: the estimators start afresh, the time
+origin is set again), ``on_event(kind, **data)`` a "session" event for the recording's
+timeline, ``on_parsed(parsed)`` every parsed piece, ``on_ordered(t_ms, tag, values)`` every
+ordered sample fed to the estimators, ``on_applied(change, data)`` every change applied.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 import ekf
 from app.engine.checkpoints import Checkpoint, pack_runner, unpack_runner
+from app.engine.configuration import Change, Config, Setup, apply_change, changes_due
 from app.engine.runner import SENSORS, EstimatorRunner, Rows
-from app.engine.session import settings_from_dict
 from app.engine.snapshot import PlotChunk
 from app.stream import fastparse
 from app.stream.fastparse import ParsedArrays
 from app.stream.ordering import OrderedArrays, TimeOrderer
 from app.stream.protocol import DEFAULT_LIMITS, Limits
-
-
-@dataclass(frozen=True)
-class Setup:
-    """What a replay pass starts with: the estimator, the sensors switched in, the settings,
-    the comparisons; timeline: the recorded filter events applied on the way (empty: none);
-    start_state: a recording that started mid-stream starts from the live engine's state then
-    (session.json's start_state)."""
-
-    estimator: str = "ekf"
-    sensors: tuple[str, ...] = SENSORS
-    settings: ekf.EKFSettings | None = None
-    comparisons: bool = True
-    comparison_estimator: str = "ekf"
-    timeline: tuple = ()
-    start_state: Any = field(default=None, compare=False)
-    start_state_id: int = 0           # identifies start_state in comparisons
 
 
 class Pipeline:
@@ -55,7 +40,10 @@ class Pipeline:
     def __init__(self, runner: EstimatorRunner, limits: Limits = DEFAULT_LIMITS,
                  orderer_options: dict[str, Any] | None = None,
                  on_cut: Callable[[Rows, PlotChunk], None] | None = None,
-                 on_event: Callable[..., None] | None = None) -> None:
+                 on_event: Callable[..., None] | None = None,
+                 on_parsed: Callable[[ParsedArrays], None] | None = None,
+                 on_ordered: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None,
+                 on_applied: Callable[[Change, dict[str, Any]], None] | None = None) -> None:
         self.runner = runner
         self.limits = limits
         self.orderer_options = dict(orderer_options or {})
@@ -63,15 +51,15 @@ class Pipeline:
         self.orderer = TimeOrderer(**self.orderer_options)
         self.on_cut = on_cut or (lambda rows, piece: None)
         self.on_event = on_event or (lambda kind, **data: None)
-        self.on_parsed: Callable[[ParsedArrays], None] | None = None
-        # every ordered sample fed to the estimators, (t_ms, tag, values) (exports)
-        self.on_ordered: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None
+        self.on_parsed = on_parsed
+        self.on_ordered = on_ordered
+        self.on_applied = on_applied
         self.t0_ms: int | None = None        # the session's start: plots count time from it
         self.piece_first_ms: int | None = None   # the earliest time in the latest output piece
         self.fed = 0                         # samples fed to the estimators in this pass
         self.fed_total = 0                   # ... ever (never restored)
-        self.timeline: tuple = ()            # filter events to apply (a replayed recording)
-        self.timeline_next = 0
+        self.timeline: tuple[Change, ...] = ()   # the changes this pass applies, in order
+        self.timeline_next = 0               # ... the next one not applied yet
         self.order_retired = 0               # out-of-order counts of restored orderer states
 
     # -- sinks -------------------------------------------------------------------------------
@@ -109,16 +97,21 @@ class Pipeline:
                 self.runner.new_session()
             self._feed_runner(ordered.t_ms[piece], ordered.tag[piece], ordered.values[piece])
 
+    def feed_samples(self, t_ms: np.ndarray, tag: np.ndarray, values: np.ndarray) -> None:
+        """Ordered filter-tag samples straight to the estimators (no parser, no orderer), the
+        pass's changes applied at their positions (a re-run of ordered samples)."""
+        self._feed_runner(t_ms, tag, values)
+
     def _feed_runner(self, t_ms: np.ndarray, tag: np.ndarray, values: np.ndarray) -> None:
-        """Samples to the estimators, the recorded timeline's events applied between them at
-        their sample positions."""
+        """Samples to the estimators, the pass's changes applied between them at their sample
+        positions."""
         if self.on_ordered is not None:
             self.on_ordered(t_ms, tag, values)
-        events = self.timeline
+        changes = self.timeline
         start = 0
         count = len(t_ms)
-        while self.timeline_next < len(events):
-            position = events[self.timeline_next]["sample"] - self.fed
+        while self.timeline_next < len(changes):
+            position = changes[self.timeline_next].sample - self.fed
             if position > count - start:
                 break
             if position > 0:
@@ -127,30 +120,46 @@ class Pipeline:
                 self.fed += position
                 self.fed_total += position
                 start += position
-            self.apply_event(events[self.timeline_next])
+            self.apply_change(changes[self.timeline_next])
             self.timeline_next += 1
         if start < count:
             self.runner.feed_arrays(t_ms[start:], tag[start:], values[start:])
             self.fed += count - start
             self.fed_total += count - start
 
-    def apply_event(self, event: dict[str, Any]) -> None:
-        """One recorded filter event (session.json timeline) applied to the estimators."""
-        runner = self.runner
-        kind = event.get("kind")
-        if kind == "sensor":
-            runner.set_sensor_enabled(event["sensor"], bool(event["enabled"]))
-        elif kind == "estimator":
-            runner.set_estimator(event["name"])
-        elif kind == "settings" and event.get("settings"):
-            runner.set_settings(settings_from_dict(event["settings"]))
-        elif kind == "reset":
-            runner.reset()
-        elif kind == "align_heading":
-            runner.align_heading()
-        elif kind == "comparisons":
-            runner.set_comparisons_enabled(bool(event.get("enabled", True)),
-                                           event.get("estimator"))
+    def apply_change(self, change: Change) -> None:
+        """One change applied to the estimators now (and handed to on_applied)."""
+        data = apply_change(self.runner, change)
+        if self.on_applied is not None:
+            self.on_applied(change, data)
+
+    def use_timeline(self, changes: tuple[Change, ...]) -> None:
+        """Go on with these changes (a configuration's, in sample order): those before the
+        current position count as applied, and those at it that were; the others at or before
+        it apply now."""
+        self.timeline_next = changes_due(tuple(changes), self.timeline[:self.timeline_next],
+                                         self.fed)
+        self.timeline = tuple(changes)
+        self.apply_due()
+
+    def apply_due(self) -> None:
+        """Apply the changes due at the current position (a pass's start, a new change)."""
+        changes = self.timeline
+        while self.timeline_next < len(changes) and \
+                changes[self.timeline_next].sample <= self.fed:
+            self.apply_change(changes[self.timeline_next])
+            self.timeline_next += 1
+
+    def begin(self, checkpoint: Checkpoint, changes: tuple[Change, ...]) -> None:
+        """Go on from a checkpoint of a pass that applies `changes`."""
+        self.restore(checkpoint)
+        self.continue_with(changes)
+
+    def continue_with(self, changes: tuple[Change, ...]) -> None:
+        """After :meth:`restore`: the pass applies `changes` (the checkpoint's, which says how
+        many of them are applied); those due apply now."""
+        self.timeline = tuple(changes)
+        self.apply_due()
 
     def end_of_stream(self, partial_line_damaged: bool) -> None:
         """The current stream ended: a partial line is dropped (a line cut by a disconnect is
@@ -178,6 +187,14 @@ class Pipeline:
         rows, piece = self.take_output()
         self.on_cut(rows, piece)
         self.t0_ms = None
+
+    def flush_output(self) -> None:
+        """The output so far to on_cut now, in the session's time (a seek's re-sync)."""
+        self.on_cut(*self.take_output())
+
+    def count_damaged(self, reason: str, example: str) -> None:
+        """A damaged line the parser did not see (a replay's torn last line)."""
+        self.parser._count_bad("damaged", reason, example)
 
     def take_output(self) -> tuple[Rows, PlotChunk]:
         """The rows committed since the last call and the plot samples as a PlotChunk in
@@ -258,7 +275,8 @@ class Pipeline:
         of the same options; this pipeline is not changed)."""
         start = setup.start_state
         if start is not None:
-            return Checkpoint(0, pack_runner(start["runner"]), start["orderer"],
+            return Checkpoint(0, pack_runner(_started(start["runner"], setup.start)),
+                              start["orderer"],
                               (b"", False, bool(start.get("ori4_seen", False))), None, 0, 0,
                               None)
         runner = EstimatorRunner(setup.estimator, setup.settings, setup.sensors or SENSORS,
@@ -275,6 +293,19 @@ class Pipeline:
         """What session.json's start_state keeps of a recording that starts now."""
         return {"runner": self.runner.snapshot(), "orderer": self.orderer.snapshot(),
                 "ori4_seen": self.parser.line_state()[2]}
+
+
+def _started(snapshot: dict[str, Any], config: Config) -> dict[str, Any]:
+    """A recording's start state (a runner snapshot) with `config` where it differs (your
+    overrides of a recording that started mid-stream: its state, your values)."""
+    runner = EstimatorRunner(collect_plot=False)
+    runner.restore(snapshot)
+    changes = Config.of(runner).changes_to(config, 0)
+    if not changes:
+        return snapshot
+    for change in changes:
+        apply_change(runner, change)
+    return runner.snapshot()
 
 
 def check_start_state(start: Any) -> None:

@@ -6,8 +6,8 @@ latest :class:`~app.engine.snapshot.Snapshot`, the plot samples since the previo
 (bounded, :class:`~app.engine.snapshot.PlotBuffer`) and a sequence number that says whether
 anything changed; the engine's thread publishes, any thread polls, a short lock between them.
 It also measures the latency of the estimates: from a chunk's arrival to the publish after
-which the time orderer holds none of its samples any more. :func:`engine_snapshot` composes a
-snapshot from the engine's parts.
+which the time orderer holds none of its samples any more. (The snapshot itself is composed
+from the engine's parts by :func:`app.engine.parts.engine_snapshot`.)
 """
 
 from __future__ import annotations
@@ -15,13 +15,12 @@ from __future__ import annotations
 import dataclasses
 import threading
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from typing import Any
 
-import numpy as np
-
-from app.engine.snapshot import Comparison, EngineFailure, FilterStatus, PlotBuffer, PlotChunk, \
-    Snapshot, StreamHealth
+from app.engine.pipeline import Pipeline
+from app.engine.recording_lane import RecordingLane
+from app.engine.snapshot import EngineFailure, PlotBuffer, PlotChunk, Snapshot
 
 
 class Publisher:
@@ -120,17 +119,16 @@ class Publisher:
 
 class Output:
     """The pipeline's output to its consumers: rows to rows_log (record_rows: keep them all,
-    unbounded) and the recording lane (not the rows a seek re-runs up to its target, while
-    seeking() says so: they were not shown); plot samples to the publisher."""
+    unbounded) and the recording lane (which leaves out the rows a seek re-runs up to its
+    target: they were not shown); plot samples to the publisher."""
 
-    def __init__(self, pipeline: Any, publisher: Publisher, recordings: Any,
+    def __init__(self, pipeline: Pipeline, publisher: Publisher, recordings: RecordingLane,
                  record_rows: bool) -> None:
         self.pipeline = pipeline
         self.publisher = publisher
         self.recordings = recordings
         self.record_rows = record_rows
         self.rows_log: list[Any] = []
-        self.seeking: Callable[[], bool] = lambda: False
 
     def cut(self, rows: Any, piece: PlotChunk) -> None:
         """Output ready as it is (a session's end with its own time origin, a seek's re-sync)."""
@@ -140,8 +138,7 @@ class Output:
     def rows(self, rows: Any) -> None:
         if self.record_rows and len(rows):
             self.rows_log.append(rows)
-        if not self.seeking():
-            self.recordings.write_rows(rows)
+        self.recordings.write_rows(rows)
 
     def flush(self) -> None:
         """The output so far to its consumers now (rows, and the plots at the next poll)."""
@@ -154,47 +151,3 @@ class Output:
         self.recordings.output_starts(self.pipeline.piece_first_ms)
         self.rows(rows)
         return piece
-
-
-def engine_snapshot(engine: Any, now: float) -> Snapshot:
-    """What the engine shows now (`now`: perf_counter, for the rates): its main estimate,
-    lights, comparisons, stream health, replay, failures, markers, your filter, recording."""
-    runner, replays = engine._runner, engine.replay_lane
-    info = engine.source.info()
-    manager = replays.shown
-    main, cov, phone = runner.main, runner.main.cov, runner.phone_quat
-    rows = [Comparison(c.name, c.estimator.quat, tuple(c.errors.rmse().tolist()),
-                       tuple(c.errors.latest.tolist()), c.errors.count)
-            for c in runner.comparisons]
-    yours = engine._user.comparison_row()
-    if yours is not None:
-        rows.append(yours)
-    status = FilterStatus(sensors_enabled=main.enabled, flags=main.flags,
-                          diagnostics=main.diagnostics, estimator=runner.estimator_name,
-                          initialised=main.initialised, settings=runner.settings)
-    return Snapshot(
-        t_ms=runner.latest_t_ms, own_quat=main.quat,
-        own_cov=None if cov is None else np.array(cov)[:4, :4],
-        phone_quat=None if phone is None else np.array(phone), status=status,
-        comparisons=rows, comparison_estimator=runner.comparison_estimator,
-        t0_ms=engine.pipeline.t0_ms, health=stream_health(engine, now, info),
-        replay=replays.info(info.get("replay")), failures=list(engine.failures),
-        markers=tuple(engine.markers.items), preparing=engine.preparing,
-        user=engine._user.status(), recording=engine.recording_lane.status(),
-        session_plot=manager.plot if manager is not None else None,
-        session_samples=runner.session_samples)
-
-
-def stream_health(engine: Any, now: float, info: dict[str, Any]) -> StreamHealth:
-    """The stream's health: the source's `info`, the parser's and the orderer's counts, the
-    connection, the recording and the forward."""
-    state = info.get("connection_state", "waiting")
-    if engine.source.capabilities.reconnect:
-        state = engine._connection_state if state != "waiting" else "waiting"
-    pipeline = engine.pipeline
-    health = engine._health.health(now, info, pipeline.parser, pipeline.orderer,
-                                   pipeline.order_retired, state, engine._peer,
-                                   engine.recording_lane.text())
-    if engine.forwarder is not None:
-        health.forward = engine.forwarder.status()
-    return health

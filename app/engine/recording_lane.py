@@ -19,6 +19,7 @@ from typing import Any
 
 from app.engine.commands import StartRecording
 from app.engine.config import ConfigError, megabytes
+from app.engine.configuration import Change
 from app.engine.health import HealthTracker, stats_dict
 from app.engine.pipeline import Pipeline
 from app.engine.recording import SessionRecording
@@ -40,6 +41,7 @@ class RecordingLane:
         self.last_folder: Path | None = None
         self.last_status: dict[str, Any] | None = None
         self._reported = False           # the current recording's error was reported
+        self._unwatched = False          # a seek's re-run: neither its lines nor its rows
 
     @property
     def active(self) -> bool:
@@ -111,13 +113,17 @@ class RecordingLane:
     # -- while recording -----------------------------------------------------------------------
 
     def watch(self) -> None:
-        """The lines the parser takes go into raw.txt (when recording)."""
+        """The lines the parser takes go into raw.txt and the rows into estimates.csv (when
+        recording)."""
+        self._unwatched = False
         if self.active:
             recorder = self.current.recorder
             self.pipeline.set_raw_sinks(recorder.write_line, recorder.write_block)
 
     def unwatch(self) -> None:
-        """The lines the parser takes now are not watched (a seek's re-run): not recorded."""
+        """The lines the parser takes now, and their rows, are not watched (a seek's re-run):
+        not recorded."""
+        self._unwatched = True
         self.pipeline.set_raw_sinks(None, None)
 
     def event(self, kind: str, **data: Any) -> None:
@@ -126,13 +132,26 @@ class RecordingLane:
             pipeline = self.pipeline
             self.current.add_event(kind, pipeline.runner.latest_t_ms, pipeline.fed_total, **data)
 
+    def applied(self, change: Change, data: dict[str, Any]) -> None:
+        """A change of the configuration applied now: its timeline entry (an alignment without
+        PHONE's orientation changed nothing: none). New settings before the recording's first
+        sample are its own (session.json "settings"); the calibration profile they came from is
+        kept."""
+        if not self.active or (change.kind == "align_heading"
+                               and data.get("turned_deg") is None):
+            return
+        if change.kind == "settings":
+            self.current.set_settings(change.settings, change.calibration,
+                                      self.pipeline.fed_total)
+        self.event(change.kind, **change.event_data(), **data)
+
     def output_starts(self, first_ms: int | None) -> None:
         """The first output of a recording sets its time origin, as a replay of it counts."""
         if self.active and self.current.t0_ms is None:
             self.current.t0_ms = first_ms
 
     def write_rows(self, rows: Any) -> None:
-        if self.current is not None:
+        if self.current is not None and not self._unwatched:
             warning = self.current.write_rows(rows)
             if warning:
                 self._health.warn("estimates", warning, force=True)

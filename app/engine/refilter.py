@@ -5,8 +5,10 @@ The log is turned into ordered sample arrays once (:class:`PreparedLog`); each r
 to a fresh :class:`~app.engine.runner.EstimatorRunner` in one call, i.e. through the compiled
 batch path (the estimators' ``run_batch``, one nogil loop), so the rows are those of `filter`
 and of a live replay, bit for bit, and a 10-minute 100 Hz session takes a few tens of
-milliseconds (benchmarks/tuning.py). Errors against ORI are :func:`app.engine.offline.
-reference_errors`' (the `evaluate` figures).
+milliseconds (benchmarks/tuning.py). A re-run of a :class:`~app.engine.configuration.Setup`
+(the window's configuration over time, :func:`run_setup`) applies its changes at their sample
+positions as a replay does, in a few calls, so Tune's figures are the replay's. Errors against
+ORI are :func:`app.engine.offline.reference_errors`' (the `evaluate` figures).
 
 :class:`Refilterer` runs requests in a thread (latest request wins: a settings change while a
 run is under way replaces the waiting one) and hands each result to a callback, from that
@@ -15,6 +17,7 @@ thread; a widget forwards it to the GUI thread (a queued signal). Qt-free.
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -25,8 +28,10 @@ from typing import Any
 import numpy as np
 
 import ekf
+from app.engine.configuration import Setup
 from app.engine.offline import (ReferenceErrors, reference_errors, session_row_starts,
                                 smooth_rows)
+from app.engine.pipeline import Pipeline
 from app.engine.runner import SENSORS, EstimatorRunner, Rows
 from app.stream.logfile import LogData
 
@@ -107,16 +112,48 @@ def run_rows(prepared: PreparedLog, settings: ekf.EKFSettings | None, estimator:
     return runner.take_rows()
 
 
+def run_setup(prepared: PreparedLog, setup: Setup) -> Rows:
+    """The rows of a whole run of `setup`: its configuration at the start (a recording's start
+    state too), its changes applied at their sample positions (the engine's
+    :class:`~app.engine.pipeline.Pipeline`, fed the ordered samples), the estimators afresh
+    where the log's clock restarts; the comparisons are not run (they change no row)."""
+    setup = dataclasses.replace(setup, comparisons=False, timeline=tuple(
+        c for c in setup.timeline if c.kind != "comparisons"))
+    runner = EstimatorRunner(collect_plot=False)
+    pipeline = Pipeline(runner)
+    pipeline.begin(pipeline.initial_checkpoint(setup), setup.timeline)
+    previous = 0
+    for start in list(prepared.session_starts) + [len(prepared.t_ms)]:
+        if start > previous:
+            pipeline.feed_samples(prepared.t_ms[previous:start], prepared.tag[previous:start],
+                                  prepared.values[previous:start])
+        if start < len(prepared.t_ms):
+            runner.new_session()
+        previous = start
+    runner.finish()
+    return runner.take_rows()
+
+
 def refilter(log: LogData | PreparedLog, settings: ekf.EKFSettings | None,
              estimator: str = "ekf", sensors: Iterable[str] = SENSORS,
              intervals_ms: list | None = None, skip_s: float = 0.0,
-             label: str = "", smooth: bool = False) -> RefilterResult:
+             label: str = "", smooth: bool = False, setup: Setup | None = None
+             ) -> RefilterResult:
     """Run the whole log with `settings` and score it against ORI (see the module's docstring).
     smooth: the estimates of the offline smoother instead (the EKF forward and a backward RTS
-    pass, as `filter --smooth`; one session only, the EKF only)."""
+    pass, as `filter --smooth`; one session only, the EKF only). setup: run this
+    configuration over time instead of `settings`, `estimator` and `sensors`."""
     prepared = prepare(log)
     started = time.perf_counter()
-    rows = run_rows(prepared, settings, estimator, sensors)
+    if setup is not None:
+        start = setup.start
+        settings, estimator, sensors = start.settings, start.estimator, start.sensors
+        rows = run_setup(prepared, setup)
+        if smooth and any(c.kind in ("sensor", "estimator", "settings") for c in setup.timeline):
+            raise ValueError("the smoother runs one configuration over the whole session: this "
+                             "one changes on the way (a recorded change or yours)")
+    else:
+        rows = run_rows(prepared, settings, estimator, sensors)
     if smooth:
         smooth_prepared(prepared, rows, estimator, settings, sensors)
     errors = None
@@ -200,7 +237,7 @@ class Refilterer:
         self.current: RefilterResult | None = None
         self.ghost: RefilterResult | None = None
         self.runs = 0
-        self._pending: ekf.EKFSettings | None = None
+        self._pending: ekf.EKFSettings | Setup | None = None
         self._has_pending = False
         self._busy = False
         self._closed = False
@@ -208,8 +245,9 @@ class Refilterer:
         self._thread = threading.Thread(target=self._loop, name="refilter", daemon=True)
         self._thread.start()
 
-    def submit(self, settings: ekf.EKFSettings | None) -> None:
-        """Re-run the whole log with `settings` (replaces a request not yet started)."""
+    def submit(self, settings: ekf.EKFSettings | Setup | None) -> None:
+        """Re-run the whole log with `settings`, or with a configuration over time (a Setup),
+        replacing a request not yet started."""
         with self._cond:
             self._pending, self._has_pending = settings, True
             self._cond.notify_all()
@@ -256,10 +294,11 @@ class Refilterer:
                 if self._closed:
                     return
                 settings, self._has_pending, self._busy = self._pending, False, True
+            setup = settings if isinstance(settings, Setup) else None
             try:
-                result = refilter(self.prepared, settings, self.estimator, self.sensors,
-                                  self.intervals_ms, self.skip_s, label="current",
-                                  smooth=self.smooth)
+                result = refilter(self.prepared, None if setup else settings, self.estimator,
+                                  self.sensors, self.intervals_ms, self.skip_s,
+                                  label="current", smooth=self.smooth, setup=setup)
             except Exception as error:   # reported, never lost: the caller shows it
                 self._finish(None)
                 if self.on_error is not None:
@@ -279,7 +318,41 @@ class Refilterer:
 
 
 def prepare_path(path: str | Path) -> PreparedLog:
-    """A log file or session folder, read and prepared (ConfigError when unusable)."""
-    from app.engine.config import open_log
+    """A log file or session folder, read and prepared (ConfigError when unusable). A recording
+    that started mid-stream is prepared as its replay orders it: from the samples the time
+    orderer held then (its session.json's start state), so positions are a replay's."""
+    from app.engine.config import open_log, open_replay
+    from app.engine.session import read_session, session_json_for
 
-    return PreparedLog.from_log(open_log(path))
+    log = open_log(path)
+    found = session_json_for(log.path)
+    start = read_session(found).start_state if found is not None else None
+    if start is None:
+        return PreparedLog.from_log(log)
+    return prepare_from_state(open_replay(path), start)
+
+
+def prepare_from_state(source: Any, start_state: dict) -> PreparedLog:
+    """The ordered samples of a replay source (a LineReplaySource) as the engine's pipeline
+    orders them from a recording's start state."""
+    pieces: list[tuple[np.ndarray, ...]] = []
+    starts: list[int] = []
+    count = [0]
+
+    def ordered(t_ms: np.ndarray, tag: np.ndarray, values: np.ndarray) -> None:
+        pieces.append((t_ms, tag, values))
+        count[0] += len(t_ms)
+
+    pipeline = Pipeline(EstimatorRunner(collect_plot=False), on_ordered=ordered,
+                        on_event=lambda kind, **data: starts.append(count[0]))
+    pipeline.begin(pipeline.initial_checkpoint(Setup(start_state=start_state)), ())
+    step = 1 << 16
+    for first in range(0, source.line_count, step):
+        pipeline.feed_bytes(source.lines_between(first, min(first + step, source.line_count)))
+    pipeline.end_of_stream(partial_line_damaged=False)
+    if not pieces:
+        pieces.append((np.empty(0, np.int64), np.empty(0, np.int64), np.empty((0, 4))))
+    t_ms, tag, values = (np.concatenate(column) for column in zip(*pieces))
+    ori = np.unique(t_ms[tag == ORI_CODE])
+    return PreparedLog(np.asarray(t_ms, np.int64), np.asarray(tag, np.int64), values, ori,
+                       str(getattr(source, "path", "")), tuple(k for k in starts if k > 0))

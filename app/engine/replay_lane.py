@@ -1,12 +1,19 @@
-"""The engine's replay lane: which replay plays, its passes, its seeks and its set-up changes.
+"""The engine's replay lane: which replay plays, its passes and seeks, and how a change of the
+configuration reaches them.
 
 Every pass of a replay starts from the same state (its :class:`~app.engine.replay.ReplayManager`
 says which); a background index keeps a checkpoint every second of data, so a seek restores
 the nearest one before its target and replays at most one second, plotted but neither recorded
-nor counted as new estimates; a recorded session's timeline is applied at its sample positions.
-A set-up change while replaying indexes the replay again and re-synchronises at the current
-line once the index is complete; while a recording runs the change applies from then on, as on
-a live stream, and the whole replay follows once the recording stops.
+nor counted as new estimates; the configuration's changes (:mod:`app.engine.configuration`)
+apply at their sample positions.
+
+A user's change of the configuration (:meth:`ReplayLane.change`): while a replay plays and no
+recording runs, it overrides its kind for the whole replay: it shows at once, the replay is
+indexed again and the engine re-synchronises at the current line once the index is complete. On
+a live stream, and while a recording runs, it applies from the current sample on (the recording
+keeps it at its sample, so it replays exactly what was shown); a replay keeps it there too.
+A recording holds what plays in one piece: while it runs, seeks and a return to the recording
+wait for it to stop.
 """
 
 from __future__ import annotations
@@ -14,47 +21,54 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections import deque
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from app.engine.commands import ReplayControl
-from app.engine.health import HealthTracker
+from app.engine.configuration import Change, Config, Configuration
 from app.engine.markers import Markers
 from app.engine.pipeline import Pipeline
-from app.engine.publisher import Publisher
 from app.engine.recording_lane import RecordingLane
 from app.engine.replay import ReplayManager
 from app.engine.session import SessionInfo
 from app.stream.sources import LineReplaySource, Source
 
 
-class ReplayLane:
-    """The replay of the engine's source (when it plays one). session: the replayed
-    recording's session.json (None: none); index: build a replay's index in the background;
-    output(rows, piece): hands a seek's re-sync to the engine's consumers; on_jump(): the engine
-    drops what it read at the old position (a seek)."""
+class ReplayEvents(Protocol):
+    """What the replay lane tells the engine around it."""
 
-    def __init__(self, source: Source, pipeline: Pipeline, session: SessionInfo | None,
-                 index: bool, markers: Markers, recordings: RecordingLane, user: Any,
-                 health: HealthTracker, publisher: Publisher,
-                 output: Callable[[Any, Any], None], on_jump: Callable[[], None]) -> None:
+    def jumped(self) -> None:
+        """A seek moved the replay: what was read at the old position is not wanted, and your
+        filter re-runs up to the new one."""
+
+    def new_pass(self) -> None:
+        """A pass begins (the start, a loop, a seek): what was read before is not going to be
+        published."""
+
+    def say(self, topic: str, text: str) -> None:
+        """One line for the status bar."""
+
+
+class ReplayLane:
+    """The replay of the engine's source (when it plays one) and the changes of its
+    configuration. session: the replayed recording's session.json (None: none); index: build a
+    replay's index in the background."""
+
+    def __init__(self, source: Source, pipeline: Pipeline, configuration: Configuration,
+                 session: SessionInfo | None, markers: Markers, recordings: RecordingLane,
+                 events: ReplayEvents, index: bool = True) -> None:
         self.source = source
         self.pipeline = pipeline
+        self.configuration = configuration
         self.session = session
-        self.index = bool(index)
         self.markers = markers
         self.recordings = recordings
-        self.user = user
-        self._health = health
-        self.publisher = publisher
-        self._output = output
-        self._on_jump = on_jump
+        self.events = events
+        self.index = bool(index)
         self.manager: ReplayManager | None = None
         self.target: tuple[int, int] | None = None   # a seek's target and start line
         # seeks done: (perf_counter when the state reached the target, lines replayed)
         self.seeks: deque[tuple[float, int]] = deque(maxlen=1000)
-        self._setup_deferred = False     # a set-up change during a recording of a replay
 
     # -- which replay ----------------------------------------------------------------------------
 
@@ -90,8 +104,8 @@ class ReplayLane:
             return
         self._begin_pass(source)
         if getattr(source, "torn_lines", 0):
-            self.pipeline.parser._count_bad("damaged", "torn last line (the recording was "
-                                            "cut off)", "torn last line")
+            self.pipeline.count_damaged("torn last line (the recording was cut off)",
+                                        "torn last line")
 
     def restarted(self, kind: str) -> None:
         """A loop or a source's own seek: every pass of a replay starts from the same state
@@ -110,12 +124,21 @@ class ReplayLane:
             pipeline = self.pipeline
             session = self.session if self._session_matches(source) else None
             manager = self.manager = ReplayManager(
-                source, session, {"limits": pipeline.limits,
-                                  "orderer_options": pipeline.orderer_options},
+                source, self.configuration, session,
+                {"limits": pipeline.limits, "orderer_options": pipeline.orderer_options},
                 index=self.index)
             self.markers.replace(manager.markers)
-        manager.apply(self.pipeline, manager.begin(self.pipeline))
-        self.publisher.forget_arrivals()
+        pipeline = self.pipeline
+        before = Config.of(pipeline.runner)
+        checkpoint = manager.begin(pipeline)
+        pipeline.restore(checkpoint)
+        if self.recordings.active:
+            # the pass starts with the configuration of its start: the recording keeps the
+            # changes from where the previous pass ended
+            for change in before.changes_to(Config.of(pipeline.runner), 0):
+                self.recordings.event(change.kind, **change.event_data())
+        pipeline.continue_with(manager.setup.timeline)
+        self.events.new_pass()
 
     def _session_matches(self, source: LineReplaySource) -> bool:
         session = self.session
@@ -124,11 +147,15 @@ class ReplayLane:
             Path(session.path).parent == Path(path).parent
 
     def off(self) -> None:
-        """A phone took over from the demo: no replay any more."""
+        """A phone took over from the demo: no replay any more; the configuration goes on
+        from what runs now."""
         if self.manager is not None:
             self.manager.stop()
             self.manager = None
             self.markers.replace([])
+        if self.configuration.replaying:
+            self.configuration.go_live(Config.of(self.pipeline.runner))
+            self.pipeline.use_timeline(self.configuration.changes())
 
     def stop(self) -> None:
         if self.manager is not None:
@@ -144,12 +171,11 @@ class ReplayLane:
             return False
         target = max(0, min(int(target), source.line_count))
         checkpoint = manager.checkpoint_before(target)
-        self._on_jump()
-        self.publisher.forget_arrivals()
+        self.events.new_pass()
         self.pipeline.cut()
         manager.apply(self.pipeline, checkpoint)
         source.jump(checkpoint.line, target)
-        self.user.on_seek()              # YOURS re-runs the log up to here in the background
+        self.events.jumped()            # YOURS re-runs the log up to here in the background
         self.target = (target, checkpoint.line)
         self.recordings.unwatch()        # the lines up to the target were not watched
         if checkpoint.line >= target:
@@ -158,63 +184,80 @@ class ReplayLane:
 
     def fed(self) -> None:
         """After lines were fed (and nothing read waits): is a seek's target reached?"""
-        if self.target is not None and getattr(self.playing(), "_index", -1) >= self.target[0]:
+        source = self.playing()
+        if self.target is not None and source is not None and \
+                source.lines_out >= self.target[0]:
             self._done()
 
     def _done(self) -> None:
         """A seek reached its target: (when, lines replayed) for the benchmarks."""
         target, start = self.target
         self.seeks.append((time.perf_counter(), target - start))
-        self._output(*self.pipeline.take_output())   # the re-sync: plotted, not recorded
+        self.pipeline.flush_output()     # the re-sync: plotted, not recorded
         self.target = None
         self.recordings.watch()
 
     def tick(self) -> None:
         """Once a pass: the index of a changed set-up is ready: be where it says at the current
-        line."""
-        if self.manager is not None and self.manager.poll():
+        line (not while a recording runs)."""
+        if self.manager is not None and self.manager.poll(hold=self.recordings.active):
             source = self.playing()
             if source is not None:
                 self.seek(source.line_index)
 
-    # -- commands --------------------------------------------------------------------------------
+    # -- the configuration -------------------------------------------------------------------------
 
-    def setup_changed(self) -> bool:
-        """The user chose another set-up while replaying (index again, re-sync once indexed).
-        While a recording runs it applies from now on, as on a live stream, so the recording
-        replays exactly what was shown; the whole replay follows once the recording stops."""
-        manager = self.manager
-        if manager is None or self.playing() is None:
-            return False
+    def change(self, change: Change) -> None:
+        """A user's change of the configuration (see the module docstring): a replay's override
+        of its kind, else a change from the current sample on."""
+        configuration, pipeline = self.configuration, self.pipeline
+        replaying = self.playing() is not None
+        kind = change.kind_overridden
+        if kind == "comparisons" and change.name is None:      # None: the one running now
+            change = dataclasses.replace(change, name=pipeline.runner.comparison_estimator)
+        if replaying and kind is not None and not self.recordings.active:
+            configuration.override(kind, change.value)
+            self._follow_configuration(resync=True)
+            return
+        configuration.add(change.at(pipeline.fed))
+        pipeline.use_timeline(configuration.changes())     # applies it now, recorded
+        if replaying and self.manager is not None:
+            self.manager.refresh(pipeline, resync=False)
+
+    def set_follow(self, enabled: bool) -> None:
+        """SetFollowTimeline: back to the recording (True), or every kind yours at the values
+        running now (False)."""
+        configuration = self.configuration
+        if self.manager is None or self.playing() is None or not configuration.recorded:
+            self.events.say("timeline", "only a recorded session has a timeline to follow")
+            return
         if self.recordings.active:
-            self._setup_deferred = True
-            return False
-        if manager.changed(self.pipeline):
-            self._health.warn("timeline", "recorded timeline off: your choices apply to the "
-                                          "whole replay (re-computing it)", force=True)
-        return False
+            self.events.say("timeline", "stop the recording first: it keeps what plays, "
+                                        "in one piece")
+            return
+        if enabled:
+            if not configuration.follow_recording():
+                return
+        else:
+            configuration.override_all(configuration.at(self.pipeline.fed))
+        self._follow_configuration(resync=True)
 
-    def recording_stopped(self) -> None:
-        """A set-up change made while recording now applies to the whole replay."""
-        if self._setup_deferred:
-            self._setup_deferred = False
-            self.setup_changed()
-
-    def set_follow(self, enabled: bool) -> bool:
-        """SetFollowTimeline."""
-        manager = self.manager
-        if manager is None or manager.session is None:
-            self._health.warn("timeline", "only a recorded session has a timeline to follow",
-                              force=True)
-            return False
-        manager.set_follow(self.pipeline, enabled)
-        self._health.warn("timeline", "following the recorded timeline" if manager.follow
-                          else "recorded timeline off: your choices apply to the whole replay",
-                          force=True)
-        return False
+    def _follow_configuration(self, resync: bool) -> None:
+        """The configuration changed for the whole replay: what runs now follows it at once,
+        the index is built again and the engine re-synchronises once it is ready."""
+        configuration, pipeline = self.configuration, self.pipeline
+        now = configuration.at(pipeline.fed)
+        for change in Config.of(pipeline.runner).changes_to(now, pipeline.fed):
+            pipeline.apply_change(change)
+        pipeline.use_timeline(configuration.changes())
+        if self.manager is not None:
+            self.manager.refresh(pipeline, resync)
+        self.events.say("timeline", f"replay: {configuration.summary()}"
+                        + (" (re-computing it)" if resync else ""))
 
     def control(self, command: ReplayControl) -> bool:
-        """ReplayControl: the seeks here (from a checkpoint), the rest by the source."""
+        """ReplayControl: the seeks here (from a checkpoint; not while recording), the rest by
+        the source."""
         source = self.playing()
         if source is None or self.manager is None:
             self.source.control(command)
@@ -227,6 +270,11 @@ class ReplayLane:
             target = max(0, source.line_index + step)
         rest = dataclasses.replace(command, seek_s=None, seek_line=None,
                                    step=step if step > 0 else None)
+        if target is not None and self.recordings.active:
+            self.events.say("seek", "stop the recording to jump: it keeps what plays, in one "
+                                    "piece")
+            target = None
         moved = target is not None and self.seek(target)
         source.control(rest)
         return moved
+

@@ -143,8 +143,6 @@ class EstimatorRunner:
         if sensor not in SENSORS:
             raise ValueError(f"unknown sensor {sensor!r}")
         self.main.set_enabled(**{sensor: bool(enabled)})
-        if self.user is not None:
-            self.user.set_enabled(sensor, enabled)
 
     def set_estimator(self, name: str) -> None:
         """Switch the main estimator (it starts afresh, with the current sensor switches)."""
@@ -214,12 +212,9 @@ class EstimatorRunner:
                 for combo in COMBINATIONS]
 
     def set_user_lane(self, lane: UserLane | None) -> None:
-        """Run your filter beside the main estimator (None: stop). The lane takes the current
-        sensor switches."""
+        """Run your filter beside the main estimator (None: stop). It gets the rows the main
+        estimator gets, a switched-off sensor as no sample (None in its step)."""
         self.user = lane
-        if lane is not None:
-            for sensor, on in self.main.enabled.items():
-                lane.set_enabled(sensor, on)
 
     def set_consistency_enabled(self, enabled: bool) -> None:
         """Collect our EKF's innovations (a twin's per-update replay, see
@@ -337,7 +332,7 @@ class EstimatorRunner:
             self._add_phone(t_ms[ori], values[ori])
             self.phone_quat = tuple(values[ori[-1]].tolist())
         if self.user is not None:       # after the chunk's ORI samples, as they are compared
-            self.user.give(layout.row_t, t_s, gyr, acc, mag)
+            self.user.give(layout.row_t, t_s, *self._switched(gyr, acc, mag))
         self._commit_groups(layout, result, compared, before)
         if self.collect_cov:
             self._commit_covariances(layout, result, cov_before)
@@ -348,6 +343,13 @@ class EstimatorRunner:
         self.latest_t_ms = int(t_ms[-1])
         self._row_t = self.latest_t_ms
         self._row_has_sample = bool(layout.own_sample[-1])
+
+    def _switched(self, *columns: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The GYR, ACC, MAG row columns with the sensors switched off in the main estimator as
+        no sample (NaN): what your filter gets, exactly when OWN runs without them."""
+        enabled = self.main.enabled
+        return tuple(column if enabled[sensor] else np.full_like(column, np.nan)
+                     for sensor, column in zip(SENSORS, columns))
 
     def _add_phone(self, t_ms: np.ndarray, quat: np.ndarray) -> None:
         quat = np.asarray(quat, float)

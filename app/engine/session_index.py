@@ -28,7 +28,8 @@ from typing import Any
 import numpy as np
 
 from app.engine.checkpoints import Checkpoint, CheckpointStore
-from app.engine.pipeline import Pipeline, Setup
+from app.engine.configuration import Setup
+from app.engine.pipeline import Pipeline
 from app.engine.runner import EstimatorRunner
 from app.engine.snapshot import PlotChunk
 
@@ -182,8 +183,7 @@ class SessionIndex:
                                  collect_plot=True)
         pipeline = Pipeline(runner, on_cut=lambda rows, piece: self.plot.add(piece),
                             **self.options)
-        pipeline.restore(pipeline.initial_checkpoint(setup))
-        pipeline.timeline = setup.timeline
+        pipeline.begin(pipeline.initial_checkpoint(setup), setup.timeline)
         lines = checkpoint_lines(self.source.pace, self.interval_s)
         total = max(int(lines[-1]), 1)
         self.store.add(pipeline.checkpoint(0))

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 import ekf
+from app.engine.configuration import ConfigurationView
 from app.engine.user_problem import UserProblem
 from app.stream.forwarder import ForwardStatus
 
@@ -235,6 +236,9 @@ class Snapshot:
     # samples of each tag fed to the estimators in this session, {"gyr", "acc", "mag", "ori"}
     # (empty: not known, e.g. a test double): which sensors the stream delivers
     session_samples: dict[str, int] = field(default_factory=dict)
+    # the filter's configuration over time (app.engine.configuration): what the pass applies,
+    # what of a replayed recording is yours (None: a test double)
+    configuration: ConfigurationView | None = None
 
 
 #: A sensor with no sample after this much phone time of the session is "not in this stream".

@@ -28,6 +28,7 @@ import ekf
 from ekf._optional import MissingLibrary, require
 from ekf.metrics import ErrorSummary
 from ekf.settings import search_ranges
+from app.engine.configuration import Setup
 from app.engine.errors import ConfigError
 from app.engine.refilter import PreparedLog, refilter
 from app.engine.runner import SENSORS
@@ -171,12 +172,15 @@ def _bounds(name: str, text: str, base: ekf.EKFSettings) -> tuple[float, float]:
 @dataclass
 class Target:
     """Where a search is scored: a prepared log, its score intervals (None: all of it), the
-    convergence time ignored at its start, and a label for reports."""
+    convergence time ignored at its start, a label for reports and, from the window, the
+    configuration over time the log is replayed with (setup; a candidate overrides its
+    settings, as a settings edit does; None: the estimator and sensors given to evaluate)."""
 
     log: PreparedLog
     intervals_ms: list | None = None
     skip_s: float = 0.0
     label: str = ""
+    setup: Setup | None = None
 
     @property
     def end_ms(self) -> float | None:
@@ -184,8 +188,9 @@ class Target:
 
     def evaluate(self, settings: ekf.EKFSettings, estimator: str = "ekf",
                  sensors: Iterable[str] = SENSORS) -> ErrorSummary:
+        setup = None if self.setup is None else self.setup.overridden("settings", settings)
         result = refilter(self.log.until(self.end_ms), settings, estimator, sensors,
-                          self.intervals_ms, self.skip_s)
+                          self.intervals_ms, self.skip_s, setup=setup)
         if result.errors is None:
             raise ConfigError(f"{self.label or 'the log'}: no ORI reference to tune against")
         return result.summary

@@ -37,12 +37,15 @@ from typing import Any
 
 import ekf
 from app.engine.command_table import Mark, handler_of
+from app.engine.configuration import Change, Config, Configuration
 from app.engine.estimates import EstimatesWriter
 from app.engine.failures import FailureLog
+from app.engine.forwarding import Forward
 from app.engine.health import HealthTracker
 from app.engine.markers import Markers
+from app.engine.parts import Connection, EngineParts, engine_snapshot
 from app.engine.pipeline import Pipeline
-from app.engine.publisher import Output, Publisher, engine_snapshot
+from app.engine.publisher import Output, Publisher
 from app.engine.recording import SessionRecording
 from app.engine.recording_lane import RecordingLane
 from app.engine.replay import session_for_source
@@ -53,7 +56,6 @@ from app.engine.snapshot import EngineFailure, Snapshot
 from app.engine.userfilter.code import is_filter_file
 from app.engine.userfilter.host import UserFilterHost
 from app.engine.warmup import warm_up
-from app.stream import fastparse
 from app.stream.events import Chunk, SourceEvent
 from app.stream.fastparse import ParsedArrays
 from app.stream.forwarder import LineForwarder
@@ -81,6 +83,10 @@ class Engine:
     index (checkpoints, whole-session plots) in the background; user_filter: a user's filter
     file run beside the main estimator (YOURS, :mod:`app.engine.userfilter.host`); forwarder: a
     :class:`~app.stream.forwarder.LineForwarder` that gets a copy of every line from the phone.
+
+    The estimator, sensors, settings and comparisons given here are the engine's own set-up:
+    where a replayed recording has its own, the recording's applies
+    (:mod:`app.engine.configuration`).
     """
 
     def __init__(self, source: Source, settings: ekf.EKFSettings | None = None,
@@ -98,12 +104,17 @@ class Engine:
         if recorder is None and estimates is not None:
             raise ValueError("estimates.csv belongs to a recording: give its recorder too")
         self.source = source
-        self.forwarder = forwarder
         self.limits = limits
-        self._runner = EstimatorRunner(estimator, settings, sensors, comparisons,
-                                       collect_plot=True)
-        self.pipeline = Pipeline(self._runner, limits, dict(orderer_options or {}))
-        self.pipeline.on_parsed = self._on_parsed
+        runner = EstimatorRunner(estimator, settings, sensors, comparisons, collect_plot=True)
+        self.pipeline = Pipeline(runner, limits, dict(orderer_options or {}),
+                                 on_cut=self._on_cut, on_event=self._on_session_event,
+                                 on_parsed=self._on_parsed, on_applied=self._on_applied)
+        session = session if session is not None else session_for_source(source)
+        replayed = source.played()
+        path = getattr(replayed, "path", None)
+        self.configuration = Configuration(Config.of(runner), session,
+                                           replaying=replayed is not None,
+                                           path=None if path is None else str(path))
         self._health = HealthTracker()
         self.publisher = Publisher(max_plot_rows)
         self._failures = FailureLog()
@@ -111,17 +122,14 @@ class Engine:
         self.stopped_by_failure = False
         self.markers = Markers()
         self.recording_lane = RecordingLane(self.pipeline, self._health)
-        self.pipeline.on_event = self.recording_lane.event
         self.output = Output(self.pipeline, self.publisher, self.recording_lane, record_rows)
-        self.pipeline.on_cut = self.output.cut
         self.rows_log: list[Rows] = self.output.rows_log      # record_rows: every row
-        self._user = UserFilterHost(self._runner, source, record=self.recording_lane.event,
-                                    position=lambda: self.pipeline.fed)
-        self.replay_lane = ReplayLane(
-            source, self.pipeline, session if session is not None else session_for_source(source),
-            index, self.markers, self.recording_lane, self._user, self._health, self.publisher,
-            output=self.output.cut, on_jump=self._on_jump)
-        self.output.seeking = lambda: self.replay_lane.seeking
+        self._user = UserFilterHost(runner, source, record=self.recording_lane.event,
+                                    position=lambda: self.pipeline.fed,
+                                    setup=self.configuration.setup)
+        self.replay_lane = ReplayLane(source, self.pipeline, self.configuration, session,
+                                      self.markers, self.recording_lane, _ReplayEvents(self),
+                                      index)
         self.seeks = self.replay_lane.seeks
         self.latencies_s = self.publisher.latencies_s
         self.latency_arrivals_s = self.publisher.latency_arrivals_s
@@ -129,8 +137,12 @@ class Engine:
         self._commands: queue.SimpleQueue = queue.SimpleQueue()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._connection_state = "waiting"
-        self._peer: str | None = None
+        self._connection = Connection()
+        self._forward = Forward(forwarder)
+        self._parts = EngineParts(source, self.pipeline, self.configuration, self.replay_lane,
+                                  self.recording_lane, self.markers, self._user, self._health,
+                                  self.publisher, self.output, self._connection,
+                                  self._forward, self._failures)
         self._backlog: list[Chunk | SourceEvent] = []   # read but not yet processed
         # monotonic time since which the source has had nothing for the engine (None: busy)
         self.waiting_since: float | None = None
@@ -138,7 +150,7 @@ class Engine:
         self._applied = 0                    # commands applied so far
         if recorder is not None:
             self.recording_lane.attach(SessionRecording(
-                recorder.directory, self._runner, recorder=recorder, estimates=estimates,
+                recorder.directory, runner, recorder=recorder, estimates=estimates,
                 source=source.kind))
         if user_filter is not None:
             self._user.load(user_filter)
@@ -146,8 +158,14 @@ class Engine:
     # -- the parts' state, as attributes of the engine -------------------------------------------
 
     @property
-    def _parser(self) -> fastparse.FastLineParser:
-        return self.pipeline.parser
+    def runner(self) -> EstimatorRunner:
+        """The estimators (the pipeline's runner)."""
+        return self.pipeline.runner
+
+    @property
+    def forwarder(self) -> LineForwarder | None:
+        """The forward of the phone's lines running now (None: none)."""
+        return self._forward.current
 
     @property
     def recording(self) -> SessionRecording | None:
@@ -278,6 +296,8 @@ class Engine:
         waits in the backlog) and publish (at once after a command)."""
         applied = self._applied
         self._apply_commands()
+        if self._applied != applied:
+            self.waiting_since = None        # idle counts from after the latest command
         self._user.tick()
         self.replay_lane.tick()
         if self._backlog:
@@ -336,7 +356,7 @@ class Engine:
 
     def _stop_after_failures(self) -> None:
         self.stopped_by_failure = True
-        self._connection_state = "stopped"
+        self._connection.state = "stopped"
         try:
             self.source.stop()
         except Exception as error:   # noqa: BLE001 (reported, then nothing more to do)
@@ -353,9 +373,10 @@ class Engine:
         parser = pipeline.parser
         damaged_before = parser.stats.damaged + parser.stats.too_long
         data = chunks[0].data if len(chunks) == 1 else b"".join(c.data for c in chunks)
-        if self.forwarder is not None and self.source.capabilities.forward:
+        forwarder = self.forwarder
+        if forwarder is not None and self.source.capabilities.forward:
             for chunk in chunks:
-                self.forwarder.feed(chunk.data, chunk.connection)
+                forwarder.feed(chunk.data, chunk.connection)
         pipeline.feed_bytes(data)
         if not self._backlog:
             self.replay_lane.fed()
@@ -373,15 +394,15 @@ class Engine:
         if kind == "connected":
             self.replay_lane.connected()
             live = self.source.capabilities.reconnect
-            self._connection_state = "connected" if live else "replaying"
-            self._peer = event.peer
+            self._connection.state = "connected" if live else "replaying"
+            self._connection.peer = event.peer
             self.recording_lane.event("connected", peer=event.peer)
             self._user.on_restart(kind)
             if live:
                 self.recording_lane.set_peer(event.peer)
         elif kind == "disconnected":
             pipeline.end_of_stream(partial_line_damaged=True)
-            self._connection_state = "disconnected"
+            self._connection.state = "disconnected"
             self._health.warn("disconnected", f"phone disconnected ({event.detail})")
             self.recording_lane.event("disconnected", peer=event.peer, reason=event.detail)
         elif kind in ("loop", "seek"):
@@ -389,16 +410,30 @@ class Engine:
             self._user.on_restart(kind)
         elif kind == "finished":
             pipeline.end_of_stream(partial_line_damaged=False)
-            self._connection_state = "finished"
+            self._connection.state = "finished"
         elif kind == "error":
             self._health.warn("error", event.detail, force=True)
         elif kind == "closed":
             self._health.warn("closed", event.detail)
 
-    def _on_jump(self) -> None:
-        """A seek: what was read at the old position is not wanted."""
-        self._backlog = []
-        self._connection_state = "replaying"
+    # -- the pipeline's callbacks ------------------------------------------------------------------
+
+    def _on_cut(self, rows: Rows, piece: Any) -> None:
+        self.output.cut(rows, piece)
+
+    def _on_session_event(self, kind: str, **data: Any) -> None:
+        self.recording_lane.event(kind, **data)
+
+    def _on_applied(self, change: Change, data: dict[str, Any]) -> None:
+        """A change of the configuration applied: the recording keeps it; an alignment says
+        what it did."""
+        self.recording_lane.applied(change, data)
+        if change.kind == "align_heading":
+            turned = data.get("turned_deg")
+            self._health.warn("align", "align heading: no PHONE orientation (ORI) yet"
+                              if turned is None else
+                              f"heading aligned with PHONE: OWN turned by {turned:+.1f}° "
+                              "about up", force=True)
 
     # -- commands ------------------------------------------------------------------------------
 
@@ -415,7 +450,7 @@ class Engine:
             handler = handler_of(command)
             if handler is None:
                 self._health.warn("command", f"unknown command {command!r}", force=True)
-            elif handler(self, command):
+            elif handler(self._parts, command):
                 moved = True
 
     # -- snapshots ------------------------------------------------------------------------------
@@ -424,6 +459,25 @@ class Engine:
         """Hand the rows and plot samples since the last publish to their consumers and make a
         new snapshot the latest."""
         piece = self.output.take()
-        snapshot = engine_snapshot(self, now)
+        snapshot = engine_snapshot(self._parts, now, self.preparing)
         self.publisher.publish(snapshot, piece, self.pipeline.orderer, now, time.perf_counter())
         self.recording_lane.set_stats(snapshot.health)
+
+
+class _ReplayEvents:
+    """The engine's side of its replay lane (app.engine.replay_lane.ReplayEvents)."""
+
+    def __init__(self, engine: Engine) -> None:
+        self._engine = engine
+
+    def jumped(self) -> None:
+        engine = self._engine
+        engine._backlog = []
+        engine._connection.state = "replaying"
+        engine._user.on_seek()
+
+    def new_pass(self) -> None:
+        self._engine.publisher.forget_arrivals()
+
+    def say(self, topic: str, text: str) -> None:
+        self._engine._health.warn(topic, text, force=True)

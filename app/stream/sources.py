@@ -198,6 +198,11 @@ class LineReplaySource(Source):
         """The next line to go out (the target while re-syncing after a seek)."""
         return max(self._index, self._fast_until)
 
+    @property
+    def lines_out(self) -> int:
+        """The lines gone out so far (a seek's re-sync lines included)."""
+        return self._index
+
     def played(self) -> LineReplaySource:
         return self
 

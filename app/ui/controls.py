@@ -15,7 +15,8 @@ from typing import Callable
 from PySide6 import QtCore, QtWidgets
 
 from app.engine.commands import (AlignHeading, ResetFilter, SetComparisonsEnabled, SetEstimator,
-                                 SetSensorEnabled)
+                                 SetFollowTimeline, SetSensorEnabled)
+from app.engine.configuration import ConfigurationView
 from app.engine.snapshot import SENSOR_NAMES, Comparison, FilterStatus, absent_text
 
 ESTIMATOR_CHOICES = (
@@ -110,6 +111,24 @@ class FilterPanel(QtWidgets.QWidget, _FollowsEngine):
         filter_layout.addWidget(self.align_button, 1, 1)
         filter_layout.addWidget(self.uncertainty_checkbox, 2, 0, 1, 2)
         layout.addWidget(filter_box)
+        # a replayed recording: what of its set-up is yours, and the way back to it
+        self.configuration_label = QtWidgets.QLabel()
+        self.configuration_label.setObjectName("configuration_summary")
+        self.configuration_label.setWordWrap(True)
+        self.configuration_label.setStyleSheet("color: #555;")
+        self.follow_button = QtWidgets.QPushButton("Back to the recording")
+        self.follow_button.setObjectName("follow_recording")
+        self.follow_button.setToolTip("Replay the recorded switches, estimator, settings and "
+                                      "combinations again, from the start")
+        self.follow_button.clicked.connect(lambda: self._send(SetFollowTimeline(True)))
+        follow_row = QtWidgets.QHBoxLayout()
+        follow_row.setContentsMargins(0, 0, 0, 0)
+        follow_row.addWidget(self.configuration_label, 1)
+        follow_row.addWidget(self.follow_button)
+        self.configuration_row = QtWidgets.QWidget()
+        self.configuration_row.setLayout(follow_row)
+        self.configuration_row.setVisible(False)
+        layout.addWidget(self.configuration_row)
 
     # ---- user intent -> commands ----------------------------------------------------------
 
@@ -162,6 +181,17 @@ class FilterPanel(QtWidgets.QWidget, _FollowsEngine):
         # barely changes
         self.sensor_note.setText(f"no {' or '.join(missing)} in this stream" if missing else "")
         self.sensor_note.setVisible(bool(missing))
+
+    def show_configuration(self, configuration: ConfigurationView | None) -> None:
+        """A replayed recording: one line saying what of its set-up is yours ("settings: yours;
+        switches, estimator, combinations: recorded") and, when something is, the way back."""
+        recorded = configuration is not None and configuration.replaying \
+            and configuration.recorded
+        self.configuration_row.setVisible(recorded)
+        if not recorded:
+            return
+        self.configuration_label.setText(f"Replay: {configuration.summary}")
+        self.follow_button.setEnabled(configuration.yours)
 
     def update_status(self, status: FilterStatus) -> None:
         """Follow the engine's view of the switches without sending commands back."""

@@ -34,7 +34,7 @@ from typing import Any, Protocol
 from PySide6 import QtCore, QtGui, QtWidgets
 
 import ekf
-from app.engine.commands import LoadUserFilter, SetSettings
+from app.engine.commands import LoadUserFilter
 from app.engine.config import ConfigError
 from app.engine.profiles import ProfileStore
 from app.engine.snapshot import SENSOR_NAMES, Snapshot, absent_sensors, absent_text
@@ -140,7 +140,7 @@ class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWi
         self._panels_shown_at = -math.inf
         self._linking_cameras = False
         self.filter_settings = ekf.PRESETS["default"]   # what the filter runs with (status)
-        self._engine_settings = None                    # the engine's, last seen
+        self.configuration = None                       # the engine's (a ConfigurationView)
         self._user_history = None                       # the YOURS re-run last drawn
         self.profiles = profiles or ProfileStore()
 
@@ -286,18 +286,9 @@ class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWi
     # ---- engine --------------------------------------------------------------------------
 
     def send(self, command: Any) -> None:
-        """Forward one command to the engine (applied between two batches of samples). New
-        settings (from Calibrate, Tune or a panel) are shown everywhere at once and re-run the
-        Tune workspace's session."""
+        """Forward one command to the engine (applied between two batches of samples). What it
+        changes comes back with the engine's snapshots (apply_snapshot)."""
         self.engine.send(command)
-        if isinstance(command, SetSettings):
-            self._settings_changed(command.settings)
-
-    def _settings_changed(self, settings: Any) -> None:
-        if settings is None:
-            return
-        self.filter_settings = settings
-        self.tune.settings_changed(settings)
 
     def tick(self) -> None:
         """One display frame: take the latest snapshot, draw it."""
@@ -328,11 +319,7 @@ class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWi
         self.lights.update_status(snapshot.status, has_data)
         self.controls.update_status(snapshot.status)
         self._show_absent(absent_sensors(snapshot))
-        running = snapshot.status.settings
-        if running is not None and running is not self._engine_settings:
-            self._engine_settings = running
-            if running != self.filter_settings:
-                self._settings_changed(running)   # e.g. a session's own settings
+        self._apply_configuration(snapshot)
         self._apply_user(snapshot)
         self.calibration.feed(snapshot)
         self.consistency.apply_snapshot(snapshot)
@@ -355,6 +342,23 @@ class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWi
             self._failures_shown = latest.number
             self.failure_dialog.show_failure(latest, latest.number)
             self.statusBar().showMessage(f"engine error: {latest.message}", 15000)
+
+    def _apply_configuration(self, snapshot: Snapshot) -> None:
+        """The engine's configuration and the settings it runs now, when the snapshot carries
+        new ones: everywhere (Calibrate and Tune start from them, Tune re-runs its session with
+        the configuration, the Filter dock says what of a replayed recording is yours)."""
+        running = snapshot.status.settings
+        configuration = snapshot.configuration
+        changed = configuration is not self.configuration
+        if running is not None and running is not self.filter_settings:
+            self.filter_settings = running
+            changed = True
+        if changed:
+            self.configuration = configuration
+            self.tune.configuration_changed(configuration, running)
+            self.controls.show_configuration(configuration)
+            self.follow_recording_action.setEnabled(bool(configuration and configuration.yours
+                                                         and configuration.replaying))
 
     def _show_absent(self, absent: frozenset[str]) -> None:
         """Sensors the stream does not deliver: "no gyroscope in this stream" on their switches

@@ -19,6 +19,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.engine.commands import AddMarker, SetMarkerLabel
 from app.engine.config import ConfigError, open_replay
+from app.engine.configuration import replayed_setup
 from app.engine.session import session_json_of, session_label, sessions_dir, write_label
 from app.engine.snapshot import Snapshot
 
@@ -432,7 +433,9 @@ class SessionControls(QtCore.QObject):
         out, _ = QtWidgets.QFileDialog.getSaveFileName(self.window, dialog.windowTitle(),
                                                        str(export_path(source, fmt)))
         if out:
-            self.export(source, fmt, out, **dialog.options())
+            # the replayed session holds what the replay shows: its configuration over time
+            setup = replayed_setup(self.window.configuration, source)
+            self.export(source, fmt, out, setup=setup, **dialog.options())
 
     def export(self, source: str, fmt: str, out: str, **options: Any) -> None:
         """Export in a background thread; the status bar says what was written."""

@@ -1,14 +1,15 @@
 """The transport bar under the plots, in the style of Foxglove and PlotJuggler: record, step one
-sample back, play/pause, step forward, speed (0.1× … 10×, max), loop, the recorded timeline on
-or off, a time slider with the markers on it (click one to jump there) and the position as
-m:ss.s since the session's start.
+sample back, play/pause, step forward, speed (0.1× … 10×, max), loop, a time slider with the
+markers on it (click one to jump there) and the position as m:ss.s since the session's start.
+(What of a replayed recording's set-up is yours, and the way back to it, is in the Filter dock
+and the Replay menu.)
 
 Recording works whatever the source (the phone, a replay, the demo); the replay controls are
 greyed out (saying why) when the source is not a replay. The bar only forwards intent
 (commands) and follows the engine's state from the snapshots: Snapshot.replay (position_s,
-duration_s, speed, paused, loop, finished, following_timeline, session_file, indexed,
-index_progress), Snapshot.recording and Snapshot.markers. The window's keys (Space, ←/→ 1 s,
-Shift+←/→ 10 s, Ctrl+←/→ one sample, Home/End) call :meth:`TransportBar.jump_by`,
+duration_s, speed, paused, loop, finished, indexed, index_progress), Snapshot.recording and
+Snapshot.markers. The window's keys (Space, ←/→ 1 s, Shift+←/→ 10 s, Ctrl+←/→ one sample,
+Home/End) call :meth:`TransportBar.jump_by`,
 :meth:`step`, :meth:`seek_to`.
 """
 
@@ -19,7 +20,7 @@ from typing import Any, Callable
 
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from app.engine.commands import ReplayControl, SetFollowTimeline, StartRecording, StopRecording
+from app.engine.commands import ReplayControl, StartRecording, StopRecording
 from app.ui.elided import ElidedLabel
 from app.ui.plot_data import time_text
 
@@ -214,12 +215,6 @@ class TransportBar(QtWidgets.QFrame):
         self.loop_checkbox.setToolTip("Start again at the end (each pass shows the same "
                                       "estimates)")
         self.loop_checkbox.clicked.connect(lambda checked: self._send(ReplayControl(loop=checked)))
-        self.timeline_checkbox = QtWidgets.QCheckBox("Recorded timeline")
-        self.timeline_checkbox.setToolTip(
-            "Replay the recorded sensor switches, settings and estimator changes (off: your "
-            "own choices apply to the whole replay)")
-        self.timeline_checkbox.clicked.connect(
-            lambda checked: self._send(SetFollowTimeline(bool(checked))))
         self.slider = MarkerSlider()
         self.slider.setObjectName("seek_slider")
         self.slider.setMinimumWidth(SLIDER_MIN_WIDTH)
@@ -241,7 +236,7 @@ class TransportBar(QtWidgets.QFrame):
         self.source_label.setStyleSheet("color: #666;")
         self.source_label.setMaximumWidth(260)
         for widget in (self.step_back_button, self.play_button, self.step_button,
-                       self.speed_combo, self.loop_checkbox, self.timeline_checkbox):
+                       self.speed_combo, self.loop_checkbox):
             layout.addWidget(widget)
         layout.addWidget(self.slider, 1)
         layout.addWidget(self.position_label)
@@ -254,7 +249,7 @@ class TransportBar(QtWidgets.QFrame):
     @property
     def replay_widgets(self) -> tuple[QtWidgets.QWidget, ...]:
         return (self.step_back_button, self.play_button, self.step_button, self.speed_combo,
-                self.loop_checkbox, self.timeline_checkbox, self.slider)
+                self.loop_checkbox, self.slider)
 
     # ---- snapshot -> widgets --------------------------------------------------------------
 
@@ -269,9 +264,6 @@ class TransportBar(QtWidgets.QFrame):
         minimum = SLIDER_MIN_WIDTH if enabled else SLIDER_MIN_WIDTH_LIVE
         if self.slider.minimumWidth() != minimum:
             self.slider.setMinimumWidth(minimum)
-        has_session = bool(replay and replay.get("session_file"))
-        if self.timeline_checkbox.isHidden() == has_session:
-            self.timeline_checkbox.setVisible(has_session)
         if replay is None:
             _set_text(self.position_label, "live")
             _set_text(self.source_label, source or "not a replay")
@@ -284,9 +276,6 @@ class TransportBar(QtWidgets.QFrame):
         self._show_speed(float(replay.get("speed", 1.0)))
         if self.loop_checkbox.isChecked() != bool(replay.get("loop", False)):
             self.loop_checkbox.setChecked(bool(replay.get("loop", False)))
-        following = bool(replay.get("following_timeline", False))
-        if self.timeline_checkbox.isChecked() != following:
-            self.timeline_checkbox.setChecked(following)
         position = float(replay.get("position_s", 0.0))
         duration = float(replay.get("duration_s", 0.0))
         dragging = self._seeking or self.slider.isSliderDown()

@@ -1,9 +1,12 @@
 """The Tune workspace: every filter setting live, the whole session re-filtered at each change
 with the previous run kept as a ghost (A/B), and auto-tune against the session's reference.
 
-* Left: the settings panel (app.ui.settings_panel). A change goes to the engine (the live
-  filter, from the next sample) and re-runs the session shown here in the background
-  (app.engine.refilter.Refilterer, the compiled batch path).
+* Left: the settings panel (app.ui.settings_panel). A change goes to the engine, which makes it
+  part of its configuration (app.engine.configuration: on a replay, your settings for the whole
+  replay; live, from the next sample); the configuration comes back with the next snapshot and
+  the session shown here is re-run with it in the background (app.engine.refilter.Refilterer):
+  the replayed session with its configuration over time, so its figures are the replay's;
+  another log with the configuration running now.
 * Right, "A/B re-filter": the current run's and the ghost's errors against PHONE over the whole
   session (total and heading; the ghost dashed), the angle between the two runs at the same
   instants, and the A/B error table (app.ui.tuning.ABCompareView) with Keep as ghost / Clear
@@ -28,6 +31,7 @@ from PySide6 import QtCore, QtWidgets
 
 import ekf
 from app.engine import config
+from app.engine.configuration import ConfigurationView, Setup, setup_for_log
 from app.engine.profiles import ProfileStore
 from app.engine.refilter import (PreparedLog, Refilterer, RefilterResult,
                                  angle_between_runs_deg, prepare_path)
@@ -162,9 +166,10 @@ class ABPlots(QtWidgets.QWidget):
 
 
 class TuneWorkspace(QtWidgets.QWidget):
-    """See the module's docstring. send: the window's send (SetSettings reach the engine and
-    come back through :meth:`settings_changed`); settings(): the settings in use; log: the
-    session to re-filter (read on the first show); store: profiles (None: the data folder)."""
+    """See the module's docstring. send: the window's send (SetSettings reach the engine; its
+    configuration comes back through :meth:`configuration_changed`); settings(): the settings
+    in use; log: the session to re-filter (read on the first show); store: profiles (None: the
+    data folder)."""
 
     def __init__(self, send: Callable[[Any], None],
                  settings: Callable[[], ekf.EKFSettings | None] = lambda: None,
@@ -179,7 +184,8 @@ class TuneWorkspace(QtWidgets.QWidget):
         self.refilterer: Refilterer | None = None
         self.ab_view: ABCompareView | None = None
         self.tuning_panel: TuningPanel | None = None
-        self._submitted: ekf.EKFSettings | None = None
+        self._submitted: Setup | None = None
+        self.configuration: ConfigurationView | None = None   # the engine's, last seen
 
         self.log_label = QtWidgets.QLabel("no session")
         self.log_label.setObjectName("tune_log")
@@ -299,7 +305,8 @@ class TuneWorkspace(QtWidgets.QWidget):
         has_ori = len(prepared.ori_times) > 0
         self.log_label.setText(
             f"Session: <b>{Path(path).name}</b>, {prepared.duration_s:.1f} s, "
-            f"{len(prepared.t_ms)} samples; re-filtered by our EKF at every settings change"
+            f"{len(prepared.t_ms)} samples; re-filtered with the filter's configuration at "
+            "every change"
             + ("" if has_ori else " (no ORI: nothing to score against)"))
         self.refilterer = Refilterer(prepared, on_error=self._on_error)
         self.refilterer.smooth = self.smooth_checkbox.isChecked()
@@ -310,7 +317,7 @@ class TuneWorkspace(QtWidgets.QWidget):
         self.ab_page.layout().addWidget(self.ab_view)
         self._replace_tuning(prepared, has_ori)
         self._submitted = None
-        self.submit(self._settings())
+        self.submit()
         return True
 
     def _replace_tuning(self, prepared: PreparedLog, has_ori: bool) -> None:
@@ -321,18 +328,27 @@ class TuneWorkspace(QtWidgets.QWidget):
             self.tuning_panel = None
         if has_ori:
             self.tuning_panel = TuningPanel(prepared, self._send, settings=self._settings,
-                                            store=self.store)
+                                            store=self.store, setup=self.setup)
             layout.addWidget(self.tuning_panel, 1)
         self.tune_message.setText("" if has_ori else "Auto-tune needs a reference: this "
                                   "session has no ORI (the phone's own estimate).")
         self.tune_message.setVisible(not has_ori)
 
-    def submit(self, settings: ekf.EKFSettings | None) -> None:
-        """Re-run the session with these settings (not again for the same settings)."""
-        if self.refilterer is None or settings is None or settings == self._submitted:
+    def setup(self) -> Setup:
+        """The configuration a re-run of this workspace's session applies (see
+        app.engine.configuration.setup_for_log)."""
+        return setup_for_log(self.configuration, self.prepared.path if self.prepared else None,
+                             self._settings())
+
+    def submit(self) -> None:
+        """Re-run the session with the configuration (not again for the same one)."""
+        if self.refilterer is None:
             return
-        self._submitted = settings
-        self.refilterer.submit(settings)
+        setup = self.setup()
+        if setup == self._submitted:
+            return
+        self._submitted = setup
+        self.refilterer.submit(setup)
         self.ab_plots.show_runs(self.refilterer.current, self.refilterer.ghost,
                                 self.prepared.start_ms if self.prepared else None)
 
@@ -344,16 +360,16 @@ class TuneWorkspace(QtWidgets.QWidget):
         if self.refilterer is not None:
             self.refilterer.smooth = bool(smoothed)
             self._submitted = None
-            self.submit(self._settings())
+            self.submit()
 
-    def settings_changed(self, settings: ekf.EKFSettings) -> None:
-        """The filter's settings changed (this panel, calibration, tuning, a session): show
-        them and re-run the session with them."""
-        if settings is None:
-            return
-        if settings != self.settings_panel.settings:
+    def configuration_changed(self, configuration: ConfigurationView | None,
+                              settings: ekf.EKFSettings | None) -> None:
+        """The engine's configuration (a snapshot's) and the settings it runs now: show them
+        and re-run the session with the configuration."""
+        self.configuration = configuration
+        if settings is not None:
             self.settings_panel.set_settings(settings)
-        self.submit(settings)
+        self.submit()
 
     def redraw(self) -> None:
         if self.refilterer is not None and self.prepared is not None:

@@ -19,6 +19,7 @@ from PySide6 import QtCore, QtWidgets
 import ekf
 from app.engine import config, tuning
 from app.engine.commands import SetSettings
+from app.engine.configuration import Setup
 from app.engine.profiles import Profile, ProfileStore
 from app.engine.refilter import PreparedLog, Refilterer, RefilterResult, ab_rows
 from app.engine.snapshot import SENSOR_NAMES
@@ -69,7 +70,9 @@ def _seconds_box(value: float, maximum: float) -> QtWidgets.QDoubleSpinBox:
 
 class TuningPanel(QtWidgets.QWidget):
     """log: the PreparedLog to tune on (app.engine.refilter.prepare / prepare_path); send: the
-    engine's send; settings(): the settings to start from; store: profiles."""
+    engine's send; settings(): the settings to start from; store: profiles; setup(): the
+    configuration over time the log is re-run with (a candidate overrides its settings; None:
+    the EKF with every sensor)."""
 
     progressed = QtCore.Signal(object)          # tuning.Progress (from the worker thread)
     finished = QtCore.Signal(object, object)    # TuneResult | None, error | None
@@ -77,9 +80,11 @@ class TuningPanel(QtWidgets.QWidget):
     def __init__(self, log: PreparedLog, send: Callable[[Any], None],
                  settings: Callable[[], ekf.EKFSettings | None] = lambda: None,
                  store: ProfileStore | None = None,
+                 setup: Callable[[], Setup | None] = lambda: None,
                  parent: QtWidgets.QWidget | None = None) -> None:
         super().__init__(parent)
         self.log, self._send, self._settings = log, send, settings
+        self._setup = setup
         self.store = store or ProfileStore()
         self.job: tuning.TuningJob | None = None
         self.result: tuning.TuneResult | None = None
@@ -198,7 +203,8 @@ class TuningPanel(QtWidgets.QWidget):
         t0 = self.log.start_ms
         return tuning.Target(self.log, [[t0 + start.value() * 1000.0,
                                          t0 + end.value() * 1000.0]],
-                             label=f"{label} {start.value():g}-{end.value():g} s")
+                             label=f"{label} {start.value():g}-{end.value():g} s",
+                             setup=self._setup())
 
     def start(self) -> bool:
         if self.job is not None and self.job.running:

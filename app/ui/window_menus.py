@@ -1,5 +1,6 @@
 """The main window's menus and what their actions do: File (sessions, your filter), View
-(plots, 3D cameras, layouts, docks), Replay, Filter (reset, align, sensors, estimator), Help.
+(plots, 3D cameras, layouts, docks), Replay (and back to the recording), Filter (reset, align,
+sensors, estimator), Help.
 
 A mixin of MainWindow: its methods use the window's widgets (plots, controls, views).
 """
@@ -13,7 +14,7 @@ import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from app import __version__
-from app.engine.commands import UnloadUserFilter
+from app.engine.commands import SetFollowTimeline, UnloadUserFilter
 from app.ui.controls import ESTIMATOR_CHOICES, SENSOR_LABELS
 from app.ui.user_filter_panel import (load_filter_dialog, new_filter_dialog,
                                       new_matlab_filter_dialog)
@@ -69,6 +70,13 @@ class WindowMenus:
         self.replay_menu = menus.addMenu("&Replay")
         self.replay_menu.addAction(self.pause_action)
         self.sessions.build_replay_menu(self.replay_menu)
+        self.replay_menu.addSeparator()
+        self.follow_recording_action = self._action(
+            self.replay_menu, "&Back to the recording", None,
+            lambda: self.send(SetFollowTimeline(True)))
+        self.follow_recording_action.setToolTip("Replay the recorded switches, estimator, "
+                                                "settings and combinations again")
+        self.follow_recording_action.setEnabled(False)
         self._build_filter_menu(menus.addMenu("F&ilter"))
         help_menu = menus.addMenu("&Help")
         self.about_action = self._action(help_menu, "&About", "F1", self.show_about)

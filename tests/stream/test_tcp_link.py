@@ -75,7 +75,7 @@ def test_megabyte_line_without_newline_is_discarded_with_bounded_memory(engine):
         phone.send(b"\n" + _lines(5, t0=1050))
     health = _wait(lambda: (h := _health(engine)).connection_state == "disconnected" and h)
     assert health.too_long == 1 and health.damaged == 0 and health.lines_total == 31
-    assert len(engine._parser._pending) == 0
+    assert len(engine.pipeline.parser._pending) == 0
 
 
 def test_silent_client_then_disconnect_mid_line(engine):

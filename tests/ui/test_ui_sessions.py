@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from app.engine.commands import (AddMarker, ReplayControl, SetFollowTimeline, SetMarkerLabel,
-                                 StartRecording, StopRecording)
+from app.engine.commands import (AddMarker, ReplayControl, SetMarkerLabel, StartRecording,
+                                 StopRecording)
 from app.engine.session import Marker
 from app.engine.session_index import SessionPlot
 from app.ui.transport import TransportBar
@@ -88,10 +88,6 @@ def test_buttons_speed_and_timeline(window, fake_engine, qtbot):
     assert sent[-1] == ReplayControl(speed=0.0)
     bar.speed_combo.activated.emit(bar.speed_combo.findData(0.1))
     assert sent[-1] == ReplayControl(speed=0.1)
-    assert bar.timeline_checkbox.isVisible() and bar.timeline_checkbox.isChecked()
-    qtbot.mouseClick(bar.timeline_checkbox, QtCore.Qt.MouseButton.LeftButton,
-                     pos=QtCore.QPoint(4, bar.timeline_checkbox.height() // 2))
-    assert sent[-1] == SetFollowTimeline(False)
     assert bar.position_label.text() == "0:05.0 / 0:20.0"
 
 
@@ -227,7 +223,7 @@ def test_transport_bar_alone_greys_out_replay_controls_but_not_recording(qtbot):
     bar.show()
     bar.update_replay(None, "connected from 192.168.1.23:5000")
     assert all(not w.isEnabled() for w in bar.replay_widgets)
-    assert bar.record_button.isEnabled() and not bar.timeline_checkbox.isVisible()
+    assert bar.record_button.isEnabled()
     bar.update_replay({**REPLAY, "indexed": False, "index_progress": 0.42})
     assert bar.source_label.text() == "indexing 42 %"
 

@@ -120,9 +120,10 @@ def test_settings_from_a_panel_reach_the_engine_once_and_show_everywhere(make_wi
     assert panel.edit("acc_gate", "0.7")
     sent = fake_engine.commands_of(SetSettings)
     assert len(sent) == 1 and sent[0].settings.acc_gate == pytest.approx(0.7)
-    assert window.filter_settings.acc_gate == pytest.approx(0.7)
-    # The engine echoes the settings it runs: nothing more is sent.
+    # What the filter runs with comes from the engine, not from what was sent.
+    assert window.filter_settings is ekf.PRESETS["default"]
     window.apply_snapshot(make_snapshot(1, 0.0, settings=sent[0].settings))
+    assert window.filter_settings is sent[0].settings and panel.settings is sent[0].settings
     assert len(fake_engine.commands_of(SetSettings)) == 1
     # Settings the engine took from elsewhere (a session's timeline) show in the panel.
     other = dataclasses.replace(ekf.PRESETS["course"], acc_gate=1.5)
@@ -140,7 +141,9 @@ def test_calibration_apply_starts_from_the_running_settings(make_window, fake_en
     applied = window.calibration.apply()
     assert applied is not None and applied.acc_gate == pytest.approx(1.25)
     sent = fake_engine.commands_of(SetSettings)
-    assert sent[-1].source == "calibration" and window.filter_settings is applied
+    assert sent[-1].source == "calibration" and sent[-1].settings is applied
+    window.apply_snapshot(make_snapshot(2, 0.5, settings=applied))     # the engine runs them
+    assert window.filter_settings is applied
     assert window.tune.settings_panel.settings == applied
 
 
@@ -180,6 +183,8 @@ def test_tune_refilters_the_session_at_each_change_with_a_ghost(qtbot, make_wind
     changed = dataclasses.replace(window.filter_settings,
                                   mag_noise_cov=[[20.0, 0, 0], [0, 20.0, 0], [0, 0, 20.0]])
     window.send(SetSettings(changed, source="panel"))
+    assert tune.refilterer.wait(10.0) and tune.refilterer.current is first   # not yet run
+    window.apply_snapshot(make_snapshot(1, 0.0, settings=changed))   # what the engine runs
     qtbot.waitUntil(lambda: tune.refilterer.current is not first, timeout=20_000)
     qtbot.waitUntil(lambda: tune.ab_view.table.rowCount() == 3, timeout=5000)
     assert [tune.ab_view.table.item(r, 0).text() for r in range(3)] == \
@@ -192,6 +197,7 @@ def test_tune_refilters_the_session_at_each_change_with_a_ghost(qtbot, make_wind
     # the same settings again: no new run
     runs = tune.refilterer.runs
     window.send(SetSettings(changed, source="panel"))
+    window.apply_snapshot(make_snapshot(2, 0.5, settings=changed))
     assert tune.refilterer.wait(10.0) and tune.refilterer.runs == runs
 
 
@@ -210,6 +216,7 @@ def test_tune_difference_of_two_identical_runs_draws_along_zero(qtbot, make_wind
     # a setting that acts only past a bound this session never reaches: the same estimates
     same = dataclasses.replace(window.filter_settings, mag_reject_noise_scale=20.0)
     window.send(SetSettings(same, source="panel"))
+    window.apply_snapshot(make_snapshot(1, 0.0, settings=same))      # what the engine runs
     qtbot.waitUntil(lambda: tune.refilterer.current is not first, timeout=20_000)
     qtbot.waitUntil(lambda: tune.ab_view.table.rowCount() == 3, timeout=5000)
     tune.redraw()

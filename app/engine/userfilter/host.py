@@ -23,8 +23,10 @@ After a seek the same happens: the engine restores a checkpoint of its own estim
 target (app.engine.replay), and your filter, which is not part of a checkpoint (it is your
 object), re-runs the log from the pass's start up to that checkpoint in the background, then the
 re-sync lines, so it is exactly where playing would have brought it and is never decimated by a
-seek. A new pass of a replay (a loop) starts your filter afresh, as it starts ours. Commands
-arriving during a catch-up change only the sensor switches.
+seek. A new pass of a replay (a loop) starts your filter afresh, as it starts ours, with the
+pass's settings. A re-run applies the configuration over time as the engine does
+(:mod:`app.engine.configuration`): the sensors switched off at a sample reach your filter as
+None there, new settings restart it, resets reset it.
 
 What your filter prints is kept (the last PRINTED_SHOWN lines are in the status, for the dock)
 and logged to the ``orientation_lab.your_filter`` logger, at most LOG_LINES_PER_S lines a second.
@@ -43,6 +45,8 @@ import numpy as np
 
 import ekf
 from app.engine.compare import ErrorSums
+from app.engine.configuration import Config, Setup
+from app.engine.pipeline import Pipeline
 from app.engine.runner import EstimatorRunner
 from app.engine.snapshot import Comparison, UserFilterStatus, UserHistory, UserProblem
 from app.engine.userfilter.code import UserFilterError
@@ -59,6 +63,9 @@ from app.stream.sources import Source
 WATCH_INTERVAL_S = 0.3
 RERUN_PIECE = 4096             # samples per piece of a re-run (cancel and progress checks)
 MAX_CATCH_UP_ROWS = 200_000    # a buffer larger than this is skipped: the filter is too slow
+# the changes of the configuration that reach your filter (not OWN's estimator, alignment or
+# comparisons)
+USER_CHANGES = ("sensor", "settings", "reset")
 SLOW_BELOW = 0.99              # used_fraction under this: "slow"
 PRINTED_SHOWN = 20             # lines your filter printed, in the status
 LOG_LINES_PER_S = 20
@@ -128,16 +135,18 @@ class PrintedLog:
 
 
 class CatchUp:
-    """A background run of the filter's process: the log's first `samples` samples (if any),
-    then the rows the lane buffered meanwhile, then the hand-over."""
+    """A background run of the filter's process: the log's first `samples` samples (if any)
+    with the pass's `setup` (its configuration over time), then the rows the lane buffered
+    meanwhile, then the hand-over."""
 
     def __init__(self, lane: UserLane, remote: RemoteFilter, log: Path | None,
-                 samples: int, settings: ekf.EKFSettings, arrays: Callable[[Path], tuple]) -> None:
+                 samples: int, setup: Setup, arrays: Callable[[Path], tuple]) -> None:
         self.lane, self.remote, self.log, self.samples = lane, remote, log, samples
-        self.settings = settings
+        self.setup = setup
+        self.settings = setup.start.settings
         self._arrays = arrays
         self.cancel = threading.Event()
-        self.estimator = UserFilterEstimator(remote, settings)
+        self.estimator = UserFilterEstimator(remote, self.settings)
         self.estimator.cancel = self.cancel
         self.estimator.collect_innovations = False
         self.done = threading.Event()
@@ -187,11 +196,16 @@ class CatchUp:
         t_ms, tag, values = self._arrays(self.log)
         n = min(self.samples, len(t_ms))
         runner = EstimatorRunner(self.estimator, self.settings)
+        for sensor in ekf.SENSORS:
+            runner.set_sensor_enabled(sensor, sensor in self.setup.sensors)
+        pipeline = Pipeline(runner)
+        pipeline.continue_with(tuple(c for c in self.setup.until(n).timeline
+                                     if c.kind in USER_CHANGES))
         for start in range(0, n, RERUN_PIECE):
             if self.cancel.is_set() or self.estimator.paused:
                 break
             end = min(n, start + RERUN_PIECE)
-            runner.feed_arrays(t_ms[start:end], tag[start:end], values[start:end])
+            pipeline.feed_samples(t_ms[start:end], tag[start:end], values[start:end])
             self.progress = end / max(n, 1)
         runner.finish()
         rows = runner.take_rows()
@@ -209,7 +223,8 @@ class CatchUp:
             while (not self.lane.buffered_rows and time.perf_counter() < deadline
                    and not self.cancel.is_set()):
                 time.sleep(0.01)
-        self.estimator.set_enabled(**self.lane.enabled)
+        # the buffered rows are the runner's: a switched-off sensor is left out of them already
+        self.estimator.set_enabled(**{sensor: True for sensor in ekf.SENSORS})
         while not self.cancel.is_set():
             estimator = self.estimator
             pieces = self.lane.take_buffered(self.remote, self.token, (
@@ -232,15 +247,17 @@ class UserFilterHost:
     record(kind, **data) writes a session timeline entry (the recorder's, through the engine);
     realtime: the lane decimates a filter slower than the stream; position(): the samples fed
     to the estimators in the current pass (a replay's position; default: counted here from the
-    last restart).
+    last restart); setup(): the pass's configuration over time (default: the runner's now).
     """
 
     def __init__(self, runner: EstimatorRunner, source: Source,
                  record: Callable[..., None] | None = None, realtime: bool = True,
                  clock: Callable[[], float] = time.monotonic,
-                 position: Callable[[], int] | None = None) -> None:
+                 position: Callable[[], int] | None = None,
+                 setup: Callable[[], Setup] | None = None) -> None:
         self.runner = runner
         self._position = position
+        self._setup = setup or (lambda: Setup.of(Config.of(self.runner)))
         self.source = source
         self._record = record or (lambda kind, **data: None)
         self.realtime = realtime
@@ -298,7 +315,7 @@ class UserFilterHost:
         log = replay_path(self.source)
         samples = self._samples()
         if log is not None and samples > 0:
-            self.job = CatchUp(self.lane, remote, log, samples, self.runner.settings,
+            self.job = CatchUp(self.lane, remote, log, samples, self._setup(),
                                self._log_arrays)
             self.job.start()
             self.message = f"{done}: re-running the replay up to now with the new code"
@@ -356,12 +373,12 @@ class UserFilterHost:
         self._base = self.runner.samples_fed
         lane = self.lane
         if kind in ("loop", "seek") and lane is not None and self.job is None:
-            lane.reset()
+            lane.set_settings(self.runner.settings)     # afresh, with the pass's settings
         if kind != "seek" or lane is None or self.job is not None:
             return
         remote = lane.remote
         if remote is not None and not remote.paused:
-            self.job = CatchUp(lane, remote, None, 0, self.runner.settings, self._log_arrays)
+            self.job = CatchUp(lane, remote, None, 0, self._setup(), self._log_arrays)
             self.job.start()
 
     def on_seek(self) -> None:
@@ -373,20 +390,23 @@ class UserFilterHost:
             return
         running = self.job is not None and not self.job.done.is_set()
         self._cancel_job()
-        settings = self.runner.settings
+        setup = self._setup()
+        log = replay_path(self.source)
+        samples = self._samples()
+        # a re-run starts with the pass's settings; without one, the runner's now
+        settings = setup.start.settings if log is not None and samples > 0 \
+            else self.runner.settings
         if self.remote.usable and not running:
             self.remote.reset(settings, fresh=True, new_epoch=True)
         else:       # stuck, ended, or a catch-up still using it: a new process for the same code
             remote = self.remote.again(settings)
             self._close_remote()
             self.remote = remote
-        log = replay_path(self.source)
-        samples = self._samples()
         if log is None or samples <= 0:
             self.lane.replace(self.remote)
             self.lane.reset_errors()
             return
-        self.job = CatchUp(self.lane, self.remote, log, samples, settings, self._log_arrays)
+        self.job = CatchUp(self.lane, self.remote, log, samples, setup, self._log_arrays)
         self.job.start()
         self._done = "after the seek"
         self.message = "after the seek: re-running the replay up to there with your filter"

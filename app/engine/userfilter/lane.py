@@ -7,8 +7,9 @@ Everything the runner hands over goes into one queue in order: rows (with their 
 PHONE's samples, a restart of your filter, the end of a stream. The queue is worked through up
 to the first rows whose results have not come back, so YOURS' rows, its errors against PHONE (at
 PHONE's times, as OWN's) and its restarts happen in the order the engine saw them, only later.
-Rows are sent with which sensors each row gives your filter (``given``: a sample there and the
-sensor switched in), so a switch takes effect at exactly its row.
+Rows are sent with which sensors each row gives your filter (``given``: a sample there; the
+runner hands the rows with the sensors switched off in OWN left out, app.engine.runner), so a
+switch takes effect at exactly its row, wherever it comes from (the configuration over time).
 
 Never holding up the engine: with ``realtime`` (the live engine) at most LAG_BUDGET_S of your
 filter's work (its process's time per row times the rows) is handed over and not yet answered;
@@ -33,7 +34,6 @@ from typing import Callable
 
 import numpy as np
 
-from ekf import SENSORS
 from app.engine.compare import ErrorRows, ErrorSums, SameInstant
 from app.engine.userfilter.remote import BlockResult, RemoteFilter
 
@@ -81,7 +81,6 @@ class UserLane:
         self._buffer: list[tuple[np.ndarray, ...]] | None = None
         self._token = 0                  # of the current catch-up
         self.buffered_rows = 0
-        self.enabled = {s: True for s in SENSORS}
         self.latest = _NAN4.copy()        # YOURS at the latest row worked through
         self.output_q: np.ndarray | None = None    # the latest output (kept while paused)
         self.lights: tuple[bool | None, bool | None, bool | None] = (None, None, None)
@@ -141,9 +140,6 @@ class UserLane:
     def backlog_rows(self) -> int:
         """Rows handed to the process and not answered yet."""
         return 0 if self.remote is None else self.remote.in_flight_rows
-
-    def set_enabled(self, sensor: str, enabled: bool) -> None:
-        self.enabled[sensor] = bool(enabled)
 
     def reset(self) -> None:
         """Start your filter afresh from the next rows (ResetFilter, a new stream)."""
@@ -247,8 +243,7 @@ class UserLane:
             self._queue.append(_Rows(t_ms, np.empty(0, np.int64), None, True))
             self._work()
             return
-        on = np.array([self.enabled[s] for s in SENSORS])
-        given = np.stack([~np.isnan(x).any(axis=1) for x in (gyr, acc, mag)], axis=1) & on
+        given = np.stack([~np.isnan(x).any(axis=1) for x in (gyr, acc, mag)], axis=1)
         chosen = self._choose(n, remote)
         block = None
         if len(chosen):
