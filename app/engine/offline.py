@@ -150,9 +150,10 @@ def filter_rows(log: OrderedLog, estimator: str | ekf.Estimator = "ekf",
     """The estimates of a whole log, piece by piece as the runner commits them: the rows at
     which a GYR, ACC or MAG sample arrived.
 
-    smooth: the EKF forward, then the backward Rauch-Tung-Striebel pass (``ekf.smooth_batch``,
-    :func:`smoothed_quats`, computed before the first piece); only for the EKF over one session
-    (ValueError otherwise). The lights are the forward filter's."""
+    smooth: the smoother (``ekf.smooth_batch``, :func:`smoothed_quats`, computed before the
+    first piece): the filter as set, combined with the backward information of a
+    Rauch-Tung-Striebel pass where a chi-square test says the two agree; only for the EKF over
+    one session (ValueError otherwise). The lights are the forward filter's."""
     smoothed = smoothed_quats(log, estimator, settings, sensors) if smooth else None
     done = 0
     for rows, _ in run_log(log, estimator, settings, sensors):
