@@ -275,7 +275,8 @@ class ConsistencyView(QtWidgets.QWidget):
 
     def _fit_summary(self) -> None:
         """Keep every line of the summary in view: the plots below give up the height."""
-        self.summary.setMinimumHeight(max(0, self.summary.heightForWidth(max(self.summary.width(), 1))))
+        needed = self.summary.heightForWidth(max(self.summary.width(), 1))
+        self.summary.setMinimumHeight(max(0, needed))
 
     def resizeEvent(self, event) -> None:  # noqa: N802 (Qt name)
         super().resizeEvent(event)
