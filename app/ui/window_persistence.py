@@ -77,9 +77,15 @@ class WindowPersistence:
                 for bar in found:
                     bar.hide()
                 continue
-            shown = [dock for dock in group if not dock.isHidden()]
-            bottom = max((dock.geometry().bottom() for dock in shown), default=0)
-            found.sort(key=lambda bar: abs(bar.geometry().top() - bottom - 1))
+            shown = [dock.geometry() for dock in group
+                     if dock.geometry().intersects(self.rect())] or [self.rect()]
+            place = shown[0]
+
+            def distance(bar: QtWidgets.QTabBar) -> int:
+                where = bar.geometry()
+                return (abs(where.top() - place.bottom() - 1) + abs(where.left() - place.left())
+                        + abs(where.width() - place.width()))
+            found.sort(key=distance)
             for bar in found[1:]:
                 bar.hide()
 
