@@ -357,6 +357,7 @@ class MainWindow(WindowMenus, WindowPersistence, WindowStatus, QtWidgets.QMainWi
             self.configuration = configuration
             self.tune.configuration_changed(configuration, running)
             self.controls.show_configuration(configuration)
+            self.fit_filter_dock()               # the replay's line: room for it
             self.follow_recording_action.setEnabled(bool(configuration and configuration.yours
                                                          and configuration.replaying))
 

@@ -102,9 +102,23 @@ class WindowPersistence:
         scroll = dock.widget()
         missing = scroll.widget().sizeHint().height() - scroll.viewport().height()
         if missing > 0 and attempt < FIT_ATTEMPTS:
-            # resizeDocks shares a change between the docks it touches: ask again until the
-            # dock has the room (or its neighbours are at their minimum)
-            self.resizeDocks([dock], [dock.height() + missing], QtCore.Qt.Orientation.Vertical)
+            # the dock right below gives up the room (resizeDocks with one dock shares the
+            # change among its neighbours and leaves a few pixels short); ask again until the
+            # dock has the room or its neighbour is at its minimum
+            top = dock.geometry().top()
+            below = [other for other in self.docks() if other is not dock
+                     and not other.isFloating() and other.geometry().intersects(self.rect())
+                     and other.geometry().top() > top]
+            if below:
+                neighbour = min(below, key=lambda other: other.geometry().top())
+                self.resizeDocks([dock, neighbour],
+                                 [dock.height() + missing,
+                                  max(neighbour.minimumSizeHint().height(),
+                                      neighbour.height() - missing)],
+                                 QtCore.Qt.Orientation.Vertical)
+            else:
+                self.resizeDocks([dock], [dock.height() + missing],
+                                 QtCore.Qt.Orientation.Vertical)
             QtCore.QTimer.singleShot(0, lambda: self._fit_filter_dock_now(attempt + 1))
 
     def showEvent(self, event: QtGui.QShowEvent) -> None:  # noqa: N802 (Qt name)

@@ -57,3 +57,26 @@ def test_tune_takes_the_configuration_from_the_snapshot(make_window, fake_engine
     window.apply_snapshot(snapshot)
     assert window.tune.configuration is snapshot.configuration
     assert window.tune.settings_panel.settings is TUNED and window.filter_settings is TUNED
+
+
+def test_the_filter_dock_makes_room_for_the_replay_line_at_1280x720(make_window, fake_engine,
+                                                                    qtbot):
+    """The line and its button appear once a replayed recording is overridden: the Filter
+    dock grows to show them whole (it was left scrolling, the line cut in half)."""
+    from PySide6 import QtWidgets
+    from clipping import clipped, scrolls
+    window = make_window(fake_engine)
+    window.resize(1280, 720)
+    window.arrange_default_layout()
+    window.show()
+    scroll = window.filter_dock.widget()
+    qtbot.waitUntil(lambda: not scrolls(scroll), timeout=2000)
+    snapshot = make_snapshot(1, 0.5, settings=TUNED)
+    snapshot.configuration = _view(1, ("settings",))
+    window.apply_snapshot(snapshot)
+    QtWidgets.QApplication.processEvents()
+    assert window.controls.configuration_row.isVisibleTo(window)
+    qtbot.waitUntil(lambda: not scrolls(scroll), timeout=2000)
+    cut = [finding for finding in clipped(window, whole=(scroll,)) if "filter_dock" in finding
+           or "configuration_summary" in finding or "Back to the recording" in finding]
+    assert cut == []
