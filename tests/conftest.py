@@ -5,6 +5,9 @@
   under `xvfb-run`.
 * `shared_dir` locates ../shared (real phone logs, BROAD trials) and skips with a clear reason
   when a fresh clone has no such folder beside it.
+* Property tests draw the same examples on every run and machine (hypothesis' "deterministic"
+  profile: derandomized, no example database), so a run is reproducible;
+  `HYPOTHESIS_PROFILE=explore` draws new ones.
 """
 
 from __future__ import annotations
@@ -13,6 +16,11 @@ import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+settings.register_profile("deterministic", derandomize=True, database=None)
+settings.register_profile("explore")
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "deterministic"))
 
 if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
     os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
