@@ -32,6 +32,7 @@ from app.engine.snapshot import INNOVATION_SENSORS, INNOVATION_SOURCES, PlotChun
 #: Two-sided 95 % interval of chi^2(k): (2.5 %, 97.5 %) quantiles.
 CHI2_95 = {1: (0.000982069, 5.023886), 2: (0.05063562, 7.377759), 3: (0.2157953, 9.348404)}
 COMPONENT_COLOURS = ((220, 50, 50), (40, 150, 40), (40, 90, 220))
+SUMMARY_LINES = 3               # the summary's lines kept in view at least
 REFRESH_S = 0.25
 SENSOR_UNITS = ("m/s²", "µT", "rad/s")      # of the innovations, per INNOVATION_SENSORS
 
@@ -274,9 +275,15 @@ class ConsistencyView(QtWidgets.QWidget):
         self._fit_summary()
 
     def _fit_summary(self) -> None:
-        """Keep every line of the summary in view: the plots below give up the height."""
+        """Keep every line of the summary in view: the plots below give up the height. Three
+        lines are kept at least, so the counts growing as the stream runs do not move the
+        plots (a narrow view gets more)."""
         needed = self.summary.heightForWidth(max(self.summary.width(), 1))
-        self.summary.setMinimumHeight(max(0, needed))
+        margins = self.summary.contentsMargins()
+        lines = SUMMARY_LINES * self.summary.fontMetrics().lineSpacing() + margins.top() \
+            + margins.bottom()
+        if max(needed, lines) != self.summary.minimumHeight():
+            self.summary.setMinimumHeight(max(needed, lines))
 
     def resizeEvent(self, event) -> None:  # noqa: N802 (Qt name)
         super().resizeEvent(event)

@@ -63,6 +63,9 @@ def main(log: str, broken: str, out: str, source: str = "live") -> int:
 
     def check(where: str) -> None:
         settle()
+        # a refresh in the last pump may have asked for a new layout: Qt lays out before it
+        # paints, so look at the window as it is painted
+        app.sendPostedEvents(None, QtCore.QEvent.Type.LayoutRequest)
         geometry = window.frameGeometry()
         report["widths"].append(window.width())
         report["right_edges"].append(geometry.right())
