@@ -100,16 +100,7 @@ def run_rows(prepared: PreparedLog, settings: ekf.EKFSettings | None, estimator:
     """The rows of a whole run (one runner, one call through the batch path per stream; the
     estimators start afresh where the log's clock restarts, as in run_offline)."""
     runner = EstimatorRunner(estimator, settings, sensors)
-    previous = 0
-    for start in list(prepared.session_starts) + [len(prepared.t_ms)]:
-        if start > previous:
-            runner.feed_arrays(prepared.t_ms[previous:start], prepared.tag[previous:start],
-                               prepared.values[previous:start])
-        if start < len(prepared.t_ms):
-            runner.new_session()
-        previous = start
-    runner.finish()
-    return runner.take_rows()
+    return _run_sessions(prepared, runner, runner.feed_arrays)
 
 
 def run_setup(prepared: PreparedLog, setup: Setup) -> Rows:
@@ -122,11 +113,18 @@ def run_setup(prepared: PreparedLog, setup: Setup) -> Rows:
     runner = EstimatorRunner(collect_plot=False)
     pipeline = Pipeline(runner)
     pipeline.begin(pipeline.initial_checkpoint(setup), setup.timeline)
+    return _run_sessions(prepared, runner, pipeline.feed_samples)
+
+
+def _run_sessions(prepared: PreparedLog, runner: EstimatorRunner,
+                  feed: Callable[[np.ndarray, np.ndarray, np.ndarray], Any]) -> Rows:
+    """Feed the log's samples session by session through `feed(t_ms, tag, values)`, the
+    estimators afresh where its clock restarts; the rows of the whole run."""
     previous = 0
     for start in list(prepared.session_starts) + [len(prepared.t_ms)]:
         if start > previous:
-            pipeline.feed_samples(prepared.t_ms[previous:start], prepared.tag[previous:start],
-                                  prepared.values[previous:start])
+            feed(prepared.t_ms[previous:start], prepared.tag[previous:start],
+                 prepared.values[previous:start])
         if start < len(prepared.t_ms):
             runner.new_session()
         previous = start
