@@ -3,15 +3,17 @@
 
 from __future__ import annotations
 
+import threading
 
 import numpy as np
 import pytest
 
 from waiting import wait_for_snapshot, wait_until
 
+from ekf.settings import EKFSettings
 from ekf.simulate import simulate
 from app.engine.checkpoints import comparison_vectors
-from app.engine.commands import ReplayControl
+from app.engine.commands import ReplayControl, SetSettings
 from app.engine.configuration import Setup
 from app.engine.pipeline import Pipeline
 from app.engine.runner import EstimatorRunner
@@ -224,3 +226,18 @@ def test_a_user_switch_while_replaying_overrides_that_switch_only_once_indexed(l
         target = source.line_at(15.0)
         assert source.line_index == target
         assert_same_state(engine, reference_with(source.data[:source.starts[target]], setup))
+
+
+def test_stopping_the_engine_waits_for_every_index_it_started():
+    session = simulate(duration_s=120.0, seed=5)
+    long_lines = [(format_line(Sample(t, tag, values)) + "\n").encode()
+                  for t, tag, values in session.iter_rows()]
+    source = LineReplaySource(long_lines, "sim", paused=True)
+    engine = Engine(source, comparisons=False)
+    engine.start()
+    wait_until(lambda: engine.snapshot_now().replay is not None, 60.0, "the replay to start")
+    for noise in (0.2, 0.3, 0.4):        # each edit indexes the replay again
+        engine.send(SetSettings(EKFSettings(acc_noise_cov=(noise * np.eye(3)).tolist())))
+    assert engine.wait_idle()
+    engine.stop()
+    assert [t.name for t in threading.enumerate() if t.name == "session-index"] == []

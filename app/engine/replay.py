@@ -17,6 +17,7 @@ configuration (a seek anywhere then gives what playing there gives).
 from __future__ import annotations
 
 import logging
+import time
 from typing import Any
 
 from app.engine.checkpoints import Checkpoint
@@ -45,6 +46,7 @@ class ReplayManager:
         self.setup: Setup | None = None
         self.initial: Checkpoint | None = None
         self.index: SessionIndex | None = None
+        self.retired: list[SessionIndex] = []
         self.resync = False
         self.markers: list[Marker] = list(session.markers) if session else []
         self.marker_error: str | None = None
@@ -62,6 +64,7 @@ class ReplayManager:
         """Index the replay again for `setup` (in the background)."""
         if self.index is not None:
             self.index.cancel()
+            self.retired = [index for index in self.retired if index.running] + [self.index]
         self.setup = setup
         self.initial = pipeline.initial_checkpoint(setup)
         self.index = SessionIndex(self.source, setup, self.options).start() \
@@ -94,9 +97,16 @@ class ReplayManager:
             return True
         return False
 
-    def stop(self) -> None:
-        if self.index is not None:
-            self.index.cancel()
+    def stop(self, timeout: float = 10.0) -> None:
+        """Cancel every index still building and wait for their threads (a thread left inside
+        a compiled kernel when the interpreter exits aborts the process)."""
+        indexes = self.retired + ([self.index] if self.index is not None else [])
+        for index in indexes:
+            index.cancel()
+        deadline = time.monotonic() + timeout
+        for index in indexes:
+            index.wait(max(0.0, deadline - time.monotonic()))
+        self.retired = []
 
     # -- what the window shows ----------------------------------------------------------------
 

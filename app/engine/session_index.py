@@ -163,6 +163,10 @@ class SessionIndex:
     def cancel(self) -> None:
         self._cancel.set()
 
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
     def wait(self, timeout: float | None = None) -> bool:
         if self._thread is not None:
             self._thread.join(timeout)
