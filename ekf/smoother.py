@@ -89,9 +89,9 @@ offset) back to rows filtered with an earlier one. With ``smooth_hard_iron`` fal
 preset, chosen by ``benchmarks/tune_defaults.py --smoother``) the RTS pass's forward pass runs
 without the fit; the filter as set, which the backward information is combined with, keeps it. A
 raw magnetometer (hundreds of uT of hard iron, whose offset the filter acquires:
-``ekf.reference_field._check_uncalibrated``) would leave that pass without a heading: there the
-offset the filter as set found by the recording's end is subtracted from every reading first, as
-an offline calibration.
+``OrientationEKF._check_uncalibrated`` in ``ekf.reference``) would leave that pass without a
+heading: there the offset the filter as set found by the recording's end is subtracted from every
+reading first, as an offline calibration.
 
 The RTS pass's forward pass also runs without ``mag_bias_innovation_limit`` (always: it is no
 choice of the smoother's; the filter as set keeps it). That limit keeps a live filter from
@@ -416,7 +416,7 @@ def _run_as_set(as_set, t, g, a, m, changes: dict, blocks: list,
     state = as_set.snapshot()["state"]
     if "mag_hard_iron_tau_s" in changes and (state["mag_acquiring"] or state["mag_waiting"]
                                              or np.any(state["mag_offset_prior"] != 0.0)):
-        # a raw magnetometer (its offset acquired, ekf.reference_field): without the fit
+        # a raw magnetometer (its offset acquired, ekf.reference): without the fit
         # the forward pass would have no heading; the offset the filter found over the
         # whole recording is subtracted instead (its least-squares fit, unshrunk: offline
         # nothing is at stake in between), a calibration as calibrate-mag's
@@ -430,7 +430,7 @@ def _forward_passes(est, as_set, t, g, a, m, changes: dict, blocks: list, flags:
     records of the last block left in `records`): the latter's state at each block's start,
     the former's (None: the same filter), the magnetometer offset the latter subtracts, and the
     latter's lights."""
-    from ekf.fast.steps import _run_batch_record
+    from ekf.fast.filter import batch_loop_recording
 
     offset, set_starts, own_flags = None, None, flags
     if as_set is not None:
@@ -439,7 +439,7 @@ def _forward_passes(est, as_set, t, g, a, m, changes: dict, blocks: list, flags:
     starts = []
     for first, end in blocks:
         starts.append(est._packed.copy())
-        records.record(_run_batch_record, est._packed, cfg, t[first:end], g[first:end],
+        records.record(batch_loop_recording, est._packed, cfg, t[first:end], g[first:end],
                        a[first:end], _less(m[first:end], offset), own_flags[first:end])
     return starts, set_starts, offset, own_flags
 
@@ -457,7 +457,7 @@ def _forward_backward(est, as_set, t, g, a, m, changes: dict, rejected_stretch_s
     start; the backward pass runs the blocks in reverse, each recorded again from its state
     (the same compiled loop from the same state: the same records, bit for bit). Memory: the
     records of one block instead of the whole recording's (~1 kB a row for each pass)."""
-    from ekf.fast.steps import _run_batch_record
+    from ekf.fast.filter import batch_loop_recording
 
     cfg = _record_cfg(est)
     n = t.shape[0]
@@ -489,7 +489,7 @@ def _forward_backward(est, as_set, t, g, a, m, changes: dict, rejected_stretch_s
         first, end = blocks[index]
         last = after is None
         if not last:       # the last block's records are still those of the forward pass
-            records.record(_run_batch_record, starts[index].copy(), cfg, t[first:end],
+            records.record(batch_loop_recording, starts[index].copy(), cfg, t[first:end],
                            g[first:end], a[first:end], _less(m[first:end], offset),
                            np.zeros((end - first, 3), dtype=np.bool_))
             records.hold_next(after, end - first)
@@ -504,7 +504,7 @@ def _forward_backward(est, as_set, t, g, a, m, changes: dict, rejected_stretch_s
         k = end - first
         forward = records
         if set_records is not None:
-            set_records.record(_run_batch_record, set_starts[index].copy(), set_cfg,
+            set_records.record(batch_loop_recording, set_starts[index].copy(), set_cfg,
                                t[first:end], g[first:end], a[first:end], m[first:end],
                                np.zeros((k, 3), dtype=np.bool_))
             forward = set_records
