@@ -14,8 +14,8 @@ t_acc/acc, t_gyr/gyr, t_mag/mag). Apply sends ``SetSettings(settings,
 calibration=profile_dict, source="calibration")``; the engine records the profile in the
 session. A stretch of a loaded log is analysed with :meth:`analyse_log` (or "From log…").
 
-The numbers come from app.engine.calibration (the one path of `calibrate` and `calibrate-mag`)
-and the figures from app.ui.figures (the same drawings as their --plots PNGs).
+The numbers come from app.engine.tuning.calibration (the one path of `calibrate` and
+`calibrate-mag`) and the figures from app.ui.figures (the same drawings as their --plots PNGs).
 """
 
 from __future__ import annotations
@@ -33,11 +33,11 @@ from ekf import magcal
 from ekf.calibration import UNITS
 from ekf.noise import VERDICT_RULE
 from app.engine import config
-from app.engine.calibration import (RestCalibration, RestSource, SampleCollector,
+from app.engine.tuning.calibration import (RestCalibration, RestSource, SampleCollector,
                                     analyse_series, analyse_still, analyse_stretch,
                                     collected_source, mag_from_log, rest_source)
 from app.engine.commands import SetSettings
-from app.engine.profiles import Profile, ProfileStore
+from app.engine.tuning.profiles import Profile, ProfileStore
 from app.ui import figures
 from app.ui.plots import NoDataText
 

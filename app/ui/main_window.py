@@ -38,9 +38,9 @@ import ekf
 from app import __version__
 from app.engine.commands import LoadUserFilter, SetFollowTimeline, UnloadUserFilter
 from app.engine.config import ConfigError
-from app.engine.profiles import ProfileStore
-from app.engine.snapshot import (SENSOR_NAMES, EngineFailure, Snapshot, absent_sensors,
-                                 absent_text)
+from app.engine.tuning.profiles import ProfileStore
+from app.engine.errors import EngineFailure
+from app.engine.snapshot import SENSOR_NAMES, Snapshot, absent_sensors, absent_text
 from app.stream.tags import FILTER_TAGS
 from app.ui.calibration import CalibrationWorkspace
 from app.ui.connection import ConnectionPanel, ConnectPhoneDialog, PhoneAppsBox, connection_text
@@ -67,7 +67,8 @@ NO_ORI_AFTER_MS = 2000          # samples but no ORI for this long: "no ORI in t
 SETTINGS_VERSION = 2
 FIT_ATTEMPTS = 4
 DEFAULT_SIZE = (1600, 1000)     # the first start: this, or 92 % of a smaller screen
-LAYOUT_VERSION = 2              # QMainWindow.saveState version: a state from another layout is ignored
+# QMainWindow.saveState's version of a layout: a state from another layout is ignored
+LAYOUT_VERSION = 2
 
 
 class EngineLike(Protocol):
