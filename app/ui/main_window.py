@@ -306,8 +306,10 @@ class MainWindow(QtWidgets.QMainWindow):
 
     # ---- menus ----------------------------------------------------------------------------
 
-    def _action(self, menu: QtWidgets.QMenu, text: str, shortcut: str | None, slot,
-                checkable: bool = False, checked: bool = False) -> QtGui.QAction:
+    def add_action(self, menu: QtWidgets.QMenu, text: str, shortcut: str | None, slot,
+                   checkable: bool = False, checked: bool = False) -> QtGui.QAction:
+        """An action in `menu` and on the window (its shortcut works whichever panel has
+        focus), calling `slot` when triggered."""
         action = QtGui.QAction(text, self)
         if shortcut is not None:
             action.setShortcut(QtGui.QKeySequence(shortcut))
@@ -324,27 +326,27 @@ class MainWindow(QtWidgets.QMainWindow):
     def _build_actions(self) -> None:
         menus = self.menuBar()
         self.file_menu = menus.addMenu("&File")
-        self.connect_action = self._action(self.file_menu, "&Connect a phone…", None,
-                                           self.show_connect_dialog)
+        self.connect_action = self.add_action(self.file_menu, "&Connect a phone…", None,
+                                              self.show_connect_dialog)
         self.sessions.build_file_menu(self.file_menu)
-        self.load_filter_action = self._action(
+        self.load_filter_action = self.add_action(
             self.file_menu, "&Load your filter…", None, lambda: load_filter_dialog(self, self.send))
-        self.new_filter_action = self._action(
+        self.new_filter_action = self.add_action(
             self.file_menu, "&New filter from the course template…", None,
             lambda: new_filter_dialog(self, self.send))
-        self.new_matlab_filter_action = self._action(
+        self.new_matlab_filter_action = self.add_action(
             self.file_menu, "New &MATLAB filter from the course's functions…", None,
             lambda: new_matlab_filter_dialog(self, self.send))
-        self.unload_filter_action = self._action(self.file_menu, "&Unload your filter", None,
-                                                 lambda: self.send(UnloadUserFilter()))
+        self.unload_filter_action = self.add_action(self.file_menu, "&Unload your filter", None,
+                                                    lambda: self.send(UnloadUserFilter()))
         self.file_menu.addSeparator()
-        self.quit_action = self._action(self.file_menu, "&Quit", "Ctrl+Q", self.close)
+        self.quit_action = self.add_action(self.file_menu, "&Quit", "Ctrl+Q", self.close)
         self._build_view_menu(menus.addMenu("&View"))
         self.replay_menu = menus.addMenu("&Replay")
         self.replay_menu.addAction(self.pause_action)
         self.sessions.build_replay_menu(self.replay_menu)
         self.replay_menu.addSeparator()
-        self.follow_recording_action = self._action(
+        self.follow_recording_action = self.add_action(
             self.replay_menu, "&Back to the recording", None,
             lambda: self.send(SetFollowTimeline(True)))
         self.follow_recording_action.setToolTip("Replay the recorded switches, estimator, "
@@ -352,39 +354,39 @@ class MainWindow(QtWidgets.QMainWindow):
         self.follow_recording_action.setEnabled(False)
         self._build_filter_menu(menus.addMenu("F&ilter"))
         help_menu = menus.addMenu("&Help")
-        self.about_action = self._action(help_menu, "&About", "F1", self.show_about)
+        self.about_action = self.add_action(help_menu, "&About", "F1", self.show_about)
 
     def _build_view_menu(self, menu: QtWidgets.QMenu) -> None:
         self.view_menu = menu
-        self.pause_action = self._action(menu, "&Pause / follow (replay: play / pause)", "Space",
-                                         self.toggle_pause)
-        self.clear_action = self._action(menu, "&Clear plots", "Ctrl+L", self.clear_plots)
-        self.unwrap_action = self._action(menu, "&Unwrap Euler angles", None,
-                                          self.plots.set_unwrapped, checkable=True)
+        self.pause_action = self.add_action(menu, "&Pause / follow (replay: play / pause)", "Space",
+                                            self.toggle_pause)
+        self.clear_action = self.add_action(menu, "&Clear plots", "Ctrl+L", self.clear_plots)
+        self.unwrap_action = self.add_action(menu, "&Unwrap Euler angles", None,
+                                             self.plots.set_unwrapped, checkable=True)
         self.plots.unwrap_checkbox.toggled.connect(self.unwrap_action.setChecked)
         menu.addSeparator()
-        self.link_cameras_action = self._action(menu, "&Link 3D cameras", None,
-                                                self.set_cameras_linked, checkable=True)
-        self._action(menu, "Reset 3D &views", None, self.reset_cameras)
+        self.link_cameras_action = self.add_action(menu, "&Link 3D cameras", None,
+                                                   self.set_cameras_linked, checkable=True)
+        self.add_action(menu, "Reset 3D &views", None, self.reset_cameras)
         menu.addSeparator()
         self.layouts_menu = menu.addMenu("&Layouts")
         self.layouts_menu.aboutToShow.connect(self._fill_layouts_menu)
-        self._action(menu, "&Reset to defaults", None, self.reset_to_defaults)
-        self.remember_action = self._action(menu, "Re&member my set-up (sensors, estimator)",
-                                            None, self._on_remember_toggled, checkable=True)
+        self.add_action(menu, "&Reset to defaults", None, self.reset_to_defaults)
+        self.remember_action = self.add_action(menu, "Re&member my set-up (sensors, estimator)",
+                                               None, self._on_remember_toggled, checkable=True)
         menu.addSeparator()
         for dock in self.docks():
             menu.addAction(dock.toggleViewAction())
 
     def _build_filter_menu(self, menu: QtWidgets.QMenu) -> None:
-        self.reset_action = self._action(menu, "&Reset filter", "Ctrl+R",
-                                         self._reset_filter)
-        self.align_action = self._action(menu, "&Align heading with PHONE", "Ctrl+H",
-                                         self._align_heading)
+        self.reset_action = self.add_action(menu, "&Reset filter", "Ctrl+R",
+                                            self._reset_filter)
+        self.align_action = self.add_action(menu, "&Align heading with PHONE", "Ctrl+H",
+                                            self._align_heading)
         menu.addSeparator()
         self.sensor_actions: dict[str, QtGui.QAction] = {}
         for number, (sensor, label) in enumerate(SENSOR_LABELS, start=1):
-            self.sensor_actions[sensor] = self._action(
+            self.sensor_actions[sensor] = self.add_action(
                 menu, label, f"Ctrl+{number}",
                 lambda checked, s=sensor: self.controls.set_sensor(s, checked),
                 checkable=True, checked=True)
@@ -393,9 +395,9 @@ class MainWindow(QtWidgets.QMainWindow):
         self.estimator_group = QtGui.QActionGroup(self)
         self.estimator_actions: dict[str, QtGui.QAction] = {}
         for name, label in ESTIMATOR_CHOICES:
-            action = self._action(estimator_menu, label, None,
-                                  lambda checked, n=name: self.controls.set_estimator(n),
-                                  checkable=True, checked=name == "ekf")
+            action = self.add_action(estimator_menu, label, None,
+                                     lambda checked, n=name: self.controls.set_estimator(n),
+                                     checkable=True, checked=name == "ekf")
             self.estimator_group.addAction(action)
             self.estimator_actions[name] = action
 
@@ -917,8 +919,8 @@ class MainWindow(QtWidgets.QMainWindow):
         try:
             engine.start()
         except OSError as error:
-            self.sessions._complain("Cannot open", f"cannot start the source: "
-                                                   f"{error.strerror or error}")
+            self.sessions.complain("Cannot open", f"cannot start the source: "
+                                                  f"{error.strerror or error}")
         if yours is not None and yours.path:
             engine.send(LoadUserFilter(yours.path))     # your filter goes on with the new one
         source = getattr(engine, "source", None)

@@ -368,6 +368,17 @@ class PhoneScene:
 
     # -- drawing (the shared GL context is current) -----------------------------------------
 
+    def has_buffer(self) -> bool:
+        """Whether the scene's vertex buffer exists in the shared GL context."""
+        return self._buffer is not None
+
+    def release_buffer(self, GL) -> None:
+        """Delete the scene's vertex buffer (the shared context current); the next render makes
+        it again."""
+        if self._buffer is not None:
+            GL.glDeleteBuffers(1, [self._buffer])
+            self._buffer = None
+
     def _prepare(self, GL) -> None:
         from OpenGL.GL import shaders
         if self._program is None:
