@@ -29,9 +29,8 @@ from app.engine.runner_rows import (COMBINATIONS, TAG_NAMES, ChunkLayout, Rows, 
 from app.engine.userfilter.filter import make_estimator
 from app.engine.userfilter.lane import UserLane
 from app.stream.fastparse import samples_to_arrays
-from app.stream.protocol import Sample
-from app.stream.repeats import Last, repeats
-from app.stream.tags import REFERENCE_CODE
+from app.stream.ordering import Last, repeats
+from app.stream.protocol import REFERENCE_CODE, Sample
 
 
 @dataclass

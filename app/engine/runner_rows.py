@@ -1,7 +1,7 @@
 """Ordered samples cut into estimator rows, the rows' results and the rows of estimates.
 
 A row is what one estimator step is fed: the sensor samples of one phone time in code order
-(gyr, acc, mag; :mod:`app.stream.tags`). :class:`ChunkLayout` cuts a chunk of ordered samples
+(gyr, acc, mag; :mod:`app.stream.protocol`). :class:`ChunkLayout` cuts a chunk of ordered samples
 into rows and distinct-time groups, :func:`run_rows` / :func:`step_rows` run an estimator over
 the rows and :class:`Rows` holds the estimates per distinct time that
 :class:`app.engine.runner.EstimatorRunner` gives.
@@ -17,8 +17,9 @@ import numpy as np
 
 import ekf
 from ekf import SENSORS
-from app.stream.kernels import check_cache, jit
-from app.stream.tags import FILTER_TAGS, REFERENCE_CODE, SENSOR_CODES, TABLE_KEY, WIDTHS
+from ekf.fast._jit import check_cache
+from app.stream.protocol import (FILTER_TAGS, REFERENCE_CODE, SENSOR_CODES, TABLE_KEY, WIDTHS,
+                                 jit)
 
 #: The tag codes' names (GYR 0, ACC 1, MAG 2, ORI 3), as the sensors are named elsewhere.
 TAG_NAMES: tuple[str, ...] = tuple(tag.lower() for tag in FILTER_TAGS)
@@ -202,4 +203,4 @@ def _table_key():
     return TABLE_KEY
 
 
-check_cache(_table_key, globals())
+check_cache(_table_key, globals(), TABLE_KEY)

@@ -13,7 +13,7 @@ import time
 from PySide6 import QtCore, QtWidgets
 
 from app.engine.snapshot import Snapshot
-from app.stream.tags import FILTER_TAGS
+from app.stream.protocol import FILTER_TAGS
 from app.ui.connection import connection_text
 from app.ui.status_bar import ElidingStatusBar
 

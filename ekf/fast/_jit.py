@@ -53,11 +53,12 @@ def _cache_key() -> int:
 CACHE_KEY = _cache_key()
 
 
-def check_cache(compiled_key: Dispatcher, module_globals: dict[str, Any]) -> None:
+def check_cache(compiled_key: Dispatcher, module_globals: dict[str, Any],
+                key: int = CACHE_KEY) -> None:
     """Flush the cached compilations of the module whose globals are given when they were built
-    against another layout or other kernel sources (`compiled_key` returns the key frozen at
-    its compilation)."""
-    if compiled_key() == CACHE_KEY:
+    against another `key` (`compiled_key` returns the key frozen at its compilation): by
+    default this package's layouts and kernel sources; app.stream passes its tag table's."""
+    if compiled_key() == key:
         return
     module = module_globals["__name__"]
     for value in module_globals.values():
