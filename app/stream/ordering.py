@@ -651,10 +651,10 @@ class TimeOrderer:
     """Streaming reorder + clock alignment of filter-tag samples (see the module docstring).
 
     The algorithm of :class:`~app.stream.ordering_reference.ReferenceTimeOrderer` (same
-    releases, counters and quirk texts) run by nogil numba kernels; only learning a tag's clock offset (a few times per segment)
-    runs in Python. Two faces: Samples (:meth:`push`, :meth:`push_many`, :meth:`flush`,
-    :meth:`restart`) and arrays (:meth:`push_arrays`, :meth:`flush_arrays`,
-    :meth:`restart_arrays`) for the live engine.
+    releases, counters and quirk texts) run by nogil numba kernels; only learning a tag's clock
+    offset (a few times per segment) runs in Python. Two faces: Samples (:meth:`push`,
+    :meth:`push_many`, :meth:`flush`, :meth:`restart`) and arrays (:meth:`push_arrays`,
+    :meth:`flush_arrays`, :meth:`restart_arrays`) for the live engine.
     """
 
     def __init__(self, options: OrderOptions | None = None, **overrides: int) -> None:
@@ -921,14 +921,7 @@ class TimeOrderer:
         return new_session
 
 
-# -- repeats -------------------------------------------------------------------------------------
-#
-# Samples repeated exactly: a line the phone (or a copy of a log) wrote twice.
-#
-# A repeat is a sample with the same time, tag and values as one released before it (release
-# times never go back, so only the samples of the latest time need remembering); the estimators
-# use it once (the runner drops it) and the log's summary counts it. A sample at the
-# same time with other values is not a repeat: both are used, as the phone sent them.
+# -- repeats: samples repeated exactly, after release ----------------------------------------------
 
 # the samples of the previous chunk's last time: (t_ms, tag, values)
 Last = tuple[np.ndarray, np.ndarray, np.ndarray] | None
@@ -942,7 +935,13 @@ def repeats(t_ms: np.ndarray, tag: np.ndarray, values: np.ndarray,
             last: Last) -> tuple[np.ndarray, Last]:
     """(mask of the samples that repeat an earlier one, what to carry into the next chunk).
     t_ms, tag (n,), values (n, 4) in release order (times never going back); last: what the
-    previous chunk returned (None at the start)."""
+    previous chunk returned (None at the start).
+
+    A repeat is a line the phone (or a copy of a log) wrote twice: a sample with the same time,
+    tag and values as one released before it (release times never go back, so only the samples
+    of the latest time need remembering); the estimators use it once (the runner drops it) and
+    the log's summary counts it. A sample at the same time with other values is not a repeat:
+    both are used, as the phone sent them."""
     n = len(t_ms)
     if n == 0:
         return np.zeros(0, bool), last
@@ -971,7 +970,8 @@ def repeats(t_ms: np.ndarray, tag: np.ndarray, values: np.ndarray,
 def warm_up() -> None:
     """Compile (or load from numba's cache) the kernels before the first chunk arrives."""
     orderer = TimeOrderer()
-    orderer.push_arrays(np.array([1000, 1000, 5000]), np.array([0, 1, 0]), np.zeros((3, MAX_WIDTH)))
+    orderer.push_arrays(np.array([1000, 1000, 5000]), np.array([0, 1, 0]),
+                        np.zeros((3, MAX_WIDTH)))
     orderer.restart_arrays()
     _ = orderer.oldest_pending_sequence
 

@@ -115,7 +115,8 @@ if tuple(FILTER[code].sensor for code in SENSOR_CODES) != SENSORS:
                       f"{[FILTER[c].name for c in SENSOR_CODES]} do not match ekf's sensors "
                       f"{SENSORS}")
 if not all(len(tag.name) == 3 and tag.name.isascii() for tag in FILTER):
-    raise ImportError("app.stream.protocol: the compiled parser reads filter tags of 3 ASCII letters")
+    raise ImportError("app.stream.protocol: the compiled parser reads filter tags of 3 ASCII "
+                      "letters")
 
 #: The compiled parser's view of the filter tags: their ASCII bytes (N, 3), widths, the index
 #: of their bound in ``Limits.squared`` (-1: the unit quaternion), whether a floor applies.

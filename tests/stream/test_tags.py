@@ -1,4 +1,5 @@
-"""The tag table (app.stream.protocol.TAGS) drives the parsers, the orderer's layout and the numba cache."""
+"""The tag table (app.stream.protocol.TAGS) drives the parsers, the orderer's layout and the
+numba cache."""
 
 from __future__ import annotations
 
