@@ -14,10 +14,10 @@ from typing import Callable
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.engine.config import ConfigError, phyphox_url
-from app.stream.netinfo import lan_ipv4_addresses
 from app.stream.phyphox_experiment import qr_code
 from app.stream.sensor_logger import DEFAULT_PORT as SENSOR_LOGGER_PORT
 from app.stream.tcp_server import DEFAULT_PORT as SENSOR_FUSION_PORT
+from app.stream.tcp_server import lan_ipv4_addresses
 
 Connect = Callable[[str, str], bool]
 ERROR_STYLE = "color: #b3261e"
