@@ -12,7 +12,7 @@ import threading
 from pathlib import Path
 
 from app.engine import config
-from app.engine.outputs import check_output, open_output
+from app.engine.offline.outputs import check_output, open_output
 from app.stream.emulator import PLATFORMS, PhyphoxPhone, SensorLoggerPhone, parse_push_url
 from app.stream.phyphox_experiment import FILE_NAME, experiment_xml, qr_code
 
