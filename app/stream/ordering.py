@@ -71,6 +71,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
+
 from ekf.fast._jit import check_cache
 
 from app.stream.protocol import (FILTER_TAGS, MAX_WIDTH, N_FILTER_TAGS, TABLE_KEY, TAG_CODES,
