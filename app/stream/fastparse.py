@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ekf.fast._jit import check_cache
+from ekf.fast.jit import check_cache
 
 from app.stream.protocol import (DEFAULT_LIMITS, FILTER_TAGS, KERNEL_BOUND_SLOTS, KERNEL_FLOORS,
                                  KERNEL_NAMES, KERNEL_WIDTHS, MAX_BAD_EXAMPLES, MAX_LINE_BYTES,

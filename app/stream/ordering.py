@@ -72,7 +72,7 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-from ekf.fast._jit import check_cache
+from ekf.fast.jit import check_cache
 
 from app.stream.protocol import (FILTER_TAGS, MAX_WIDTH, N_FILTER_TAGS, TABLE_KEY, TAG_CODES,
                                  Sample, jit)

@@ -128,7 +128,7 @@ KERNEL_FLOORS = np.array([tag.floor for tag in FILTER], np.bool_)
 
 #: A hash of this module (the table above is in it): compiled stream kernels that read the
 #: arrays above as constants are flushed from numba's cache when it changes (each module of
-#: such kernels calls ``ekf.fast._jit.check_cache`` with it when imported; numba caches a
+#: such kernels calls ``ekf.fast.jit.check_cache`` with it when imported; numba caches a
 #: function keyed on its own source file only).
 TABLE_KEY = int.from_bytes(hashlib.sha256(Path(__file__).read_bytes()).digest()[:7], "little")
 #: The decorator of the stream's compiled kernels (the parser's, the orderer's, the runner's).

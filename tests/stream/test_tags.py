@@ -14,7 +14,7 @@ from app.stream.fastparse import FastLineParser
 from app.stream.protocol import (DAMAGE_REASONS, FILTER, SENSOR_CODES, TAGS, LineParser,
                                  ParseError, Tag, parse_line)
 from ekf.estimator import SENSORS
-from ekf.fast._jit import check_cache
+from ekf.fast.jit import check_cache
 
 
 def _line(tag: Tag, values: list[float]) -> str:

@@ -27,7 +27,7 @@ import numpy as np
 
 import ekf
 from ekf import SENSORS, magcal
-from ekf.fast._jit import check_cache
+from ekf.fast.jit import check_cache
 from app.engine.processing.compare import ErrorRows, ErrorSums, SameInstant
 from app.engine.processing.innovations import YOURS, InnovationBuffer, InnovationProbe
 from app.engine.userfilter.filter import make_estimator
