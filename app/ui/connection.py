@@ -27,7 +27,7 @@ from app.engine.commands import (AcceptConnection, IgnoreConnection, SetAllowedN
                                  SetForward)
 from app.engine.config import ConfigError, allowed_networks, forward_target, phyphox_url
 from app.engine.snapshot import StreamHealth, lag_text
-from app.stream.netinfo import lan_ipv4_addresses
+from app.stream.tcp_server import lan_ipv4_addresses
 from app.stream.phyphox_experiment import qr_code
 from app.stream.protocol import reasons_text
 from app.stream.sensor_logger import DEFAULT_PORT as SENSOR_LOGGER_PORT

@@ -41,7 +41,7 @@ from app.engine.config import ConfigError
 from app.engine.tuning.profiles import ProfileStore
 from app.engine.errors import EngineFailure
 from app.engine.snapshot import SENSOR_NAMES, Snapshot, absent_sensors, absent_text
-from app.stream.tags import FILTER_TAGS
+from app.stream.protocol import FILTER_TAGS
 from app.ui.calibration import CalibrationWorkspace
 from app.ui.connection import ConnectionPanel, ConnectPhoneDialog, PhoneAppsBox, connection_text
 from app.ui.consistency import ConsistencyView
