@@ -8,7 +8,7 @@ from PySide6 import QtCore, QtGui
 
 import ekf
 from app.engine.commands import SetSettings
-from app.engine.profiles import Profile, ProfileStore
+from app.engine.tuning.profiles import Profile, ProfileStore
 from app.ui.settings_panel import SettingsPanel, parse_value
 from ekf.settings import grouped_rows
 

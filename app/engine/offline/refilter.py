@@ -2,13 +2,14 @@
 A/B comparison with a kept "ghost" run.
 
 The log is turned into ordered sample arrays once (:class:`PreparedLog`); each re-run feeds them
-to a fresh :class:`~app.engine.runner.EstimatorRunner` in one call, i.e. through the compiled
-batch path (the estimators' ``run_batch``, one nogil loop), so the rows are those of `filter`
-and of a live replay, bit for bit, and a 10-minute 100 Hz session takes a few tens of
-milliseconds (benchmarks/tuning.py). A re-run of a :class:`~app.engine.configuration.Setup`
-(the window's configuration over time, :func:`run_setup`) applies its changes at their sample
-positions as a replay does, in a few calls, so Tune's figures are the replay's. Errors against
-ORI are :func:`app.engine.offline.reference_errors`' (the `evaluate` figures).
+to a fresh :class:`~app.engine.processing.runner.EstimatorRunner` in one call, i.e. through the
+compiled batch path (the estimators' ``run_batch``, one nogil loop), so the rows are those of
+`filter` and of a live replay, bit for bit, and a 10-minute 100 Hz session takes a few tens of
+milliseconds (benchmarks/tuning.py). A re-run of a
+:class:`~app.engine.processing.configuration.Setup` (the window's configuration over time,
+:func:`run_setup`) applies its changes at their sample positions as a replay does, in a few calls,
+so Tune's figures are the replay's. Errors against ORI are
+:func:`app.engine.offline.filtering.reference_errors`' (the `evaluate` figures).
 
 :class:`Refilterer` runs requests in a thread (latest request wins: a settings change while a
 run is under way replaces the waiting one) and hands each result to a callback, from that
@@ -28,11 +29,11 @@ from typing import Any
 import numpy as np
 
 import ekf
-from app.engine.configuration import Setup
-from app.engine.offline import (ReferenceErrors, reference_errors, session_row_starts,
-                                smooth_rows)
-from app.engine.pipeline import Pipeline
-from app.engine.runner import SENSORS, EstimatorRunner, Rows
+from app.engine.processing.configuration import Setup
+from app.engine.offline.filtering import (ReferenceErrors, reference_errors, session_row_starts,
+                                          smooth_rows)
+from app.engine.processing.pipeline import Pipeline
+from app.engine.processing.runner import SENSORS, EstimatorRunner, Rows
 from app.stream.logfile import LogData
 
 ORI_CODE = 3
@@ -106,8 +107,8 @@ def run_rows(prepared: PreparedLog, settings: ekf.EKFSettings | None, estimator:
 def run_setup(prepared: PreparedLog, setup: Setup) -> Rows:
     """The rows of a whole run of `setup`: its configuration at the start (a recording's start
     state too), its changes applied at their sample positions (the engine's
-    :class:`~app.engine.pipeline.Pipeline`, fed the ordered samples), the estimators afresh
-    where the log's clock restarts; the comparisons are not run (they change no row)."""
+    :class:`~app.engine.processing.pipeline.Pipeline`, fed the ordered samples), the estimators
+    afresh where the log's clock restarts; the comparisons are not run (they change no row)."""
     setup = dataclasses.replace(setup, comparisons=False, timeline=tuple(
         c for c in setup.timeline if c.kind != "comparisons"))
     runner = EstimatorRunner(collect_plot=False)
@@ -320,7 +321,7 @@ def prepare_path(path: str | Path) -> PreparedLog:
     that started mid-stream is prepared as its replay orders it: from the samples the time
     orderer held then (its session.json's start state), so positions are a replay's."""
     from app.engine.config import open_log, open_replay
-    from app.engine.session import read_session, session_json_for
+    from app.engine.sessions.session import read_session, session_json_for
 
     log = open_log(path)
     found = session_json_for(log.path)

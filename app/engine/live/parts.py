@@ -1,33 +1,39 @@
 """The engine's parts as one typed bundle, and the snapshot composed from them.
 
-:class:`Engine <app.engine.worker.Engine>` makes each part once and hands them, through
+:class:`Engine <app.engine.live.worker.Engine>` makes each part once and hands them, through
 :class:`EngineParts`, to the code that works on several of them: the command handlers
-(:mod:`app.engine.command_table`) and :func:`engine_snapshot`. Each part owns its state: the
-processing (:class:`~app.engine.pipeline.Pipeline`, whose runner runs the filters), the
-configuration over time (:class:`~app.engine.configuration.Configuration`), the replay lane, the
-recording lane, the markers, your filter's host, the stream's health, the publisher and the
-output, the connection (:class:`Connection`), the forward and the failures. Nothing outside
-the engine's own module reads the engine's private attributes.
-"""
+(:func:`app.engine.live.worker.handler_of`) and :func:`engine_snapshot`. Each part owns its
+state: the processing (:class:`~app.engine.processing.pipeline.Pipeline`, whose runner runs the
+filters), the configuration over time
+(:class:`~app.engine.processing.configuration.Configuration`), the replay lane, the recording
+lane, the markers, your filter's host, the stream's health, the publisher and the output, the
+connection (:class:`Connection`), the forward (:class:`Forward`) and the failures. Nothing
+outside the engine's own module reads the engine's private attributes.
 
+Forwarding the phone's lines to another receiver (``--forward``, the window's Forward menu):
+:class:`Forward` holds the one the engine runs and switches it on, over or off, as the engine's
+SetForward command does.
+"""
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from app.engine.configuration import Configuration
-from app.engine.failures import FailureLog
-from app.engine.forwarding import Forward
-from app.engine.health import HealthTracker
-from app.engine.markers import Markers
-from app.engine.pipeline import Pipeline
-from app.engine.publisher import Output, Publisher
-from app.engine.recording_lane import RecordingLane
-from app.engine.replay_lane import ReplayLane
+from app.engine.config import ConfigError, forward_target
+from app.engine.errors import FailureLog
+from app.engine.live.publisher import Output, Publisher
+from app.engine.processing.configuration import Configuration
+from app.engine.processing.health import HealthTracker
+from app.engine.processing.pipeline import Pipeline
+from app.engine.sessions.recording import RecordingLane
+from app.engine.sessions.replay import ReplayLane
+from app.engine.sessions.session import Markers
 from app.engine.snapshot import Comparison, FilterStatus, Snapshot, StreamHealth
 from app.engine.userfilter.host import UserFilterHost
+from app.stream.forwarder import LineForwarder
 from app.stream.sources import Source
 
 
@@ -110,3 +116,42 @@ def stream_health(parts: EngineParts, now: float, info: dict[str, Any]) -> Strea
     if forwarder is not None:
         health.forward = forwarder.status()
     return health
+
+
+def switch_forward(current: LineForwarder | None, target: str | None,
+                   live: bool) -> tuple[LineForwarder | None, str, bool]:
+    """Stop `current` (never waiting for its thread, which may be inside a send of up to 5 s)
+    and start a forward to `target` ("HOST:PORT"; None: none). Returns (the forwarder now,
+    the status line, whether it changed: a bad target changes nothing). live: the source is
+    the phone (otherwise there is nothing to forward yet, and the line says so)."""
+    try:
+        address = forward_target(target) if target else None
+    except ConfigError as error:
+        return current, (f"forward to {target!r}: "
+                         f"{str(error).replace('--forward: ', '')}"), False
+    if current is not None:
+        threading.Thread(target=current.stop, name="forward-stop", daemon=True).start()
+    if address is None:
+        return None, "forwarding stopped", True
+    forwarder = LineForwarder(*address)
+    forwarder.start()
+    note = "" if live else " (the phone's lines only: nothing to forward while not streaming " \
+                           "live)"
+    return forwarder, f"forwarding the phone's lines to {address[0]}:{address[1]}{note}", True
+
+
+class Forward:
+    """The forward the engine runs: :attr:`current` (None: none)."""
+
+    def __init__(self, current: LineForwarder | None = None) -> None:
+        self.current = current
+
+    def switch(self, target: str | None, live: bool) -> tuple[str, bool]:
+        """SetForward: see :func:`switch_forward`; (the status line, whether it changed)."""
+        self.current, line, changed = switch_forward(self.current, target, live)
+        return line, changed
+
+    def target(self) -> str | None:
+        """"HOST:PORT" of the running forward (None: none)."""
+        current = self.current
+        return None if current is None else f"{current.host}:{current.port}"

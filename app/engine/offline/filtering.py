@@ -1,4 +1,5 @@
-"""The offline path: a whole log through the same runner as the live engine.
+"""The offline path: a whole log through the same runner as the live engine, and our estimates
+as CSV.
 
 `orientation-lab filter` and `evaluate` (and the examples) call these, so a file and its live
 replay give the same estimates bit for bit, same-time and duplicated lines included.
@@ -11,23 +12,29 @@ committed, so memory does not grow with the log: :func:`filter_rows` for the est
 needs to know before it starts (which sensors a log holds, its ORI series) comes from a first
 pass, :func:`scan_log`. The smoother needs a whole session's readings: :func:`smoothed_quats`
 holds them as arrays (80 bytes a row) while it runs.
-"""
 
+Our estimates as CSV (:class:`EstimatesWriter`, :func:`write_rows`): what `orientation-lab
+filter` prints and what a recording keeps in ``estimates.csv`` (the same rows, so `filter` on a
+recorded ``raw.txt`` reproduces the file). Columns: t_ms (the phone's aligned clock), qw qx qy qz
+(sensor -> ENU, w >= 0, 9 decimals), acc_rejected, mag_rejected, at_rest (0/1). One row per
+distinct time that has a GYR, ACC or MAG sample.
+"""
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, TextIO
 
 import numpy as np
 
 import ekf
 from ekf import magcal
 from ekf.metrics import ErrorSummary, interpolate_quat, intervals_mask, rmse
-from app.engine.runner import SENSORS, TAG_NAMES, EstimatorRunner, Rows
+from app.engine.processing.runner import SENSORS, TAG_NAMES, EstimatorRunner, Rows
 from app.stream.logfile import LogData, LogStats
 from app.stream.tags import REFERENCE_CODE, SENSOR_CODES
+
 
 
 class OrderedLog(Protocol):
@@ -482,3 +489,78 @@ def reference_errors(rows: Rows, ori_times: np.ndarray, intervals_ms: list | Non
     summary = ErrorSummary(rmse(total[ok]), rmse(heading[ok]), rmse(inclination[ok]),
                            int(ok.sum()))
     return ReferenceErrors(t_ref, total, heading, inclination, mask, summary)
+
+
+HEADER = "t_ms,qw,qx,qy,qz,acc_rejected,mag_rejected,at_rest"
+
+
+def csv_lines(rows: Rows) -> list[str]:
+    """The CSV lines (without LF) of the rows that have a sensor sample."""
+    rows = rows.select(rows.has_sample)
+    out = []
+    for t, q, acc, mag, rest in zip(rows.t_ms.tolist(), rows.quat.tolist(),
+                                    rows.acc_rejected.tolist(), rows.mag_rejected.tolist(),
+                                    rows.at_rest.tolist()):
+        out.append(f"{t},{q[0]:.9f},{q[1]:.9f},{q[2]:.9f},{q[3]:.9f},"
+                   f"{int(acc)},{int(mag)},{int(rest)}")
+    return out
+
+
+def write_csv(rows: Rows, stream: TextIO) -> None:
+    """Header and rows to an open text stream."""
+    stream.write(HEADER + "\n")
+    write_rows(rows, stream)
+
+
+def write_rows(rows: Rows, stream: TextIO) -> int:
+    """The CSV lines of `rows` (a piece of a run: call it piece after piece, after the
+    header) to an open text stream; returns the number of lines."""
+    lines = csv_lines(rows)
+    if lines:
+        stream.write("\n".join(lines) + "\n")
+    return len(lines)
+
+
+class EstimatesWriter:
+    """Appends rows to ``estimates.csv`` as they are produced (the engine calls :meth:`write`
+    at every publish). Write errors are not raised: they stop the file and are kept in
+    :attr:`error` for the caller to report, so a full disk never stops the estimates."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.rows_written = 0
+        self.error: str | None = None
+        self._stream: TextIO | None = open(self.path, "w", encoding="ascii", newline="\n")
+        self._stream.write(HEADER + "\n")
+
+    def write(self, rows: Rows) -> None:
+        if self._stream is None or not len(rows):
+            return
+        try:
+            written = write_rows(rows, self._stream)
+        except OSError as error:
+            self.error = f"{self.path}: {error.strerror or error}"
+            self._close_quietly()
+            return
+        self.rows_written += written
+
+    def flush(self) -> None:
+        if self._stream is not None:
+            try:
+                self._stream.flush()
+            except OSError as error:
+                self.error = f"{self.path}: {error.strerror or error}"
+                self._close_quietly()
+
+    def close(self) -> None:
+        if self._stream is not None:
+            self.flush()
+            self._close_quietly()
+
+    def _close_quietly(self) -> None:
+        stream, self._stream = self._stream, None
+        if stream is not None:
+            try:
+                stream.close()
+            except OSError:
+                pass

@@ -1,11 +1,12 @@
 """A replay's index: checkpoints every second of data and the whole session's plot data, built
 once in a background thread when a replay opens (and again when its set-up changes).
 
-The index runs the replay's lines through its own :class:`~app.engine.pipeline.Pipeline`, the
-engine's processing, with the same set-up, as fast as the compiled kernels go, one second of
+The index runs the replay's lines through its own :class:`~app.engine.processing.pipeline.Pipeline`,
+the engine's processing, with the same set-up, as fast as the compiled kernels go, one second of
 lines (by the replay's own timing) at a time, and after each second keeps
 
-* a :class:`~app.engine.checkpoints.Checkpoint`: a seek restores the latest one at or before
+* a :class:`~app.engine.processing.checkpoints.Checkpoint`: a seek restores the latest one at or
+before
   its target and replays at most one second;
 * the plot samples of that second (:class:`SessionPlot`): the window can scroll and zoom over
   the whole session, not only the last minutes its rolling buffers hold.
@@ -27,10 +28,10 @@ from typing import Any
 
 import numpy as np
 
-from app.engine.checkpoints import Checkpoint, CheckpointStore
-from app.engine.configuration import Setup
-from app.engine.pipeline import Pipeline
-from app.engine.runner import EstimatorRunner
+from app.engine.processing.checkpoints import Checkpoint, CheckpointStore
+from app.engine.processing.configuration import Setup
+from app.engine.processing.pipeline import Pipeline
+from app.engine.processing.runner import EstimatorRunner
 from app.engine.snapshot import PlotChunk
 
 CHECKPOINT_INTERVAL_S = 1.0

@@ -1,15 +1,16 @@
 """Exports of a session (or a phone's log): CSV, the phone's own text format, MATLAB .mat.
 
-The estimates come from the replay's own processing (:class:`~app.engine.pipeline.Pipeline`)
-with the session's configuration over time (:mod:`app.engine.configuration`: the recorded one,
-or the one the window replays), so an export holds what replaying the session shows. The
-window's File → Export and ``orientation-lab export`` both call :func:`export_session`.
+The estimates come from the replay's own processing
+(:class:`~app.engine.processing.pipeline.Pipeline`) with the session's configuration over time
+(:mod:`app.engine.processing.configuration`: the recorded one, or the one the window replays), so an
+export holds what replaying the session shows. The window's File → Export and ``orientation-lab
+export`` both call :func:`export_session`.
 
 An export reads the log twice as a stream, never whole: a first pass (parser and orderer only)
 finds the session's times, so a range is checked before anything is written; the second replays
 it block by block (:func:`session_pieces`) and writes each block's rows as they come. Memory
 does not grow with the session (the MATLAB file keeps its columns in temporary files until it
-is written, :mod:`app.engine.matfile`).
+is written, :mod:`app.engine.offline.matfile`).
 
 * **CSV**: one row per distinct time: t [s] since the start, acc [m/s²], gyr [rad/s],
   mag [µT] (x, y, z), the phone's quaternion (w x y z) and ours, our yaw/pitch/roll and the
@@ -21,7 +22,7 @@ is written, :mod:`app.engine.matfile`).
 * **mat**: the course kit's structs as ``filterTemplate`` returns them, ``meas`` (t 1×N, acc,
   gyr, mag 3×N, orient 4×N; NaN where a sensor has no sample) and ``xhat`` (t 1×N, x 4×N our
   quaternion, P 4×4×N its covariance), a MATLAB 5 file (``load`` in MATLAB and Octave,
-  ``scipy.io.loadmat``) written by :mod:`app.engine.matfile`. A variable holds at most 2 GiB
+  ``scipy.io.loadmat``) written by :mod:`app.engine.offline.matfile`. A variable holds at most 2 GiB
   (xhat: about 12 million rows, ten hours of a phone's four sensors).
 
 A range: the whole session, between two markers (by number or label), or from/to times in
@@ -42,12 +43,12 @@ import numpy as np
 import ekf
 from app.engine import config
 from app.engine.config import ConfigError
-from app.engine.matfile import MatStructs, check_size
-from app.engine.outputs import check_output, open_output
-from app.engine.configuration import Config, Setup, recorded_setup
-from app.engine.pipeline import Pipeline
-from app.engine.runner import SENSORS, EstimatorRunner, Rows
-from app.engine.session import Marker, SessionInfo, read_session, session_json_for
+from app.engine.offline.matfile import MatStructs, check_size
+from app.engine.offline.outputs import check_output, open_output
+from app.engine.processing.configuration import Config, Setup, recorded_setup
+from app.engine.processing.pipeline import Pipeline
+from app.engine.processing.runner import SENSORS, EstimatorRunner, Rows
+from app.engine.sessions.session import Marker, SessionInfo, read_session, session_json_for
 from app.stream.lines import CHUNK_BYTES, LogError, Pacer, line_blocks, line_starts
 from app.stream.tags import WIDTHS
 
@@ -130,7 +131,7 @@ class OpenedSession:
 def session_setup(session: SessionInfo | None, estimator: str = "ekf",
                   settings: ekf.EKFSettings | None = None) -> Setup:
     """The set-up a replay of this session starts with: its recorded configuration over time
-    (app.engine.configuration; the comparisons, which exports do not hold, off)."""
+    (app.engine.processing.configuration; the comparisons, which exports do not hold, off)."""
     setup = recorded_setup(session, Config(estimator, SENSORS, settings or ekf.PRESETS["default"]))
     return _without_comparisons(setup)
 

@@ -3,10 +3,10 @@ index and the exports share (so all three give the same estimates, bit for bit).
 
 :class:`Pipeline` holds the compiled parser, the time orderer and the estimator runner, the
 session's time origin (the plots count seconds from it) and the changes of the configuration
-over time that the current pass applies (:mod:`app.engine.configuration`): sensor switches,
-estimator, settings and comparisons changes, resets and alignments at their sample positions
-(``fed``: samples fed to the estimators since the pass started), applied at exactly those
-positions. Its whole state is one :class:`Checkpoint <app.engine.checkpoints.Checkpoint>`
+over time that the current pass applies (:mod:`app.engine.processing.configuration`): sensor
+switches, estimator, settings and comparisons changes, resets and alignments at their sample
+positions (``fed``: samples fed to the estimators since the pass started), applied at exactly those
+positions. Its whole state is one :class:`Checkpoint <app.engine.processing.checkpoints.Checkpoint>`
 (:meth:`checkpoint`, :meth:`restore`).
 
 The owner hands it its callbacks when it makes it: ``on_cut(rows, piece)`` gets the output of
@@ -24,9 +24,9 @@ from typing import Any
 import numpy as np
 
 import ekf
-from app.engine.checkpoints import Checkpoint, pack_runner, unpack_runner
-from app.engine.configuration import Change, Config, Setup, apply_change, changes_due
-from app.engine.runner import SENSORS, EstimatorRunner, Rows
+from app.engine.processing.checkpoints import Checkpoint, pack_runner, unpack_runner
+from app.engine.processing.configuration import Change, Config, Setup, apply_change, changes_due
+from app.engine.processing.runner import SENSORS, EstimatorRunner, Rows
 from app.engine.snapshot import PlotChunk
 from app.stream import fastparse
 from app.stream.fastparse import ParsedArrays

@@ -39,7 +39,7 @@ from typing import Any
 
 import ekf
 from ekf import SENSORS
-from app.engine.session import SessionInfo, settings_from_dict
+from app.engine.sessions.session import SessionInfo, settings_from_dict
 
 #: What an override replaces, one kind each: a sensor's switch, the estimator, the settings,
 #: the comparisons.
@@ -64,7 +64,7 @@ class Config:
 
     @classmethod
     def of(cls, runner: Any) -> Config:
-        """What an :class:`~app.engine.runner.EstimatorRunner` runs now."""
+        """What an :class:`~app.engine.processing.runner.EstimatorRunner` runs now."""
         enabled = runner.sensors_enabled
         return cls(runner.estimator_name, tuple(s for s in SENSORS if enabled[s]),
                    runner.settings, bool(runner.comparisons), runner.comparison_estimator)
@@ -160,8 +160,8 @@ class Change:
 
     @classmethod
     def from_event(cls, event: dict[str, Any]) -> Change | None:
-        """A session.json timeline entry (app.engine.session: a filter event with its sample);
-        None for an entry that changes nothing (settings without values)."""
+        """A session.json timeline entry (app.engine.sessions.session: a filter event with its
+        sample); None for an entry that changes nothing (settings without values)."""
         kind, sample = event.get("kind"), int(event["sample"])
         if kind == "sensor":
             return cls(sample, kind, sensor=event["sensor"], enabled=bool(event["enabled"]))
@@ -193,8 +193,8 @@ class Change:
 
 
 def apply_change(runner: Any, change: Change) -> dict[str, Any]:
-    """Apply `change` to an :class:`~app.engine.runner.EstimatorRunner`; what happened, for the
-    recording (an alignment: the angle turned, None without PHONE's orientation)."""
+    """Apply `change` to an :class:`~app.engine.processing.runner.EstimatorRunner`; what happened,
+    for the recording (an alignment: the angle turned, None without PHONE's orientation)."""
     kind = change.kind
     if kind == "sensor":
         runner.set_sensor_enabled(change.sensor, bool(change.enabled))

@@ -2,7 +2,7 @@
 ORI: the phone's own estimate, or ground truth where the log carries it) over a chosen range,
 and check the result on another range or log ("tune on this range, check on that range").
 
-Each candidate is one re-run of the log (:func:`app.engine.refilter.refilter`, the compiled
+Each candidate is one re-run of the log (:func:`app.engine.offline.refilter.refilter`, the compiled
 batch path) up to the end of the range; the search is ``scipy.optimize.minimize``'s
 Nelder-Mead with bounds, on the parameters' ranges mapped to [0, 1] (logarithmically for
 positive quantities such as covariances), started from the base settings. A covariance matrix is
@@ -28,10 +28,10 @@ import ekf
 from ekf._optional import MissingLibrary, require
 from ekf.metrics import ErrorSummary
 from ekf.settings import search_ranges
-from app.engine.configuration import Setup
+from app.engine.processing.configuration import Setup
 from app.engine.errors import ConfigError
-from app.engine.refilter import PreparedLog, refilter
-from app.engine.runner import SENSORS
+from app.engine.offline.refilter import PreparedLog, refilter
+from app.engine.processing.runner import SENSORS
 
 # (low, high) searched for a setting, log scale, from its declaration (ekf.settings'
 # `search`); values outside them are never tried.

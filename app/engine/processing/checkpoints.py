@@ -3,7 +3,7 @@
 A checkpoint (:class:`Checkpoint`) is what the engine needs to go on from a line of the replayed
 file exactly as if it had played every line before it: every estimator's own ``snapshot()``
 (the main one and the comparisons, through :meth:`EstimatorRunner.snapshot
-<app.engine.runner.EstimatorRunner.snapshot>`: also the phone's latest orientation, the
+<app.engine.processing.runner.EstimatorRunner.snapshot>`: also the phone's latest orientation, the
 same-instant comparers, the running errors and the open row), the time orderer's state (the
 samples it holds, its clocks), the parser's line state, the session's time origin and where the
 recorded timeline stands. A seek restores the latest checkpoint at or before its target and

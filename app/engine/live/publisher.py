@@ -7,7 +7,7 @@ latest :class:`~app.engine.snapshot.Snapshot`, the plot samples since the previo
 anything changed; the engine's thread publishes, any thread polls, a short lock between them.
 It also measures the latency of the estimates: from a chunk's arrival to the publish after
 which the time orderer holds none of its samples any more. (The snapshot itself is composed
-from the engine's parts by :func:`app.engine.parts.engine_snapshot`.)
+from the engine's parts by :func:`app.engine.live.parts.engine_snapshot`.)
 """
 
 from __future__ import annotations
@@ -18,9 +18,10 @@ from collections import deque
 from collections.abc import Iterable
 from typing import Any
 
-from app.engine.pipeline import Pipeline
-from app.engine.recording_lane import RecordingLane
-from app.engine.snapshot import EngineFailure, PlotBuffer, PlotChunk, Snapshot
+from app.engine.processing.pipeline import Pipeline
+from app.engine.sessions.recording import RecordingLane
+from app.engine.errors import EngineFailure
+from app.engine.snapshot import PlotBuffer, PlotChunk, Snapshot
 
 
 class Publisher:

@@ -1,4 +1,5 @@
-"""The background engine: source -> parser -> time ordering -> estimators -> snapshots.
+"""The background engine: source -> parser -> time ordering -> estimators -> snapshots, and the
+commands it applies.
 
 One plain ``threading`` thread (no Qt) runs the filter at the sample rate; the GUI (or the
 ``serve`` command) calls :meth:`Engine.poll` at its own frame rate and gets the latest
@@ -13,50 +14,71 @@ stream whose clock does not continue the previous one's starts a new session (th
 where; the estimators start afresh, nothing of an earlier connection carries over).
 
 :class:`Engine` coordinates parts that live in modules of their own: the processing
-(:mod:`~app.engine.pipeline`), the output and the snapshots (:mod:`~app.engine.publisher`),
-failures (:mod:`~app.engine.failures`), replays and seeks (:mod:`~app.engine.replay_lane`),
-recordings (:mod:`~app.engine.recording_lane`), your filter (:mod:`~app.engine.userfilter.host`),
-markers, the stream's health; the commands' handlers are in :mod:`~app.engine.command_table`.
+(:mod:`~app.engine.processing.pipeline`), the output and the snapshots
+(:mod:`~app.engine.live.publisher`), failures (:mod:`~app.engine.errors`), replays and seeks
+(:mod:`~app.engine.sessions.replay`), recordings (:mod:`~app.engine.sessions.recording`), your
+filter (:mod:`~app.engine.userfilter.host`), markers, the stream's health.
 
 The engine thread works chunk by chunk: everything the source has is parsed in one compiled call
-(:class:`~app.stream.fastparse.FastLineParser`), ordered in one (:class:`~app.stream.ordering.TimeOrderer`)
-and run through each estimator in one (:meth:`~app.engine.runner.EstimatorRunner.feed_arrays`); the
-kernels release the GIL, so the GUI thread keeps running while the engine computes.
-"""
+(:class:`~app.stream.fastparse.FastLineParser`), ordered in one
+(:class:`~app.stream.ordering.TimeOrderer`) and run through each estimator in one
+(:meth:`~app.engine.processing.runner.EstimatorRunner.feed_arrays`); the kernels release the GIL,
+so the GUI thread keeps running while the engine computes.
 
+The command table (:func:`handler_of`): each command type and its handler(parts, command), which
+returns True when the command moved a replay (a seek: what was read before is dropped). A
+command is looked up along its class's bases, so a subclass is handled as its base. A handler
+works on the engine's parts (:class:`~app.engine.live.parts.EngineParts`) and hands its command
+to the part it is for: the configuration (set-up changes, through the replay lane, which makes
+them overrides or changes at the current sample), the replay lane (seeks, back to the
+recording), the recording lane, the markers, your filter's host, the source (connection
+commands) or the forward. The set-up commands (a sensor switch, the estimator, the settings, the
+comparisons, a reset, a heading alignment) become changes of the configuration
+(:class:`~app.engine.processing.configuration.Change`): one maker per command type in
+`SETUP_CHANGES`; a maker returns None when it refuses (saying why through `refuse`).
+
+Ending the process on SIGTERM and SIGHUP as on Ctrl-C (:func:`on_finishing_signals`): by
+default these signals (`kill`, a service manager; the terminal that started the program was
+closed) end a process at once: raw.txt keeps what was flushed, session.json is never finalised.
+`serve` and the window ask them to stop instead; they then stop the engine, which closes the
+recording (raw.txt flushed, session.json with its stop time and counts, estimates.csv to the
+last row).
+"""
 from __future__ import annotations
 
+import dataclasses
 import logging
 import queue
+import signal
 import threading
 import time
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
 import ekf
-from app.engine.command_table import Mark, handler_of
-from app.engine.configuration import Change, Config, Configuration
-from app.engine.estimates import EstimatesWriter
-from app.engine.failures import FailureLog
-from app.engine.forwarding import Forward
-from app.engine.health import HealthTracker
-from app.engine.markers import Markers
-from app.engine.parts import Connection, EngineParts, engine_snapshot
-from app.engine.pipeline import Pipeline
-from app.engine.publisher import Output, Publisher
-from app.engine.recording import SessionRecording
-from app.engine.recording_lane import RecordingLane
-from app.engine.replay import session_for_source
-from app.engine.replay_lane import ReplayLane
-from app.engine.runner import SENSORS, EstimatorRunner, Rows
-from app.engine.session import SessionInfo
-from app.engine.snapshot import EngineFailure, Snapshot
+from app.engine.commands import (AddMarker, AlignHeading, LoadUserFilter, ReplayControl,
+                                 ResetFilter, SetComparisonsEnabled, SetConsistencyEnabled,
+                                 SetEstimator, SetFollowTimeline, SetForward, SetMarkerLabel,
+                                 SetSensorEnabled, SetSettings, StartRecording, StopRecording,
+                                 UnloadUserFilter)
+from app.engine.errors import EngineFailure, FailureLog
+from app.engine.live.parts import Connection, EngineParts, Forward, engine_snapshot
+from app.engine.live.publisher import Output, Publisher
+from app.engine.offline.filtering import EstimatesWriter
+from app.engine.processing.configuration import Change, Config, Configuration
+from app.engine.processing.health import HealthTracker
+from app.engine.processing.pipeline import Pipeline
+from app.engine.processing.runner import SENSORS, EstimatorRunner, Rows
+from app.engine.sessions.recording import RecordingLane, SessionRecording
+from app.engine.sessions.replay import ReplayLane, session_for_source
+from app.engine.sessions.session import Markers, SessionInfo
+from app.engine.snapshot import Snapshot
 from app.engine.userfilter.code import is_filter_file
 from app.engine.userfilter.host import UserFilterHost
 from app.engine.warmup import warm_up
-from app.stream.events import Chunk, SourceEvent
+from app.stream.events import CONNECTION_COMMANDS, Chunk, SourceEvent
 from app.stream.fastparse import ParsedArrays
 from app.stream.forwarder import LineForwarder
 from app.stream.protocol import DEFAULT_LIMITS, Limits
@@ -75,18 +97,19 @@ class Engine:
     source: any :class:`app.stream.sources.Source`; settings: ekf.EKFSettings (None: default
     preset); estimator: name from ekf.ESTIMATORS; comparisons: run the 7 EKF sensor
     combinations too; recorder: an :class:`app.stream.recorder.Recorder` that gets every received
-    known-tag line from the start; estimates: an :class:`~app.engine.estimates.EstimatesWriter`
-    that gets every estimate row (the recording's estimates.csv); record_rows: keep every
-    estimate row in :attr:`rows_log` (tests/benchmarks: unbounded memory); limits: the physical
-    bounds a sample must respect (others are damaged lines); session: the session.json of a
-    replayed recording (default: found beside the replayed raw.txt); index: build a replay's
-    index (checkpoints, whole-session plots) in the background; user_filter: a user's filter
-    file run beside the main estimator (YOURS, :mod:`app.engine.userfilter.host`); forwarder: a
+    known-tag line from the start; estimates: an
+    :class:`~app.engine.offline.filtering.EstimatesWriter` that gets every estimate row (the
+    recording's estimates.csv); record_rows: keep every estimate row in :attr:`rows_log`
+    (tests/benchmarks: unbounded memory); limits: the physical bounds a sample must respect (others
+    are damaged lines); session: the session.json of a replayed recording (default: found beside the
+    replayed raw.txt); index: build a replay's index (checkpoints, whole-session plots) in the
+    background; user_filter: a user's filter file run beside the main estimator (YOURS,
+    :mod:`app.engine.userfilter.host`); forwarder: a
     :class:`~app.stream.forwarder.LineForwarder` that gets a copy of every line from the phone.
 
     The estimator, sensors, settings and comparisons given here are the engine's own set-up:
     where a replayed recording has its own, the recording's applies
-    (:mod:`app.engine.configuration`).
+    (:mod:`app.engine.processing.configuration`).
     """
 
     def __init__(self, source: Source, settings: ekf.EKFSettings | None = None,
@@ -465,7 +488,7 @@ class Engine:
 
 
 class _ReplayEvents:
-    """The engine's side of its replay lane (app.engine.replay_lane.ReplayEvents)."""
+    """The engine's side of its replay lane (app.engine.sessions.replay.ReplayEvents)."""
 
     def __init__(self, engine: Engine) -> None:
         self._engine = engine
@@ -481,3 +504,165 @@ class _ReplayEvents:
 
     def say(self, topic: str, text: str) -> None:
         self._engine._health.warn(topic, text, force=True)
+
+
+# ---- the commands: set-up changes and the command table -----------------------------------
+
+Refuse = Callable[[str], None]
+
+
+def _sensor(command: SetSensorEnabled, refuse: Refuse) -> Change | None:
+    if command.sensor not in ekf.SENSORS:
+        refuse(f"unknown sensor {command.sensor!r}")
+        return None
+    return Change.of(command.sensor, bool(command.enabled))
+
+
+def _estimator(command: SetEstimator, refuse: Refuse) -> Change | None:
+    if command.name not in ekf.ESTIMATORS:
+        refuse(f"unknown estimator {command.name!r}")
+        return None
+    return Change.of("estimator", command.name)
+
+
+def _settings(command: SetSettings, refuse: Refuse) -> Change | None:
+    if not isinstance(command.settings, ekf.EKFSettings):
+        refuse(f"settings: expected filter settings, got {type(command.settings).__name__}")
+        return None
+    note: list[tuple[str, Any]] = [("source", command.source)] if command.source else []
+    if command.calibration is not None:
+        note.append(("profile", command.calibration.get("name")))
+    return Change(0, "settings", settings=command.settings, note=tuple(note),
+                  calibration=command.calibration)
+
+
+def _comparisons(command: SetComparisonsEnabled, refuse: Refuse) -> Change | None:
+    if command.estimator is not None and command.estimator not in ekf.ESTIMATORS:
+        refuse(f"unknown estimator {command.estimator!r}")
+        return None
+    return Change(0, "comparisons", enabled=bool(command.enabled), name=command.estimator)
+
+
+SETUP_CHANGES: dict[type, Callable[[Any, Refuse], Change | None]] = {
+    SetSensorEnabled: _sensor,
+    SetEstimator: _estimator,
+    SetSettings: _settings,
+    SetComparisonsEnabled: _comparisons,
+    ResetFilter: lambda command, refuse: Change(0, "reset"),
+    AlignHeading: lambda command, refuse: Change(0, "align_heading"),
+}
+"""Each set-up command type and the change it makes (None: refused)."""
+
+
+Handler = Callable[[EngineParts, Any], bool]
+
+
+@dataclasses.dataclass(frozen=True)
+class Mark:
+    """wait_idle's command: set when the engine reaches it."""
+
+    event: threading.Event
+
+
+def _setup(parts: EngineParts, command: Any) -> bool:
+    """A set-up command: a change of the configuration (refused: nothing changes)."""
+    change = SETUP_CHANGES[type(command)](command, lambda text: parts.say("command", text))
+    if change is not None:
+        parts.replay.change(change)
+    return False
+
+
+def _start_recording(parts: EngineParts, command: StartRecording) -> None:
+    live = parts.source.capabilities.reconnect
+    parts.recordings.start(command, parts.source.kind, parts.connection.peer if live else None,
+                           parts.output.flush)
+
+
+def _stop_recording(parts: EngineParts, command: StopRecording) -> None:
+    parts.recordings.stop(parts.output.flush, parts.publisher.latest.health)
+
+
+def _add_marker(parts: EngineParts, command: AddMarker) -> None:
+    pipeline = parts.pipeline
+    note = parts.markers.add(command.label, pipeline.runner.latest_t_ms, pipeline.t0_ms,
+                             parts.recordings.current, parts.replay.shown, pipeline.fed_total)
+    parts.say("marker", note)
+
+
+def _set_marker_label(parts: EngineParts, command: SetMarkerLabel) -> None:
+    note = parts.markers.set_label(command.id, command.label, parts.recordings.current,
+                                   parts.replay.shown)
+    if note and "(" in note:
+        parts.say("markers", note.strip(" ()"))
+
+
+def _set_forward(parts: EngineParts, command: SetForward) -> None:
+    """Stop the running forward (if any), start one to the command's target (if given)."""
+    line, changed = parts.forward.switch(command.target, parts.source.capabilities.forward)
+    parts.say("forward", line)
+    if changed:
+        parts.recordings.event("forward", target=parts.forward.target())
+
+
+def _never_moves(action: Callable[[EngineParts, Any], None]) -> Handler:
+    """The handler of a command that never moves a replay."""
+    def handler(parts: EngineParts, command: Any) -> bool:
+        action(parts, command)
+        return False
+    return handler
+
+
+TABLE: dict[type, Handler] = {
+    ReplayControl: lambda parts, command: parts.replay.control(command),
+    **{kind: _setup for kind in SETUP_CHANGES},
+    StartRecording: _never_moves(_start_recording),
+    StopRecording: _never_moves(_stop_recording),
+    AddMarker: _never_moves(_add_marker),
+    SetMarkerLabel: _never_moves(_set_marker_label),
+    SetFollowTimeline: _never_moves(
+        lambda parts, command: parts.replay.set_follow(command.enabled)),
+    **{kind: _never_moves(lambda parts, command: parts.source.control(command))
+       for kind in CONNECTION_COMMANDS},
+    LoadUserFilter: _never_moves(lambda parts, command: parts.user.load(command.path)),
+    UnloadUserFilter: _never_moves(lambda parts, _: parts.user.unload()),
+    SetConsistencyEnabled: _never_moves(
+        lambda parts, command: parts.pipeline.runner.set_consistency_enabled(command.enabled)),
+    SetForward: _never_moves(_set_forward),
+    Mark: _never_moves(lambda parts, command: parts.publisher.add_mark(command.event)),
+}
+
+
+def handler_of(command: Any) -> Handler | None:
+    """The handler of `command`'s type or of its nearest base in the table; None if none."""
+    for kind in type(command).__mro__:
+        handler = TABLE.get(kind)
+        if handler is not None:
+            return handler
+    return None
+
+
+
+
+# ---- ending the process on SIGTERM and SIGHUP as on Ctrl-C -----------------------------------
+
+FINISHING_SIGNALS = ("SIGTERM", "SIGHUP")
+
+
+def on_finishing_signals(handler: Callable[[], None]) -> Callable[[], None]:
+    """From now on SIGTERM and SIGHUP call handler() (in the main thread, between two Python
+    steps) instead of ending the process. A signal the process ignores stays ignored (SIGHUP
+    under `nohup`); a platform without it (SIGHUP on Windows) is skipped; outside the main
+    thread nothing changes. Returns the function that puts the previous handlers back."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    previous = {}
+    for name in FINISHING_SIGNALS:
+        number = getattr(signal, name, None)
+        if number is None or signal.getsignal(number) == signal.SIG_IGN:
+            continue
+        previous[number] = signal.signal(number, lambda *_: handler())
+
+    def restore() -> None:
+        for number, old in previous.items():
+            signal.signal(number, old)
+    return restore
