@@ -12,7 +12,7 @@ import numpy as np
 import ekf
 from app.cli import main
 from app.engine import config
-from app.engine.profiles import Profile, load_profile
+from app.engine.tuning.profiles import Profile, load_profile
 
 OLD = Path(__file__).resolve().parent / "files_before_groups"
 SESSION = OLD / "session"
