@@ -33,8 +33,9 @@ import ekf
 from app.engine import config
 from app.engine.processing.configuration import ConfigurationView, Setup, setup_for_log
 from app.engine.tuning.profiles import ProfileStore
-from app.engine.offline.refilter import (PreparedLog, Refilterer, RefilterResult,
-                                         angle_between_runs_deg, prepare_path)
+from app.engine.offline.refilter import (Refilterer, RefilterResult,
+                                         angle_between_runs_deg, read_replayed)
+from app.stream.logfile import LogData
 from app.ui.no_data import NoDataText
 from app.ui.settings_panel import SettingsPanel
 from app.ui.tuning import ABCompareView, TuningPanel
@@ -180,7 +181,7 @@ class TuneWorkspace(QtWidgets.QWidget):
         self._settings = settings
         self.store = store
         self.pending_log: str | Path | None = log
-        self.prepared: PreparedLog | None = None
+        self.prepared: LogData | None = None
         self.refilterer: Refilterer | None = None
         self.ab_view: ABCompareView | None = None
         self.tuning_panel: TuningPanel | None = None
@@ -291,7 +292,7 @@ class TuneWorkspace(QtWidgets.QWidget):
         self.pending_log = None
         QtWidgets.QApplication.setOverrideCursor(QtCore.Qt.CursorShape.WaitCursor)
         try:
-            prepared = prepare_path(path)
+            prepared = read_replayed(path)
         except config.ConfigError as error:
             self.log_label.setText(f"cannot use {Path(path).name}: {error}")
             return False
@@ -320,7 +321,7 @@ class TuneWorkspace(QtWidgets.QWidget):
         self.submit()
         return True
 
-    def _replace_tuning(self, prepared: PreparedLog, has_ori: bool) -> None:
+    def _replace_tuning(self, prepared: LogData, has_ori: bool) -> None:
         layout = self.tune_page.layout()
         if self.tuning_panel is not None:
             layout.removeWidget(self.tuning_panel)

@@ -22,8 +22,9 @@ from app.engine.tuning import autotune
 from app.engine.commands import SetSettings
 from app.engine.processing.configuration import Setup
 from app.engine.tuning.profiles import Profile, ProfileStore
-from app.engine.offline.refilter import PreparedLog, Refilterer, RefilterResult, ab_rows
+from app.engine.offline.refilter import Refilterer, RefilterResult, ab_rows
 from app.engine.snapshot import SENSOR_NAMES
+from app.stream.logfile import LogData
 from app.ui.elided import ElidedLabel
 
 FIGURE_COLUMNS = ("", "total °", "heading °", "inclin. °", "samples")
@@ -70,7 +71,7 @@ def _seconds_box(value: float, maximum: float) -> QtWidgets.QDoubleSpinBox:
 
 
 class TuningPanel(QtWidgets.QWidget):
-    """log: the PreparedLog to tune on (app.engine.offline.refilter.prepare / prepare_path); send:
+    """log: the LogData to tune on (app.engine.config.open_log, app.engine.offline.refilter.read_replayed); send:
     the engine's send; settings(): the settings to start from; store: profiles; setup(): the
     configuration over time the log is re-run with (a candidate overrides its settings; None:
     the EKF with every sensor)."""
@@ -78,7 +79,7 @@ class TuningPanel(QtWidgets.QWidget):
     progressed = QtCore.Signal(object)          # autotune.Progress (from the worker thread)
     finished = QtCore.Signal(object, object)    # TuneResult | None, error | None
 
-    def __init__(self, log: PreparedLog, send: Callable[[Any], None],
+    def __init__(self, log: LogData, send: Callable[[Any], None],
                  settings: Callable[[], ekf.EKFSettings | None] = lambda: None,
                  store: ProfileStore | None = None,
                  setup: Callable[[], Setup | None] = lambda: None,
