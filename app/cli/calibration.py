@@ -16,7 +16,7 @@ from typing import Any
 import ekf
 from ekf.calibration import CalibrationResult
 from app.cli import options
-from app.cli.offline import FiniteCheck, intervals_of, read_log, warn_absent
+from app.cli.offline import FiniteCheck, intervals_of, open_log_noted, warn_absent
 from app.engine import config
 from app.engine.tuning import autotune, profiles
 from app.engine.tuning.calibration import RestCalibration, mag_from_log, rest_from_log
@@ -130,7 +130,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     _plots_folder(args.plots)
     if args.output:
         check_output(args.output, args.log)
-    log = read_log(args.log, args.limits)
+    log = open_log_noted(args.log, args.limits)
     start, end = args.range if args.range else (None, None)
     with warnings.catch_warnings(record=True) as caught:     # kept until the data is checked
         warnings.simplefilter("always")
@@ -164,7 +164,7 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
     _plots_folder(args.plots)
     if args.output:
         check_output(args.output, args.log)
-    log = read_log(args.log, args.limits)
+    log = open_log_noted(args.log, args.limits)
     start, end = args.range if args.range else (None, None)
     result, raw = mag_from_log(log, start, None if end == float("inf") else end)
     print(result.format_report())
@@ -205,7 +205,7 @@ def _targets(args: argparse.Namespace, prepared: LogData) -> tuple[autotune.Targ
         tune_ms, tune_label = intervals_of(args)
     check_prepared, check_label = prepared, ""
     if args.check_log:
-        check_prepared, check_label = read_log(args.check_log, args.limits), \
+        check_prepared, check_label = open_log_noted(args.check_log, args.limits), \
             Path(args.check_log).name
     if args.check_intervals:
         check_ms = config.read_intervals(args.check_intervals)
@@ -248,7 +248,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     parameters = autotune.parse_parameters(args.params, base)
     if args.output:                                  # before the search, not after it
         check_output(args.output, args.log, args.check_log)
-    log = read_log(args.log, args.limits)
+    log = open_log_noted(args.log, args.limits)
     prepared = log
     if len(prepared.ori_times) == 0:
         raise config.ConfigError(f"tune: {args.log} has no ORI lines to tune against")

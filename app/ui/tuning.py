@@ -71,10 +71,10 @@ def _seconds_box(value: float, maximum: float) -> QtWidgets.QDoubleSpinBox:
 
 
 class TuningPanel(QtWidgets.QWidget):
-    """log: the LogData to tune on (app.engine.config.open_log, app.engine.offline.refilter.read_replayed); send:
-    the engine's send; settings(): the settings to start from; store: profiles; setup(): the
-    configuration over time the log is re-run with (a candidate overrides its settings; None:
-    the EKF with every sensor)."""
+    """log: the LogData to tune on (app.engine.config.open_log,
+    app.engine.offline.refilter.read_replayed); send: the engine's send; settings(): the settings to
+    start from; store: profiles; setup(): the configuration over time the log is re-run with (a
+    candidate overrides its settings; None: the EKF with every sensor)."""
 
     progressed = QtCore.Signal(object)          # autotune.Progress (from the worker thread)
     finished = QtCore.Signal(object, object)    # TuneResult | None, error | None
