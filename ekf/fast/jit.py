@@ -1,13 +1,15 @@
-"""The compiled filter's decorators, and the guard that keeps numba's on-disk cache honest.
+"""The compiled filter's decorator, and the guard that keeps numba's on-disk cache honest.
 
 numba caches each compiled function keyed on its own source file only, and freezes module
-globals (the layouts ``S`` and ``C``, the gate codes) as constants. A kernel that calls or
-inlines a function of another kernel module, or reads a layout generated from the
-declarations in ``ekf/state.py``, ``ekf/settings.py`` and ``ekf/outputs.py``, would keep stale
-code from the cache after those change (numba issue #1833). So every kernel module compiles a
-tiny function returning :data:`CACHE_KEY` (a hash of the layouts, the gate codes, the compile
-options and the source of every kernel module) and calls :func:`check_cache` when imported:
-when the cached key differs, the module's cache entries are flushed and it recompiles once.
+globals (the layouts ``S`` and ``C``, the gate codes, the reference's constants) as constants.
+A kernel that calls a function of another kernel module, or reads a layout generated from the
+declarations in ``ekf/state.py``, ``ekf/settings.py`` and ``ekf/diagnostics.py``, would keep
+stale code from the cache after those change (numba issue #1833). So every kernel module
+compiles a tiny function returning a key (for the filter :data:`CACHE_KEY`: a hash of the
+layouts, the gate codes, the compile options, the reference's constants and the source of every
+kernel module) and calls :func:`check_cache` with the key when imported: when the cached key
+differs, the module's cache entries are flushed and it recompiles once. :func:`check_cache` is
+the guard of every numba kernel of the program (the stream layer's kernels pass their own key).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from typing import Any
 from numba import njit
 from numba.core.dispatcher import Dispatcher
 
-import ekf.outputs as outputs
+import ekf.diagnostics as diagnostics
 from ekf.fast.layout import describe
 
 # The kernels allocate nothing and only index the arrays they are handed, so numba's reference
@@ -35,29 +37,29 @@ _OPTIONS = dict(cache=True, fastmath=False, nogil=True, _nrt=False)
 # so that the fixed loops unroll (docs/decisions/compile-time.md).
 jit = njit(**_OPTIONS)
 
-KERNEL_MODULES = ("algebra", "time_update", "field", "hard_iron", "measurements", "steps")
+KERNEL_MODULES = ("algebra", "kernels", "filter")
 """The modules of ekf.fast that hold compiled functions (file stems)."""
 
 
 def _cache_key() -> int:
     h = hashlib.sha256(describe().encode())
-    codes = sorted((k, v) for k, v in vars(outputs).items() if k.isupper() and isinstance(v, int))
+    codes = sorted((k, v) for k, v in vars(diagnostics).items() if k.isupper() and isinstance(v, int))
     h.update(repr(codes).encode())
     here = Path(__file__).resolve().parent
-    for stem in KERNEL_MODULES + ("_jit",):   # _jit: the compile options
+    for stem in KERNEL_MODULES + ("jit",):   # jit: the compile options
         h.update((here / f"{stem}.py").read_bytes())
-    h.update((here.parent / "reference_field.py").read_bytes())   # constants the kernels import
+    h.update((here.parent / "reference.py").read_bytes())   # constants the kernels import
     return int.from_bytes(h.digest()[:7], "little")   # < 2**56: an int64 constant
 
 
 CACHE_KEY = _cache_key()
 
 
-def check_cache(compiled_key: Dispatcher, module_globals: dict[str, Any]) -> None:
+def check_cache(compiled_key: Dispatcher, module_globals: dict[str, Any], key: int) -> None:
     """Flush the cached compilations of the module whose globals are given when they were built
-    against another layout or other kernel sources (`compiled_key` returns the key frozen at
-    its compilation)."""
-    if compiled_key() == CACHE_KEY:
+    against something else than `key` describes (`compiled_key` returns the key frozen at its
+    compilation)."""
+    if compiled_key() == key:
         return
     module = module_globals["__name__"]
     for value in module_globals.values():
