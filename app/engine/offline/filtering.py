@@ -219,7 +219,7 @@ def smoothed_quats(log: OrderedLog, estimator: str | ekf.Estimator = "ekf",
     one time at one row, the last of a sensor's equal-time samples winning. ValueError unless
     the estimator is the EKF and the log one session."""
     if estimator not in ("ekf", "course"):
-        raise ValueError(f"the smoother needs the EKF (ekf or course), not {estimator!r}")
+        raise ValueError(f"--smooth needs the EKF (ekf or course), not {estimator!r}")
     t_ms, gyr, acc, mag = sensor_rows(log)
     return Smoothed(t_ms, smooth_rows(t_ms, gyr, acc, mag, estimator, settings, sensors))
 
@@ -259,7 +259,7 @@ def _whole_times(log: OrderedLog) -> Iterator[LogData]:
     held: LogData | None = None
     for chunk in log.chunks():
         if chunk.session_starts:
-            raise ValueError("the smoother runs over one session: this log's clock restarts")
+            raise ValueError("--smooth runs over one session: this log's clock restarts")
         if held is not None:
             chunk = LogData.concatenate(chunk.path, [held, chunk])
         if not len(chunk):

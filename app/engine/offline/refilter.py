@@ -68,6 +68,10 @@ def refilter(log: LogData, settings: ekf.EKFSettings | None, estimator: str = "e
         if smooth and any(c.kind in ("sensor", "estimator", "settings") for c in setup.timeline):
             raise ValueError("the smoother runs one configuration over the whole session: this "
                              "one changes on the way (a recorded change or yours)")
+    if smooth and estimator not in ("ekf", "course"):
+        raise ValueError(f"the smoother needs the EKF (ekf or course), not {estimator!r}")
+    if smooth and log.session_starts:
+        raise ValueError("the smoother runs over one session: this log's clock restarts")
     rows = run_offline(log, estimator, settings, sensors, setup)
     if smooth:
         rows.quat[rows.has_sample] = smoothed_quats(log, estimator, settings, sensors).quat
