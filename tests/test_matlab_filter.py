@@ -20,7 +20,7 @@ import ekf
 from app import cli
 from app.engine.config import ConfigError, estimator_names, open_log
 from app.engine.offline.filtering import filter_log
-from app.engine.offline.refilter import prepare, refilter
+from app.engine.offline.refilter import refilter
 from app.engine.userfilter import octave
 from app.engine.userfilter.code import UserFilterError
 from app.engine.userfilter.filter import UserFilterEstimator
@@ -85,7 +85,7 @@ def test_filter_and_evaluate_on_the_command_line(realphone_dir, capsys):
 
 @pytest.mark.shared
 def test_the_re_filter_that_tune_runs_takes_the_m_filter(realphone_dir):
-    prepared = prepare(open_log(realphone_dir / "tsrt14_lab2_rotation.txt"))
+    prepared = open_log(realphone_dir / "tsrt14_lab2_rotation.txt")
     mine = refilter(prepared, COURSE, str(COURSE_M))
     ours = refilter(prepared, COURSE, "course")
     assert np.max(np.abs(mine.rows.quat - ours.rows.quat)) < 1e-9

@@ -39,9 +39,10 @@ from app.engine.commands import SetSettings
 from app.engine.processing.configuration import ConfigurationView, Setup, setup_for_log
 from app.engine.tuning import autotune
 from app.engine.tuning.profiles import Profile, ProfileStore
-from app.engine.offline.refilter import (PreparedLog, Refilterer, RefilterResult, ab_rows,
-                                 angle_between_runs_deg, prepare_path)
+from app.engine.offline.refilter import (Refilterer, RefilterResult, ab_rows,
+                                         angle_between_runs_deg, read_replayed)
 from app.engine.snapshot import SENSOR_NAMES
+from app.stream.logfile import LogData
 from app.ui.elided import ElidedLabel
 from app.ui.plots import NoDataText
 from app.ui.settings_panel import SettingsPanel
@@ -98,15 +99,15 @@ def _seconds_box(value: float, maximum: float) -> QtWidgets.QDoubleSpinBox:
 
 
 class TuningPanel(QtWidgets.QWidget):
-    """log: the PreparedLog to tune on (app.engine.offline.refilter.prepare / prepare_path); send:
-    the engine's send; settings(): the settings to start from; store: profiles; setup(): the
-    configuration over time the log is re-run with (a candidate overrides its settings; None:
-    the EKF with every sensor)."""
+    """log: the LogData to tune on (app.engine.config.open_log,
+    app.engine.offline.refilter.read_replayed); send: the engine's send; settings(): the settings to
+    start from; store: profiles; setup(): the configuration over time the log is re-run with (a
+    candidate overrides its settings; None: the EKF with every sensor)."""
 
     progressed = QtCore.Signal(object)          # autotune.Progress (from the worker thread)
     finished = QtCore.Signal(object, object)    # TuneResult | None, error | None
 
-    def __init__(self, log: PreparedLog, send: Callable[[Any], None],
+    def __init__(self, log: LogData, send: Callable[[Any], None],
                  settings: Callable[[], ekf.EKFSettings | None] = lambda: None,
                  store: ProfileStore | None = None,
                  setup: Callable[[], Setup | None] = lambda: None,
@@ -507,7 +508,7 @@ class TuneWorkspace(QtWidgets.QWidget):
         self._settings = settings
         self.store = store
         self.pending_log: str | Path | None = log
-        self.prepared: PreparedLog | None = None
+        self.prepared: LogData | None = None
         self.refilterer: Refilterer | None = None
         self.ab_view: ABCompareView | None = None
         self.tuning_panel: TuningPanel | None = None
@@ -618,7 +619,7 @@ class TuneWorkspace(QtWidgets.QWidget):
         self.pending_log = None
         QtWidgets.QApplication.setOverrideCursor(QtCore.Qt.CursorShape.WaitCursor)
         try:
-            prepared = prepare_path(path)
+            prepared = read_replayed(path)
         except config.ConfigError as error:
             self.log_label.setText(f"cannot use {Path(path).name}: {error}")
             return False
@@ -647,7 +648,7 @@ class TuneWorkspace(QtWidgets.QWidget):
         self.submit()
         return True
 
-    def _replace_tuning(self, prepared: PreparedLog, has_ori: bool) -> None:
+    def _replace_tuning(self, prepared: LogData, has_ori: bool) -> None:
         layout = self.tune_page.layout()
         if self.tuning_panel is not None:
             layout.removeWidget(self.tuning_panel)
