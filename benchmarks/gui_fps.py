@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.switch_interval:
         sys.setswitchinterval(args.switch_interval)
 
-    from app.engine.worker import Engine
+    from app.engine.live.worker import Engine
     from app.stream.sources import LogFileSource
     from app.engine.commands import ReplayControl
     from app.ui import phone_view

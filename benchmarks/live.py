@@ -34,14 +34,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.engine.worker import Engine  # noqa: E402
+from app.engine.live.worker import Engine  # noqa: E402
 from app.stream.emulator import PhoneEmulator  # noqa: E402
 from app.stream.lines import read_lines  # noqa: E402
 from app.stream.logfile import read_log  # noqa: E402
 from app.stream.protocol import ParseError, Sample, format_line, parse_line  # noqa: E402
 from app.stream.recorder import Recorder  # noqa: E402
 from app.stream.sources import TcpSource  # noqa: E402
-from app.engine.offline import run_offline  # noqa: E402
+from app.engine.offline.filtering import run_offline  # noqa: E402
 
 REALPHONE = ROOT.parent / "shared" / "data" / "realphone"
 RATES_500 = {"gyr": 500.0, "acc": 500.0, "mag": 500.0, "ori": 500.0}

@@ -150,8 +150,8 @@ def measure(log: Path, minutes: float, out: Path, only: list[str] | None) -> lis
 
 def startup() -> int:
     """Peak RSS of an interpreter that imports what the offline commands import."""
-    code = ("import app.cli.offline, app.cli.live, app.engine.export, ekf.smoother, "
-            "app.engine.offline")
+    code = ("import app.cli.offline, app.cli.live, app.engine.offline.export, ekf.smoother, "
+            "app.engine.offline.filtering")
     with subprocess.Popen([sys.executable, "-c", code], cwd=ROOT) as process:
         _, _, usage = os.wait4(process.pid, 0)
     return usage.ru_maxrss * 1024

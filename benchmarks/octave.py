@@ -51,13 +51,13 @@ sys.path.insert(0, str(REPO))
 import ekf  # noqa: E402
 from ekf.simulate import simulate  # noqa: E402
 from app.engine.config import open_log  # noqa: E402
-from app.engine.offline import filter_log  # noqa: E402
+from app.engine.offline.filtering import filter_log  # noqa: E402
 from app.engine.userfilter.filter import UserFilterEstimator  # noqa: E402
 from app.engine.userfilter.octave import HOST_DIR, find_octave  # noqa: E402
 from app.engine.userfilter.remote import filter_settings  # noqa: E402
 from app.engine.userfilter.protocol import settings_to_wire  # noqa: E402
 from app.engine.warmup import warm_up  # noqa: E402
-from app.engine.worker import Engine  # noqa: E402
+from app.engine.live.worker import Engine  # noqa: E402
 from app.stream.emulator import PhoneEmulator  # noqa: E402
 from app.stream.protocol import Sample, format_line  # noqa: E402
 from app.stream.sources import TcpSource  # noqa: E402

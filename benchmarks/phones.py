@@ -39,7 +39,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.engine.worker import Engine  # noqa: E402
+from app.engine.live.worker import Engine  # noqa: E402
 from app.stream.phyphox import PhyphoxSource  # noqa: E402
 from app.stream.protocol import ParseError, Sample, format_line, parse_line  # noqa: E402
 from app.stream.sensor_logger import SensorLoggerSource  # noqa: E402

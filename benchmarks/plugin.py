@@ -44,13 +44,13 @@ sys.path.insert(0, str(REPO))
 
 from ekf.simulate import simulate  # noqa: E402
 from app.engine.warmup import warm_up  # noqa: E402
-from app.engine.runner import EstimatorRunner  # noqa: E402
+from app.engine.processing.runner import EstimatorRunner  # noqa: E402
 from app.engine.userfilter.code import instantiate, load_code  # noqa: E402
 from app.engine.userfilter.filter import UserFilterEstimator  # noqa: E402
 from app.engine.userfilter.instance import FilterInstance  # noqa: E402
 from app.engine.userfilter.lane import UserLane  # noqa: E402
 from app.engine.userfilter.remote import RemoteFilter, filter_settings  # noqa: E402
-from app.engine.worker import Engine  # noqa: E402
+from app.engine.live.worker import Engine  # noqa: E402
 from app.stream.emulator import PhoneEmulator  # noqa: E402
 from app.stream.fastparse import samples_to_arrays  # noqa: E402
 from app.stream.protocol import Sample, format_line  # noqa: E402

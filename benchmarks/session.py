@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT))
 
 from app.engine.commands import ReplayControl  # noqa: E402
 from app.engine.config import open_replay  # noqa: E402
-from app.engine.worker import Engine  # noqa: E402
+from app.engine.live.worker import Engine  # noqa: E402
 
 RATES = {"gyr": 100.0, "acc": 100.0, "mag": 50.0, "ori": 100.0}
 

@@ -33,7 +33,7 @@ started = time.perf_counter()
 if "--one-process" in sys.argv:
     import app.engine.warmup
     app.engine.warmup._start_stream_helper = lambda: None
-from app.engine.worker import Engine
+from app.engine.live.worker import Engine
 from app.stream.sources import demo_source
 engine = Engine(demo_source(), comparisons=True)
 engine.start()

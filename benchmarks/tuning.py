@@ -1,9 +1,9 @@
 """Re-filter and auto-tune figures.
 
 * Instant re-filter: a whole simulated 10-minute session at 100 Hz (GYR/ACC/ORI 100 Hz, MAG
-  50 Hz) run again with new settings through app.engine.refilter (the compiled batch path),
+  50 Hz) run again with new settings through app.engine.offline.refilter (the compiled batch path),
   median of several runs after one warm-up. Target <= 0.2 s.
-* Auto-tune (app.engine.tuning, scipy Nelder-Mead from the default preset): time and RMSE
+* Auto-tune (app.engine.tuning.autotune, scipy Nelder-Mead from the default preset): time and RMSE
   before/after on tsrt14_lab2_rotation.txt (vs the phone's ORI, after 3 s) checked on
   tsrt14_lab2_accdisturbance.txt, and on three BROAD trials (vs the optical truth, their score
   intervals), each checked on another trial.
@@ -28,8 +28,9 @@ sys.path.insert(0, str(REPO))
 
 import ekf  # noqa: E402
 from ekf.simulate import simulate  # noqa: E402
-from app.engine import config, tuning  # noqa: E402
-from app.engine.refilter import PreparedLog, refilter  # noqa: E402
+from app.engine import config  # noqa: E402
+from app.engine.tuning import autotune  # noqa: E402
+from app.engine.offline.refilter import PreparedLog, refilter  # noqa: E402
 from app.stream.demo import write_session  # noqa: E402
 
 SHARED = REPO.parent / "shared" / "data"
@@ -58,14 +59,14 @@ def bench_refilter(duration_s: float, repeats: int) -> None:
           f"(target <= 200 ms); total RMSE {result.summary.total_rmse_deg:.2f} deg")
 
 
-def _target(path: Path, label: str, skip_s: float = 0.0) -> tuning.Target:
+def _target(path: Path, label: str, skip_s: float = 0.0) -> autotune.Target:
     prepared = PreparedLog.from_log(config.open_log(path))
     sibling = path.with_suffix(".json")
     intervals = config.read_intervals(sibling) if sibling.is_file() else None
-    return tuning.Target(prepared, intervals, skip_s, label)
+    return autotune.Target(prepared, intervals, skip_s, label)
 
 
-def _report(name: str, result: tuning.TuneResult) -> None:
+def _report(name: str, result: autotune.TuneResult) -> None:
     def fig(s):
         return f"{s.total_rmse_deg:5.2f} ({s.heading_rmse_deg:4.2f}/{s.inclination_rmse_deg:4.2f})"
     print(f"{name:<34} tune {fig(result.tune_before)} -> {fig(result.tune_after)}   check "
@@ -76,7 +77,7 @@ def _report(name: str, result: tuning.TuneResult) -> None:
 
 
 def bench_tune(pairs: list[tuple[Path, Path, float]], evals: int) -> None:
-    print(f"auto-tune from the default preset ({', '.join(tuning.DEFAULT_PARAMETERS)}), at most "
+    print(f"auto-tune from the default preset ({', '.join(autotune.DEFAULT_PARAMETERS)}), at most "
           f"{evals} runs; RMSE deg total (heading/inclination)")
     for tune_path, check_path, skip in pairs:
         if not (tune_path.is_file() and check_path.is_file()):
@@ -84,7 +85,7 @@ def bench_tune(pairs: list[tuple[Path, Path, float]], evals: int) -> None:
             continue
         target = _target(tune_path, tune_path.stem, skip)
         check = _target(check_path, check_path.stem, skip)
-        result = tuning.tune(target, ekf.PRESETS["default"], None, check, max_evals=evals)
+        result = autotune.tune(target, ekf.PRESETS["default"], None, check, max_evals=evals)
         _report(f"{tune_path.stem[:14]} -> {check_path.stem[:14]}", result)
 
 

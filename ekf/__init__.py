@@ -7,12 +7,11 @@ what a caller hands it.
 """
 
 from ekf import quaternion
-from ekf.batch import filter_batch
+from ekf.diagnostics import Diagnostics, Flags, output_rows
 from ekf.estimator import SENSORS, BatchResult, Estimator, EstimatorBase
 from ekf.estimators import (ESTIMATORS, AccMagEstimator, ComplementaryFilter, GyroIntegrator,
-                            make_estimator)
+                            filter_batch, make_estimator)
 from ekf.metrics import error_angles_deg, summarize
-from ekf.outputs import Diagnostics, Flags, output_rows
 from ekf.reference import OrientationEKF
 from ekf.settings import PRESETS, EKFSettings, SettingsError, settings_rows
 from ekf.smoother import smooth_batch

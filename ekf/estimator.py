@@ -11,8 +11,8 @@ Snapshot format, the same for every estimator::
 
     {"estimator": name, "settings": EKFSettings, "state": {field name: value}}
 
-where the state's values are numpy arrays, numbers, and :class:`~ekf.outputs.Flags` /
-:class:`~ekf.outputs.Diagnostics` copies. ``restore`` checks keys and shapes and raises
+where the state's values are numpy arrays, numbers, and :class:`~ekf.diagnostics.Flags` /
+:class:`~ekf.diagnostics.Diagnostics` copies. ``restore`` checks keys and shapes and raises
 ValueError naming what is wrong.
 """
 
@@ -25,7 +25,7 @@ from typing import Any, Mapping, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ekf.outputs import Diagnostics, Flags
+from ekf.diagnostics import Diagnostics, Flags
 from ekf.settings import PRESETS, EKFSettings, resolve_settings
 from ekf.state import check_state, initial_state, load_state, state_dict, upgrade_state
 

@@ -1,4 +1,5 @@
-"""Comparison estimators behind the one Estimator protocol, and the factory every caller uses.
+"""Comparison estimators behind the one Estimator protocol, the factory every caller uses, and
+the batch API over arrays.
 
 * ``gyro``: plain gyroscope integration (exact for piecewise-constant rate) from an acc+mag start.
 * ``accmag``: accelerometer + magnetometer only, no dynamics: each reading gives the orientation.
@@ -7,6 +8,11 @@
 
 Their state is declared once, like the EKF's (:class:`SimpleState`), so snapshots, flags and
 diagnostics come from :class:`ekf.estimator.EstimatorBase`.
+
+``filter_batch``, for replays, commands and benchmarks, gives exactly what the streaming API
+gives when the same samples are fed row by row in the order gyroscope, accelerometer,
+magnetometer: it is the estimator's own ``run_batch`` (one compiled loop for the compiled EKF, a
+loop over ``step`` for the others).
 """
 
 from __future__ import annotations
@@ -19,8 +25,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 import ekf.quaternion as quat
-from ekf.estimator import SENSORS, Estimator, EstimatorBase
-from ekf.outputs import ACC_NORM_GATE, NOT_REJECTED, Diagnostics, Flags
+from ekf.estimator import SENSORS, BatchResult, Estimator, EstimatorBase, batch_rows
+from ekf.diagnostics import ACC_NORM_GATE, NOT_REJECTED, Diagnostics, Flags
 from ekf.reference import OrientationEKF, acc_mag_quaternion, tilt_quaternion
 from ekf.settings import PRESETS, EKFSettings, resolve_settings
 from ekf.state import state_field
@@ -313,3 +319,16 @@ def make_estimator(name: str = "ekf", settings: EKFSettings | str | None = None,
     cls = {"gyro": GyroIntegrator, "accmag": AccMagEstimator,
            "complementary": ComplementaryFilter}[name]
     return cls(settings, sensors)
+
+
+def filter_batch(t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
+                 mag: ArrayLike | None, settings: EKFSettings | str | None = None,
+                 estimator: str = "ekf", sensors: tuple[str, ...] | list[str] = SENSORS,
+                 fast: bool = True) -> BatchResult:
+    """Run a fresh estimator (see :func:`make_estimator`) over rows of samples.
+
+    t_s: (N,) seconds, non-decreasing. gyr [rad/s], acc [m/s^2], mag [uT]: (N, 3) each, a NaN
+    row where that sensor has no sample at that time (or None: no such sensor).
+    """
+    t, g, a, m = batch_rows(t_s, gyr, acc, mag)
+    return make_estimator(estimator, settings, sensors, fast=fast).run_batch(t, g, a, m)

@@ -65,7 +65,7 @@ forward nominal of the filter as set, :func:`backward_information`):
 (d^s, d^o: x^s and x^o as errors about that nominal). Y_b may be singular: a direction the
 rows after say nothing about (the heading across a rejected stretch, the last row).
 
-The test (``ekf.gaussian.consistency``). The filter as set at row k, N(x^f_k, P^f_k), and the
+The test (``consistency``, below). The filter as set at row k, N(x^f_k, P^f_k), and the
 backward estimate, N(x^b, P^b) with P^b = Y_b^-1 and x^b = P^b y_b (Y_b made definite by a
 relative 1e-9 on its diagonal), are two independent estimates of one state: if both are right,
 the small rotation between their attitudes, d = log(conj(q^f) ⊗ q^b), is Gaussian with the sum
@@ -75,7 +75,7 @@ is wrong (a disturbance a pass took for the field, a heading carried from a fiel
 elsewhere) and the row keeps the estimate of the filter as set. So do rows where the backward
 information is degenerate (Y_b not positive semi-definite).
 
-The combination (``ekf.gaussian.fuse_information``), where they are consistent: the
+The combination (``fuse_information``, below), where they are consistent: the
 information-form combination of two Gaussian estimates, Y = Y_f + Y_b, y = y_f + y_b, x = Y^-1 y
 (y_f = 0: the filter's own estimate is the origin of its error coordinates), and the smoothed
 state is x^f ⊕ x = (q^f ⊗ exp(x_theta), b^f + x_b).
@@ -89,9 +89,9 @@ offset) back to rows filtered with an earlier one. With ``smooth_hard_iron`` fal
 preset, chosen by ``benchmarks/tune_defaults.py --smoother``) the RTS pass's forward pass runs
 without the fit; the filter as set, which the backward information is combined with, keeps it. A
 raw magnetometer (hundreds of uT of hard iron, whose offset the filter acquires:
-``ekf.reference_field._check_uncalibrated``) would leave that pass without a heading: there the
-offset the filter as set found by the recording's end is subtracted from every reading first, as
-an offline calibration.
+``OrientationEKF._check_uncalibrated`` in ``ekf.reference``) would leave that pass without a
+heading: there the offset the filter as set found by the recording's end is subtracted from every
+reading first, as an offline calibration.
 
 The RTS pass's forward pass also runs without ``mag_bias_innovation_limit`` (always: it is no
 choice of the smoother's; the filter as set keeps it). That limit keeps a live filter from
@@ -115,12 +115,132 @@ from numba import njit
 from numpy.typing import ArrayLike
 
 from ekf.estimator import SENSORS, BatchResult, batch_rows
-from ekf.gaussian import consistency, fuse_information, inverse, mm, mv, solve_spd
 from ekf.settings import EKFSettings, resolve_settings
 
-__all__ = ["CHI2_99", "REJECTED_STRETCH_S", "backward_information", "rejected_stretches",
-           "smooth_batch", "smooth_parts"]
+__all__ = ["CHI2_99", "REJECTED_STRETCH_S", "backward_information", "consistency",
+           "fuse_information", "mahalanobis2", "rejected_stretches", "smooth_batch", "smooth_parts"]
 
+# ---- two Gaussian estimates of one state: whether they agree, and their combination --------------
+# Two independent estimates x_f ~ N(x, P_f) and x_b ~ N(x, P_b) of the same state x:
+#
+# * **consistency**: their difference d = x_b - x_f is N(0, P_f + P_b), so d^T (P_f + P_b)^-1 d
+#   is chi-square with dim(x) degrees of freedom; a value beyond its 99 % point says that one of
+#   them is wrong (:func:`mahalanobis2`, :func:`consistency`);
+# * **combination** in information form (Y = P^-1, the information matrix; y = P^-1 x, the
+#   information vector): information adds up, Y = Y_f + Y_b and y = y_f + y_b, and the combined
+#   estimate is x = Y^-1 y with covariance Y^-1 (:func:`fuse_information`). In covariance form
+#   the same is x = P_b (P_f + P_b)^-1 x_f + P_f (P_f + P_b)^-1 x_b. The information form also
+#   takes an estimate that says nothing in some direction (a zero there in Y).
+#
+# Compiled (numba) with the small dense algebra by hand (numba's np.linalg and @ need scipy's
+# BLAS, which ekf does not use): the smoother calls them per row.
+@njit(cache=True)
+def mm(A, B):
+    out = np.zeros((A.shape[0], B.shape[1]))
+    for i in range(A.shape[0]):
+        for k in range(A.shape[1]):
+            a = A[i, k]
+            if a != 0.0:
+                for j in range(B.shape[1]):
+                    out[i, j] += a * B[k, j]
+    return out
+
+
+@njit(cache=True)
+def mv(A, v):
+    out = np.zeros(A.shape[0])
+    for i in range(A.shape[0]):
+        for k in range(A.shape[1]):
+            out[i] += A[i, k] * v[k]
+    return out
+
+
+@njit(cache=True)
+def solve_spd(A, B):
+    """A^-1 B for a symmetric positive definite A (Cholesky); None-free: a non-positive pivot
+    gives NaN, which the caller treats as a degenerate step."""
+    m = A.shape[0]
+    L = np.zeros((m, m))
+    for j in range(m):
+        d = A[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not d > 0.0:
+            return np.full(B.shape, np.nan)
+        L[j, j] = np.sqrt(d)
+        for i in range(j + 1, m):
+            v = A[i, j]
+            for k in range(j):
+                v -= L[i, k] * L[j, k]
+            L[i, j] = v / L[j, j]
+    X = B.copy()
+    for c in range(B.shape[1]):
+        for i in range(m):            # L y = b
+            v = X[i, c]
+            for k in range(i):
+                v -= L[i, k] * X[k, c]
+            X[i, c] = v / L[i, i]
+        for i in range(m - 1, -1, -1):  # L^T x = y
+            v = X[i, c]
+            for k in range(i + 1, m):
+                v -= L[k, i] * X[k, c]
+            X[i, c] = v / L[i, i]
+    return X
+
+
+@njit(cache=True)
+def inverse(P):
+    m = P.shape[0]
+    return solve_spd(0.5 * (P + P.T), np.eye(m))
+
+
+@njit(cache=True)
+def mahalanobis2(d, S):
+    """d^T S^-1 d: the squared Mahalanobis distance of a difference d whose covariance is S
+    (chi-square with len(d) degrees of freedom when d is zero-mean Gaussian). NaN when S is not
+    positive definite."""
+    x = solve_spd(S, d.reshape(d.shape[0], 1).copy())
+    total = 0.0
+    for i in range(d.shape[0]):
+        total += d[i] * x[i, 0]
+    return total
+
+
+@njit(cache=True)
+def fuse_information(Y_f, y_f, Y_b, y_b):
+    """The information-form combination of two independent Gaussian estimates of one state,
+    each given by its information matrix Y = P^-1 and information vector y = P^-1 x:
+
+        Y = Y_f + Y_b               information adds up
+        y = y_f + y_b               and so does information times mean
+        x = Y^-1 y,   P = Y^-1      the combined estimate
+
+    (for two estimates x_f, x_b with covariances P_f, P_b this is
+    x = (P_f^-1 + P_b^-1)^-1 (P_f^-1 x_f + P_b^-1 x_b)). Returns (x, P); NaN where Y is not
+    positive definite."""
+    P = inverse(Y_f + Y_b)
+    return mv(P, y_f + y_b), P
+
+
+@njit(cache=True)
+def consistency(Y_b, y_b, P_f):
+    """The chi-square statistic of the attitudes of a forward estimate N(0, P_f) and a backward
+    one given by its information (Y_b, y_b): the backward estimate in covariance form,
+    P_b = Y_b^-1 and d = P_b y_b (Y_b made definite by a relative 1e-9 on its diagonal: a
+    direction it says nothing about gets a huge variance, not an infinite one), and
+    its attitude difference d_theta against the sum of the two attitude covariances:
+        d_theta^T (P_f,theta + P_b,theta)^-1 d_theta    (chi-square, 3 degrees of freedom).
+    NaN when Y_b is not positive semi-definite (it would remove information)."""
+    m = P_f.shape[0]
+    scale = 0.0
+    for i in range(m):
+        scale = max(scale, abs(Y_b[i, i]))
+    P_b = inverse(Y_b + (1e-9 * scale + 1e-300) * np.eye(m))
+    d = mv(P_b, y_b)
+    return mahalanobis2(d[:3].copy(), P_f[:3, :3] + P_b[:3, :3])
+
+
+# ---- the smoother --------------------------------------------------------------------------------
 BLOCK_ROWS = 1 << 14
 """Rows of forward records held at a time (smooth_batch's memory: about 1 kB a row of them)."""
 
@@ -416,7 +536,7 @@ def _run_as_set(as_set, t, g, a, m, changes: dict, blocks: list,
     state = as_set.snapshot()["state"]
     if "mag_hard_iron_tau_s" in changes and (state["mag_acquiring"] or state["mag_waiting"]
                                              or np.any(state["mag_offset_prior"] != 0.0)):
-        # a raw magnetometer (its offset acquired, ekf.reference_field): without the fit
+        # a raw magnetometer (its offset acquired, ekf.reference): without the fit
         # the forward pass would have no heading; the offset the filter found over the
         # whole recording is subtracted instead (its least-squares fit, unshrunk: offline
         # nothing is at stake in between), a calibration as calibrate-mag's
@@ -430,7 +550,7 @@ def _forward_passes(est, as_set, t, g, a, m, changes: dict, blocks: list, flags:
     records of the last block left in `records`): the latter's state at each block's start,
     the former's (None: the same filter), the magnetometer offset the latter subtracts, and the
     latter's lights."""
-    from ekf.fast.steps import _run_batch_record
+    from ekf.fast.filter import batch_loop_recording
 
     offset, set_starts, own_flags = None, None, flags
     if as_set is not None:
@@ -439,7 +559,7 @@ def _forward_passes(est, as_set, t, g, a, m, changes: dict, blocks: list, flags:
     starts = []
     for first, end in blocks:
         starts.append(est._packed.copy())
-        records.record(_run_batch_record, est._packed, cfg, t[first:end], g[first:end],
+        records.record(batch_loop_recording, est._packed, cfg, t[first:end], g[first:end],
                        a[first:end], _less(m[first:end], offset), own_flags[first:end])
     return starts, set_starts, offset, own_flags
 
@@ -457,7 +577,7 @@ def _forward_backward(est, as_set, t, g, a, m, changes: dict, rejected_stretch_s
     start; the backward pass runs the blocks in reverse, each recorded again from its state
     (the same compiled loop from the same state: the same records, bit for bit). Memory: the
     records of one block instead of the whole recording's (~1 kB a row for each pass)."""
-    from ekf.fast.steps import _run_batch_record
+    from ekf.fast.filter import batch_loop_recording
 
     cfg = _record_cfg(est)
     n = t.shape[0]
@@ -489,7 +609,7 @@ def _forward_backward(est, as_set, t, g, a, m, changes: dict, rejected_stretch_s
         first, end = blocks[index]
         last = after is None
         if not last:       # the last block's records are still those of the forward pass
-            records.record(_run_batch_record, starts[index].copy(), cfg, t[first:end],
+            records.record(batch_loop_recording, starts[index].copy(), cfg, t[first:end],
                            g[first:end], a[first:end], _less(m[first:end], offset),
                            np.zeros((end - first, 3), dtype=np.bool_))
             records.hold_next(after, end - first)
@@ -504,7 +624,7 @@ def _forward_backward(est, as_set, t, g, a, m, changes: dict, rejected_stretch_s
         k = end - first
         forward = records
         if set_records is not None:
-            set_records.record(_run_batch_record, set_starts[index].copy(), set_cfg,
+            set_records.record(batch_loop_recording, set_starts[index].copy(), set_cfg,
                                t[first:end], g[first:end], a[first:end], m[first:end],
                                np.zeros((k, 3), dtype=np.bool_))
             forward = set_records

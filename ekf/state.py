@@ -22,7 +22,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from ekf.outputs import Diagnostics, Flags
+from ekf.diagnostics import Diagnostics, Flags
 from ekf.settings import EKFSettings
 
 Init = Callable[[EKFSettings, Mapping[str, bool]], Any]

@@ -307,7 +307,7 @@ if __name__ == "__main__":
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     import ekf
     from ekf.simulate import simulate
-    from app.engine.offline import run_offline
+    from app.engine.offline.filtering import run_offline
     from app.engine.userfilter.filter import UserFilterEstimator
     from app.stream.logfile import LogData
     from app.stream.protocol import Sample

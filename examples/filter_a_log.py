@@ -17,7 +17,7 @@ from pathlib import Path
 
 import ekf
 from ekf.simulate import simulate
-from app.engine.offline import evaluate_log, filter_log
+from app.engine.offline.filtering import evaluate_log, filter_log
 from app.stream.demo import write_session
 from app.stream.logfile import read_log
 

@@ -15,7 +15,7 @@ import time
 
 from ekf import quaternion
 from app.engine.commands import SetSensorEnabled
-from app.engine.worker import Engine
+from app.engine.live.worker import Engine
 from app.stream.sources import SimulatorSource
 
 

@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from ekf.simulate import simulate
-from app.engine.worker import Engine
+from app.engine.live.worker import Engine
 from app.stream.demo import write_session
 from app.stream.emulator import send_log
 from app.stream.sources import TcpSource

@@ -13,11 +13,13 @@ from waiting import wait_until
 import ekf
 from ekf.simulate import simulate
 from fixed_settings import FIXED
-from app.engine import config, tuning
+from app.engine import config
+from app.engine.tuning import autotune
 from app.engine.commands import SetSettings
-from app.engine.offline import evaluate_log, filter_log
-from app.engine.profiles import Profile, ProfileStore, load_profile
-from app.engine.refilter import PreparedLog, Refilterer, ab_rows, angle_between_runs_deg, refilter
+from app.engine.offline.filtering import evaluate_log, filter_log
+from app.engine.tuning.profiles import Profile, ProfileStore, load_profile
+from app.engine.offline.refilter import (PreparedLog, Refilterer, ab_rows, angle_between_runs_deg,
+                                         refilter)
 from app.stream.demo import write_session
 
 SOFT = np.array([[1.1, 0.05, 0.0], [0.05, 0.92, 0.03], [0.0, 0.03, 1.0]])
@@ -122,7 +124,7 @@ def test_the_runner_corrects_a_distorted_magnetometer_before_every_estimator(tmp
         evaluate_log(clean_log, smooth=True).total_rmse_deg, abs=0.05)
     assert evaluate_log(bad_log, smooth=True).heading_rmse_deg > 3 * smoothed.heading_rmse_deg
     # the plot samples stay as the phone sent them
-    from app.engine.runner import EstimatorRunner
+    from app.engine.processing.runner import EstimatorRunner
     runner = EstimatorRunner(settings=corrected, collect_plot=True)
     runner.feed_arrays(bad_log.t_ms[:500], bad_log.tag[:500], bad_log.values[:500])
     raw = bad_log.values[:500][bad_log.tag[:500] == 2, :3]
@@ -207,8 +209,8 @@ def noisy_other(tmp_path_factory):
 
 def test_auto_tune_improves_its_recording_and_reports_the_other(noisy_prepared, noisy_other):
     # tuned on one simulated recording (ORI = the truth), checked on another of the same phone
-    target = tuning.Target(noisy_prepared, None, 3.0, "seed 12")
-    check = tuning.Target(noisy_other, None, 3.0, "seed 13")
+    target = autotune.Target(noisy_prepared, None, 3.0, "seed 12")
+    check = autotune.Target(noisy_other, None, 3.0, "seed 13")
     progress = []
     # fixed, explicit settings with noise covariances far from the simulated phone's (the
     # simulated magnetometer is not late: mag_delay_s 0), so that tuning has something to find
@@ -217,7 +219,7 @@ def test_auto_tune_improves_its_recording_and_reports_the_other(noisy_prepared, 
         mag_delay_s=0.0, gyr_noise_cov=[[1e-2 * x for x in row] for row in diag],
         acc_noise_cov=[[3.0 * x for x in row] for row in diag],
         mag_noise_cov=[[30.0 * x for x in row] for row in diag])
-    result = tuning.tune(target, base, "gyr_noise_cov,acc_noise_cov,mag_noise_cov", check,
+    result = autotune.tune(target, base, "gyr_noise_cov,acc_noise_cov,mag_noise_cov", check,
                          max_evals=40, progress=progress.append)
     assert result.tune_after.total_rmse_deg < 0.8 * result.tune_before.total_rmse_deg
     # the other recording is what says whether the tuning holds: reported either way, and a
@@ -237,9 +239,9 @@ def test_tuning_where_nothing_disturbs_over_fits_and_says_so(tmp_path_factory):
     # the first half of the standard script has no magnetic disturbance, the second has one
     p = _noisy(tmp_path_factory, 12, 90.0)
     half = p.start_ms + 45_000
-    result = tuning.tune(tuning.Target(p, [[p.start_ms + 3000, half]], label="first half"),
+    result = autotune.tune(autotune.Target(p, [[p.start_ms + 3000, half]], label="first half"),
                          ekf.PRESETS["course"], "gyr_noise_cov,acc_noise_cov",
-                         tuning.Target(p, [[half, p.start_ms + 90_000]], label="second half"),
+                         autotune.Target(p, [[half, p.start_ms + 90_000]], label="second half"),
                          max_evals=40)
     assert result.tune_after.total_rmse_deg < result.tune_before.total_rmse_deg
     assert result.check_after.total_rmse_deg > result.check_before.total_rmse_deg
@@ -248,9 +250,9 @@ def test_tuning_where_nothing_disturbs_over_fits_and_says_so(tmp_path_factory):
 
 def test_cancel_keeps_the_best_so_far(noisy_prepared):
     p = noisy_prepared
-    target = tuning.Target(p, [[p.start_ms, p.start_ms + 20_000]])
+    target = autotune.Target(p, [[p.start_ms, p.start_ms + 20_000]])
     calls = []
-    result = tuning.tune(target, None, None, None, max_evals=500,
+    result = autotune.tune(target, None, None, None, max_evals=500,
                          progress=calls.append, cancelled=lambda: len(calls) >= 3)
     assert result.cancelled and result.evaluations == 3
     assert result.tune_after.total_rmse_deg <= result.tune_before.total_rmse_deg
@@ -260,7 +262,7 @@ def test_cancel_keeps_the_best_so_far(noisy_prepared):
 def test_tuning_job_runs_in_a_thread(noisy_prepared):
     p = noisy_prepared
     done = []
-    job = tuning.TuningJob(tuning.Target(p, [[p.start_ms, p.start_ms + 10_000]]),
+    job = autotune.TuningJob(autotune.Target(p, [[p.start_ms, p.start_ms + 10_000]]),
                            max_evals=6, on_done=lambda r, e: done.append((r, e))).start()
     assert job.wait(60)
     (result, error), = done
@@ -270,9 +272,9 @@ def test_tuning_job_runs_in_a_thread(noisy_prepared):
 def test_over_fitting_is_warned_about():
     from ekf.metrics import ErrorSummary
     s = lambda v: ErrorSummary(v, v, v, 100)     # noqa: E731
-    assert "over-fitted" in tuning.overfit_warning(s(5), s(3), s(5), s(6))
-    assert "much less" in tuning.overfit_warning(s(5), s(2.5), s(5), s(4.8))
-    assert tuning.overfit_warning(s(5), s(4), s(5), s(4.1)) is None
+    assert "over-fitted" in autotune.overfit_warning(s(5), s(3), s(5), s(6))
+    assert "much less" in autotune.overfit_warning(s(5), s(2.5), s(5), s(4.8))
+    assert autotune.overfit_warning(s(5), s(4), s(5), s(4.1)) is None
 
 
 @pytest.mark.parametrize("text,needle", [("acc_gat", "unknown setting"),
@@ -282,23 +284,23 @@ def test_over_fitting_is_warned_about():
                                          ("m0", "not a number")])
 def test_bad_parameters_are_one_line_errors(text, needle):
     with pytest.raises(config.ConfigError, match=needle):
-        tuning.parse_parameters(text, ekf.PRESETS["default"])
+        autotune.parse_parameters(text, ekf.PRESETS["default"])
 
 
 def test_parameters_map_to_the_unit_interval_and_scale_matrices():
-    p = tuning.Parameter("gyr_noise_cov", 1e-6, 1e-2)
+    p = autotune.Parameter("gyr_noise_cov", 1e-6, 1e-2)
     assert p.from_unit(p.to_unit(3e-4)) == pytest.approx(3e-4)
     s = p.apply(ekf.PRESETS["default"].with_changes(gyr_noise_cov=np.diag([1, 2, 3]).tolist()),
                 4.0)
     np.testing.assert_allclose(np.diag(s.gyr_noise_cov), [2.0, 4.0, 6.0])
-    assert [q.name for q in tuning.parse_parameters(None, ekf.PRESETS["course"])] == [
+    assert [q.name for q in autotune.parse_parameters(None, ekf.PRESETS["course"])] == [
         "gyr_noise_cov", "acc_noise_cov", "mag_noise_cov"]   # no low-pass on the course model
 
 
 # ---- the session record -----------------------------------------------------------------------
 
 def test_applied_profile_is_recorded_in_the_session(tmp_path, sim_log):
-    from app.engine.worker import Engine
+    from app.engine.live.worker import Engine
     from app.stream.recorder import Recorder
     from app.stream.sources import LogFileSource
     recorder = Recorder(tmp_path / "session")

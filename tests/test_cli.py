@@ -10,7 +10,7 @@ import pytest
 
 import ekf
 from app import cli
-from app.engine.offline import evaluate_log
+from app.engine.offline.filtering import evaluate_log
 
 
 def test_simulate_filter_evaluate_round_trip(tmp_path, capsys):

@@ -6,8 +6,8 @@ import dataclasses
 import inspect
 
 from app.engine import commands
-from app.engine.command_table import TABLE, handler_of
-from app.engine.worker import Engine
+from app.engine.live.worker import TABLE, handler_of
+from app.engine.live.worker import Engine
 from app.stream import events
 from app.stream.sources import SimulatorSource
 from waiting import wait_until

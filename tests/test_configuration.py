@@ -1,5 +1,5 @@
-"""One model of the configuration over time (app.engine.configuration): the recorded layer,
-your overrides (one kind each) and your changes at a moment; and issue 51's first scenario
+"""One model of the configuration over time (app.engine.processing.configuration): the recorded
+layer, your overrides (one kind each) and your changes at a moment; and issue 51's first scenario
 through the engine: a Tune edit in a replay keeps the recorded gyroscope switches, applies the
 new settings everywhere, your filter gets no gyroscope exactly where OWN runs without it, and
 Tune's re-run of the session is the replay, row for row."""
@@ -19,13 +19,13 @@ import ekf
 from ekf.simulate import simulate
 from app.engine.commands import (LoadUserFilter, ReplayControl, SetEstimator, SetFollowTimeline,
                                  SetSensorEnabled, SetSettings)
-from app.engine.configuration import (Change, Config, Configuration, Setup, setup_for_log,
-                                      summary_line)
-from app.engine.pipeline import Pipeline
-from app.engine.refilter import prepare_path, refilter
-from app.engine.runner import EstimatorRunner, Rows
-from app.engine.session import SessionInfo, read_session
-from app.engine.worker import Engine
+from app.engine.processing.configuration import (Change, Config, Configuration, Setup,
+                                                 setup_for_log, summary_line)
+from app.engine.processing.pipeline import Pipeline
+from app.engine.offline.refilter import prepare_path, refilter
+from app.engine.processing.runner import EstimatorRunner, Rows
+from app.engine.sessions.session import SessionInfo, read_session
+from app.engine.live.worker import Engine
 from app.stream.protocol import Sample, format_line
 from app.stream.sources import LogFileSource
 
@@ -293,7 +293,7 @@ def test_a_recording_of_a_replay_keeps_what_plays_and_the_way_back_to_the_record
 
 
 def _replayed_rows(folder) -> list[str]:
-    from app.engine.estimates import csv_lines
+    from app.engine.offline.filtering import csv_lines
     engine = Engine(LogFileSource(folder / "raw.txt", speed=0), record_rows=True, index=False)
     with engine:
         wait_for_snapshot(engine, lambda s: s.health.connection_state == "finished", 60,
@@ -302,8 +302,8 @@ def _replayed_rows(folder) -> list[str]:
 
 
 def test_the_auto_tune_and_an_export_run_the_replays_configuration(session, tmp_path):
-    from app.engine import tuning
-    from app.engine.export import export_session
+    from app.engine.tuning import autotune
+    from app.engine.offline.export import export_session
     raw = session / "raw.txt"
     view = Configuration(Config(), read_session(session / "session.json"), replaying=True,
                          path=str(raw)).view(0)
@@ -311,12 +311,12 @@ def test_the_auto_tune_and_an_export_run_the_replays_configuration(session, tmp_
     assert [c.kind for c in setup.timeline] == ["sensor", "sensor"]
     prepared = prepare_path(session)
     # a candidate of the auto-tune is the replay with those settings (the switches recorded)
-    target = tuning.Target(prepared, None, 1.0, setup=setup)
+    target = autotune.Target(prepared, None, 1.0, setup=setup)
     want = refilter(prepared, None, setup=setup.overridden("settings", TUNED), skip_s=1.0)
     assert target.evaluate(TUNED) == want.summary
-    assert tuning.Target(prepared, None, 1.0).evaluate(TUNED) != want.summary   # every sensor
+    assert autotune.Target(prepared, None, 1.0).evaluate(TUNED) != want.summary   # every sensor
     # the window's export of the session it replays: what the replay shows
-    from app.engine.export import load_session
+    from app.engine.offline.export import load_session
     data = load_session(session, setup=setup.overridden("settings", TUNED))
     rows = want.rows
     index = np.searchsorted(rows.t_ms, data.t_ms)

@@ -37,12 +37,12 @@ from ekf.simulate import simulate
 from app.engine.commands import (LoadUserFilter, ReplayControl, SetEstimator, SetFollowTimeline,
                                  SetSensorEnabled, SetSettings, StartRecording, StopRecording,
                                  UnloadUserFilter)
-from app.engine.configuration import setup_for_log
-from app.engine.estimates import csv_lines
-from app.engine.pipeline import Pipeline
-from app.engine.refilter import prepare_path, refilter
-from app.engine.runner import EstimatorRunner, Rows
-from app.engine.worker import Engine
+from app.engine.processing.configuration import setup_for_log
+from app.engine.offline.filtering import csv_lines
+from app.engine.processing.pipeline import Pipeline
+from app.engine.offline.refilter import prepare_path, refilter
+from app.engine.processing.runner import EstimatorRunner, Rows
+from app.engine.live.worker import Engine
 from app.stream.protocol import Sample, format_line
 from app.stream.sources import LogFileSource
 

@@ -10,7 +10,7 @@ import pytest
 
 import ekf
 from app.engine.config import open_log
-from app.engine.offline import filter_log
+from app.engine.offline.filtering import filter_log
 
 from app.engine.userfilter.filter import UserFilterEstimator
 

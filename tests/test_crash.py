@@ -20,7 +20,7 @@ from waiting import wait_for_snapshot, wait_until
 
 from ekf.simulate import simulate
 from app.engine.config import open_replay
-from app.engine.worker import Engine
+from app.engine.live.worker import Engine
 from app.stream.emulator import PhoneEmulator
 from app.stream.protocol import Sample, format_line
 

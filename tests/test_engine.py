@@ -11,11 +11,11 @@ import pytest
 from line_helpers import parses as _parses
 from waiting import wait_for_snapshot
 
-from app.engine.worker import Engine
+from app.engine.live.worker import Engine
 from app.stream.logfile import read_log
 from app.stream.recorder import Recorder
 from app.stream.sources import LineReplaySource, LogFileSource
-from app.engine.offline import run_offline
+from app.engine.offline.filtering import run_offline
 from app.engine.commands import (AlignHeading, ReplayControl, ResetFilter, SetComparisonsEnabled,
                                  SetEstimator, SetSensorEnabled)
 
@@ -150,7 +150,7 @@ def test_a_paced_replay_starts_at_its_beginning_once_the_kernels_are_ready(tmp_p
                                                                            monkeypatch):
     """The first start compiles the kernels in the engine's thread; meanwhile the snapshots say
     so, and the replay's clock starts only when they are ready, not at the engine's start."""
-    import app.engine.worker as worker
+    import app.engine.live.worker as worker
 
     released = []
     # a warm-up that takes 1.5 s: the replay's clock must not start before it is over

@@ -1,5 +1,5 @@
 """The engine's parts: each owns its state and is handed what it needs; nothing outside the
-engine's own module (app/engine/worker.py) reads the engine's private attributes."""
+engine's own module (app/engine/live/worker.py) reads the engine's private attributes."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 APP = Path(__file__).resolve().parents[1] / "app"
-OWN_MODULE = APP / "engine" / "worker.py"
+OWN_MODULE = APP / "engine" / "live" / "worker.py"
 
 
 def _engine_private_reads(tree: ast.AST) -> list[tuple[int, str]]:
@@ -48,8 +48,8 @@ def test_the_check_finds_what_it_looks_for(source, expected):
 
 
 def test_every_handler_takes_the_typed_parts():
-    """command_table's handlers work on EngineParts, never on an untyped engine."""
-    tree = ast.parse((APP / "engine" / "command_table.py").read_text())
+    """The command table's handlers work on EngineParts, never on an untyped engine."""
+    tree = ast.parse((APP / "engine" / "live" / "worker.py").read_text())
     handlers = [node for node in tree.body if isinstance(node, ast.FunctionDef)
                 and node.args.args and node.args.args[0].arg in ("parts", "engine")]
     assert len(handlers) >= 6

@@ -17,13 +17,13 @@ from waiting import wait_for_snapshot
 import ekf
 from ekf.simulate import simulate
 from app.cli import main
-from app.engine.export import (MAT_STRUCTS, csv_header, export_session, load_session,
-                               open_session, session_pieces, write_csv)
-from app.engine.matfile import check_size
+from app.engine.offline.export import (MAT_STRUCTS, csv_header, export_session, load_session,
+                                       open_session, session_pieces, write_csv)
+from app.engine.offline.matfile import check_size
 from app.stream.demo import write_session
-from app.engine.offline import filter_log
-from app.engine.runner import Rows
-from app.engine.worker import Engine
+from app.engine.offline.filtering import filter_log
+from app.engine.processing.runner import Rows
+from app.engine.live.worker import Engine
 from app.stream.logfile import read_log
 from app.stream.protocol import Sample, format_line
 from app.stream.sources import LogFileSource
@@ -192,7 +192,7 @@ def test_no_command_writes_over_its_input_or_into_a_session(session_folder, tmp_
 def test_a_failed_export_leaves_the_old_file_whole(session_folder, tmp_path, monkeypatch):
     out = tmp_path / "keep.csv"
     out.write_text("my own file\n")
-    import app.engine.export as export
+    import app.engine.offline.export as export
 
     def fail(*args, **kwargs):
         raise OSError(28, "No space left on device")

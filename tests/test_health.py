@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from app.engine.health import HealthTracker
+from app.engine.processing.health import HealthTracker
 from app.stream.fastparse import FastLineParser
 
 

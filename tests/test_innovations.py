@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import ekf
-from app.engine.innovations import OWN, InnovationBuffer, course_innovation
-from app.engine.runner import EstimatorRunner
+from app.engine.processing.innovations import OWN, InnovationBuffer, course_innovation
+from app.engine.processing.runner import EstimatorRunner
 from app.stream.fastparse import samples_to_arrays
 from app.stream.protocol import parse_line
 from user_filters import log_lines

@@ -15,9 +15,9 @@ from waiting import wait_for_snapshot
 
 from app.engine.commands import SetConsistencyEnabled
 from app.engine.config import open_log
-from app.engine.offline import filter_log
+from app.engine.offline.filtering import filter_log
 from app.engine.snapshot import INNOVATION_SOURCES
-from app.engine.worker import Engine
+from app.engine.live.worker import Engine
 from app.stream.sources import LogFileSource
 from matlab_filters import COURSE_M, BROKEN, matlab_filter, needs_octave, save_m
 

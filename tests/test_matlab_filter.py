@@ -19,8 +19,8 @@ import pytest
 import ekf
 from app import cli
 from app.engine.config import ConfigError, estimator_names, open_log
-from app.engine.offline import filter_log
-from app.engine.refilter import prepare, refilter
+from app.engine.offline.filtering import filter_log
+from app.engine.offline.refilter import prepare, refilter
 from app.engine.userfilter import octave
 from app.engine.userfilter.code import UserFilterError
 from app.engine.userfilter.filter import UserFilterEstimator

@@ -15,9 +15,9 @@ from hypothesis import strategies as st
 import ekf
 from ekf.simulate import simulate
 from app.cli import main
-from app.engine.offline import (evaluate_log, filter_log, filter_rows, reference_errors,
-                                run_offline, scan_log, session_row_starts)
-from app.engine.runner import Rows
+from app.engine.offline.filtering import (evaluate_log, filter_log, filter_rows, reference_errors,
+                                          run_offline, scan_log, session_row_starts)
+from app.engine.processing.runner import Rows
 from app.stream.demo import write_session
 from app.stream.logfile import LogFile, read_log
 

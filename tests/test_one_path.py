@@ -19,9 +19,9 @@ from waiting import wait_for_port, wait_for_snapshot, wait_until
 import ekf
 from app.cli import main
 from app.engine import config
-from app.engine.estimates import HEADER, write_csv
-from app.engine.offline import filter_log
-from app.engine.worker import Engine
+from app.engine.offline.filtering import HEADER, write_csv
+from app.engine.offline.filtering import filter_log
+from app.engine.live.worker import Engine
 from app.stream.logfile import read_log
 from app.stream.sources import LineReplaySource, LogFileSource
 
@@ -261,7 +261,7 @@ def test_serve_prints_engine_failures(tmp_path):
     """A failure inside serve's engine is printed as one line and serve goes on."""
     code = f"""
 import sys
-from app.engine import runner
+from app.engine.processing import runner
 original = runner.EstimatorRunner.feed_arrays
 state = {{"n": 0}}
 def flaky(self, *a, **k):

@@ -23,7 +23,7 @@ import pytest
 
 from app import cli
 from app.engine.errors import ConfigError
-from app.engine.outputs import check_output, open_output, write_output
+from app.engine.offline.outputs import check_output, open_output, write_output
 from app.stream.demo import write_session
 from ekf.simulate import simulate
 
@@ -338,7 +338,7 @@ def test_new_filter_never_replaces_a_file(tmp_path, capsys):
 
 
 def test_the_windows_save_settings_follows_the_rule(tmp_path, full, qtbot):
-    from app.engine.profiles import ProfileStore
+    from app.engine.tuning.profiles import ProfileStore
     from app.ui.settings_panel import SettingsPanel
     panel = SettingsPanel(lambda command: None, store=ProfileStore(tmp_path / "profiles"))
     qtbot.addWidget(panel)

@@ -12,9 +12,9 @@ import ekf
 from app.stream.logfile import read_log
 from app.stream.protocol import Sample
 from app.stream.tags import FILTER_TAGS, WIDTHS
-from app.engine.offline import run_offline
-from app.engine.compare import SameInstant
-from app.engine.runner import COMBINATIONS, EstimatorRunner
+from app.engine.offline.filtering import run_offline
+from app.engine.processing.compare import SameInstant
+from app.engine.processing.runner import COMBINATIONS, EstimatorRunner
 
 REALPHONE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "realphone"
 

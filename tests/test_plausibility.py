@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from app.cli import main
-from app.engine.offline import filter_log
+from app.engine.offline.filtering import filter_log
 from app.stream.logfile import read_log
 from app.stream.protocol import java_float_text
 

@@ -16,10 +16,10 @@ from ekf.simulate import simulate
 from app.cli import main
 from app.engine.commands import (AddMarker, ReplayControl, SetEstimator, SetMarkerLabel,
                                  SetSensorEnabled, StartRecording, StopRecording)
-from app.engine.estimates import csv_lines
-from app.engine.runner import Rows
-from app.engine.session import read_session, write_markers
-from app.engine.worker import Engine
+from app.engine.offline.filtering import csv_lines
+from app.engine.processing.runner import Rows
+from app.engine.sessions.session import read_session, write_markers
+from app.engine.live.worker import Engine
 from app.stream.emulator import PhoneEmulator
 from app.stream.protocol import Sample, format_line
 from app.stream.recorder import FLUSH_INTERVAL_S, JSON_INTERVAL_S, Recorder

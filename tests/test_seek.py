@@ -12,13 +12,13 @@ from waiting import wait_for_snapshot, wait_until
 
 from ekf.settings import EKFSettings
 from ekf.simulate import simulate
-from app.engine.checkpoints import comparison_vectors
+from app.engine.processing.checkpoints import comparison_vectors
 from app.engine.commands import ReplayControl, SetSettings
-from app.engine.configuration import Setup
-from app.engine.pipeline import Pipeline
-from app.engine.runner import EstimatorRunner
-from app.engine.session_index import SessionIndex
-from app.engine.worker import Engine
+from app.engine.processing.configuration import Setup
+from app.engine.processing.pipeline import Pipeline
+from app.engine.processing.runner import EstimatorRunner
+from app.engine.sessions.index import SessionIndex
+from app.engine.live.worker import Engine
 from app.stream.protocol import Sample, format_line
 from app.stream.sources import LineReplaySource, LogFileSource
 
@@ -200,7 +200,7 @@ def test_seek_in_a_session_applies_its_recorded_timeline(lines, tmp_path):
 
 def test_a_user_switch_while_replaying_overrides_that_switch_only_once_indexed(lines, tmp_path):
     from app.engine.commands import SetSensorEnabled
-    from app.engine.configuration import Change
+    from app.engine.processing.configuration import Change
     folder = _session(tmp_path, lines, [{"kind": "sensor", "sensor": "mag", "enabled": False,
                                          "t_ms": None, "sample": 3500}])
     source = LogFileSource(folder / "raw.txt", paused=True)

@@ -8,9 +8,9 @@ import numpy as np
 
 from waiting import wait_for_snapshot
 
-from app.engine.runner import EstimatorRunner
+from app.engine.processing.runner import EstimatorRunner
 from app.engine.snapshot import NO_SENSOR_AFTER_MS, Snapshot, absent_sensors, absent_text
-from app.engine.worker import Engine
+from app.engine.live.worker import Engine
 from app.stream.sources import LineReplaySource
 
 

@@ -39,14 +39,14 @@ def test_k_takes_the_k_lowest_objectives_or_all_there_are():
 def test_every_search_reads_the_declared_search_ranges():
     import tune_defaults
 
-    from app.engine import tuning
+    from app.engine.tuning import autotune
     from ekf.settings import search_ranges
     declared = search_ranges()
-    assert tuning.RANGES == {n: (r.low, r.high) for n, r in declared.items()}
+    assert autotune.RANGES == {n: (r.low, r.high) for n, r in declared.items()}
     assert tune_defaults.SPACE == {n: (declared[n].low, declared[n].high, True,
                                        declared[n].round_to) for n in tune_defaults.SEARCHED}
     base = tune_defaults.ekf.PRESETS["default"]
-    assert {p.name: (p.low, p.high) for p in tuning.parse_parameters("mag_gate,acc_noise_cov",
+    assert {p.name: (p.low, p.high) for p in autotune.parse_parameters("mag_gate,acc_noise_cov",
                                                                      base)} == {
         "mag_gate": (declared["mag_gate"].low, declared["mag_gate"].high),
         "acc_noise_cov": (declared["acc_noise_cov"].low, declared["acc_noise_cov"].high)}

@@ -22,9 +22,9 @@ from waiting import wait_for_snapshot
 from app.engine.commands import (LoadUserFilter, ReplayControl, SetConsistencyEnabled,
                                  UnloadUserFilter)
 from app.engine.config import open_log
-from app.engine.offline import filter_log
+from app.engine.offline.filtering import filter_log
 from app.engine.userfilter.filter import UserFilterEstimator
-from app.engine.worker import Engine
+from app.engine.live.worker import Engine
 from app.stream.emulator import PhoneEmulator
 from app.stream.recorder import Recorder
 from app.stream.sources import LogFileSource, TcpSource

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import ekf
-from app.engine.offline import run_offline
+from app.engine.offline.filtering import run_offline
 from app.engine.userfilter.code import UserFilterError, load_code
 from app.engine.userfilter.filter import UserFilterEstimator, filter_settings, make_estimator
 from app.engine.userfilter.instance import FilterInstance
@@ -343,8 +343,8 @@ def test_an_object_that_misbehaves_when_read_is_a_problem_not_a_crash(tmp_path):
 
 def test_tunes_re_run_runs_your_filter_on_every_row(tmp_path):
     from app.engine.config import open_log
-    from app.engine.offline import filter_log
-    from app.engine.refilter import refilter
+    from app.engine.offline.filtering import filter_log
+    from app.engine.offline.refilter import refilter
     log_path = tmp_path / "log.txt"
     log_path.write_bytes(b"".join(log_lines(3.0)))
     log = open_log(log_path)

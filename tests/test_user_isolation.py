@@ -23,8 +23,8 @@ from waiting import wait_for_snapshot, wait_until
 import app.engine.userfilter.remote as remote
 from app import cli
 from app.engine.config import open_log
-from app.engine.offline import filter_log
-from app.engine.worker import Engine
+from app.engine.offline.filtering import filter_log
+from app.engine.live.worker import Engine
 from app.stream.emulator import PhoneEmulator
 from app.stream.sources import LogFileSource
 from user_filters import FILTERS, log_lines, save_again, write_filter

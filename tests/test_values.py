@@ -19,7 +19,7 @@ import ekf
 from ekf.settings import MAX_FILE_BYTES, PRESETS, EKFSettings, SettingsError
 from ekf.simulate import simulate
 from app import cli
-from app.engine.profiles import KIND, Profile, ProfileStore
+from app.engine.tuning.profiles import KIND, Profile, ProfileStore
 from app.stream.protocol import Sample, format_line
 
 SETTING_FIELDS = {f.name: f for f in fields(EKFSettings)}

@@ -17,10 +17,11 @@ import ekf
 from ekf.calibration import CalibrationResult
 from app.cli import options
 from app.cli.offline import FiniteCheck, intervals_of, read_log, warn_absent
-from app.engine import config, profiles, tuning
-from app.engine.calibration import RestCalibration, mag_from_log, rest_from_log
-from app.engine.outputs import check_output, write_output
-from app.engine.refilter import PreparedLog, refilter
+from app.engine import config
+from app.engine.tuning import autotune, profiles
+from app.engine.tuning.calibration import RestCalibration, mag_from_log, rest_from_log
+from app.engine.offline.outputs import check_output, write_output
+from app.engine.offline.refilter import PreparedLog, refilter
 
 
 def _write_json(path: str, payload: dict[str, Any], *inputs: str | None) -> None:
@@ -194,8 +195,8 @@ def _range_ms(prepared: PreparedLog, span: tuple[float, float],
     return [[start + span[0] * 1000.0, start + hi * 1000.0]]
 
 
-def _targets(args: argparse.Namespace, prepared: PreparedLog) -> tuple[tuning.Target,
-                                                                          tuning.Target | None]:
+def _targets(args: argparse.Namespace, prepared: PreparedLog) -> tuple[autotune.Target,
+                                                                          autotune.Target | None]:
     """The tuning range and the check range: given, or the log's halves."""
     if args.range:
         tune_ms, tune_label = _range_ms(prepared, args.range), "range %g:%g s" % args.range
@@ -218,12 +219,12 @@ def _targets(args: argparse.Namespace, prepared: PreparedLog) -> tuple[tuning.Ta
         tune_ms, tune_label = _range_ms(prepared, (0.0, half)), "first half"
         check_ms, check_label = _range_ms(prepared, (half, prepared.duration_s)), "second half"
     else:
-        return tuning.Target(prepared, tune_ms, args.skip, tune_label), None
-    return (tuning.Target(prepared, tune_ms, args.skip, tune_label),
-            tuning.Target(check_prepared, check_ms, args.skip, check_label))
+        return autotune.Target(prepared, tune_ms, args.skip, tune_label), None
+    return (autotune.Target(prepared, tune_ms, args.skip, tune_label),
+            autotune.Target(check_prepared, check_ms, args.skip, check_label))
 
 
-def _check_computable(prepared: PreparedLog, result: tuning.TuneResult, estimator: str,
+def _check_computable(prepared: PreparedLog, result: autotune.TuneResult, estimator: str,
                       sensors: tuple[str, ...]) -> None:
     """ConfigError (one line) when the best settings found give an estimate that is not finite
     somewhere in the log: `filter` would refuse them, so they are neither written nor kept."""
@@ -243,15 +244,15 @@ def cmd_tune(args: argparse.Namespace) -> int:
     if len(names) != 1 or names[0] not in ("ekf", "course"):
         raise config.ConfigError("tune: give one EKF --estimator (ekf or course)")
     base = config.load_settings(args.settings) or ekf.PRESETS["default"]
-    parameters = tuning.parse_parameters(args.params, base)
+    parameters = autotune.parse_parameters(args.params, base)
     if args.output:                                  # before the search, not after it
         check_output(args.output, args.log, args.check_log)
     log = read_log(args.log, args.limits)
     prepared = PreparedLog.from_log(log)
     if len(prepared.ori_times) == 0:
         raise config.ConfigError(f"tune: {args.log} has no ORI lines to tune against")
-    absent = warn_absent(log, sensors, names, tuple(tuning.sensors_in(prepared)))
-    parameters, left_alone = tuning.split_by_sensor(
+    absent = warn_absent(log, sensors, names, tuple(autotune.sensors_in(prepared)))
+    parameters, left_alone = autotune.split_by_sensor(
         parameters, [s for s in sensors if s not in absent])
     if left_alone:
         names_left = ", ".join(p.name for p in left_alone)
@@ -269,7 +270,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     print(f"tuning {', '.join(p.name for p in parameters)} on {args.log} "
           f"({target.label or 'whole log'}), at most {args.max_evals} runs ...", flush=True)
     try:
-        result = tuning.tune(target, base, parameters, check, args.max_evals, args.objective,
+        result = autotune.tune(target, base, parameters, check, args.max_evals, args.objective,
                              names[0], sensors)
     except ValueError as error:
         raise config.ConfigError(f"tune: {error}") from None
@@ -324,7 +325,7 @@ def _add_tune(sub) -> None:
     options.add_sensors(t)
     t.add_argument("--params", metavar="A,B=LO:HI,...",
                    help="settings to tune, optionally with a range (default "
-                        f"{','.join(tuning.DEFAULT_PARAMETERS)})")
+                        f"{','.join(autotune.DEFAULT_PARAMETERS)})")
     options.add_intervals(t, help_text="tune on these score_intervals_ms (default: LOG's sibling "
                                        ".json; neither: the first half of the log)")
     options.add_range(t, "--range", "tune on this stretch")
@@ -337,7 +338,7 @@ def _add_tune(sub) -> None:
     options.add_skip(t)
     t.add_argument("--max-evals", type=int, default=60, metavar="N",
                    help="at most N runs of the filter (default 60)")
-    t.add_argument("--objective", choices=tuning.OBJECTIVES, default="total",
+    t.add_argument("--objective", choices=autotune.OBJECTIVES, default="total",
                    help="the RMSE minimised (default total)")
     options.add_profile(t)
     options.add_limits(t)

@@ -16,10 +16,10 @@ import time
 import ekf
 from app.cli import options, phones
 from app.engine import config
-from app.engine.estimates import EstimatesWriter
-from app.engine.shutdown import on_finishing_signals
+from app.engine.offline.filtering import EstimatesWriter
+from app.engine.live.worker import on_finishing_signals
 from app.engine.snapshot import Snapshot, lag_text
-from app.engine.worker import Engine
+from app.engine.live.worker import Engine
 from app.stream.emulator import PhoneEmulator
 from app.stream.forwarder import LineForwarder
 from app.stream.lines import LogError, line_blocks, read_lines

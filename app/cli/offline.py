@@ -1,9 +1,9 @@
 """The offline commands: filter, evaluate, simulate, new-filter (calibrate, calibrate-mag and
 tune are in app.cli.calibration). Headless: they never import Qt.
 
-filter and evaluate run the engine's runner (app.engine.offline), the same path as the live
-engine, so a file gives the estimates its live replay gives. Either takes the user's own filter
-(``--estimator FILE.py``), which runs in a process of its own: what it prints goes to stderr
+filter and evaluate run the engine's runner (app.engine.offline.filtering), the same path as
+the live engine, so a file gives the estimates its live replay gives. Either takes the user's own
+filter (``--estimator FILE.py``), which runs in a process of its own: what it prints goes to stderr
 (stdout may be the CSV); a long run says how far it is; steps not written yet are listed; if it
 fails (an error in its code, a call that does not return, its process ending), its file:line and
 message are printed (``--traceback``: the whole traceback of its code) and the status is 1.
@@ -28,11 +28,11 @@ import ekf
 from ekf.metrics import intervals_mask
 from ekf.simulate import MAX_RATE_HZ, simulate
 from app.cli import options
-from app.engine import config, estimates
-from app.engine.offline import (LogScan, evaluate_log, evaluate_phone, filter_rows, scan_log,
-                                sibling_truth)
-from app.engine.outputs import check_output, open_output
-from app.engine.session import read_session, session_json_for
+from app.engine import config
+from app.engine.offline.filtering import (HEADER, LogScan, evaluate_log, evaluate_phone,
+                                          filter_rows, scan_log, sibling_truth, write_rows)
+from app.engine.offline.outputs import check_output, open_output
+from app.engine.sessions.session import read_session, session_json_for
 from app.engine.userfilter.filter import UserFilterEstimator
 from app.engine.userfilter.matlab_template import write_matlab_template
 from app.engine.userfilter.template import write_template
@@ -306,14 +306,14 @@ def _filter_with(args: argparse.Namespace, names: list[str], settings, which: st
         with (open_output(args.output, "w", encoding="ascii", newline="\n") if args.output
               else tempfile.SpooledTemporaryFile(1 << 23, "w+", encoding="ascii",
                                                  newline="\n")) as stream:
-            stream.write(estimates.HEADER + "\n")
+            stream.write(HEADER + "\n")
             with contextlib.redirect_stdout(sys.stderr), _log_errors():
                 # what the user's code prints goes to stderr: not the CSV
                 for rows in filter_rows(log, names[0] if args.smooth else estimator, settings,
                                         sensors, smooth=args.smooth):
                     if finite is not None:
                         finite.check(rows.quat, rows.t_ms)
-                    estimates.write_rows(rows, stream)
+                    write_rows(rows, stream)
             close_all([estimator])
             if not report_user_filter(estimator, args.traceback):
                 raise _NothingWritten
@@ -482,7 +482,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 # ---- export -------------------------------------------------------------------------------------
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from app.engine.export import export_session
+    from app.engine.offline.export import export_session
     separator = args.separator or ("semicolon" if args.decimal_comma else "comma")
     print(export_session(args.session, args.format, args.output, args.from_marker,
                          args.to_marker, args.from_s, args.to_s, separator,

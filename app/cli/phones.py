@@ -12,7 +12,7 @@ import threading
 from pathlib import Path
 
 from app.engine import config
-from app.engine.outputs import check_output, open_output
+from app.engine.offline.outputs import check_output, open_output
 from app.stream.phyphox_emulator import PhyphoxPhone
 from app.stream.phyphox_experiment import FILE_NAME, experiment_xml, qr_code
 from app.stream.sensor_logger_emulator import PLATFORMS, SensorLoggerPhone, parse_push_url

@@ -2,6 +2,15 @@
 background thread, commands, snapshots and the one configuration module shared by the command
 line and the window.
 
+Its rooms: :mod:`~app.engine.processing` (bytes -> estimates, shared by every path),
+:mod:`~app.engine.live` (the engine thread, its parts, its output), :mod:`~app.engine.sessions`
+(recording, replaying and indexing sessions), :mod:`~app.engine.offline` (whole logs: filter,
+evaluate, re-filter, export), :mod:`~app.engine.tuning` (calibration, profiles, auto-tune) and
+:mod:`~app.engine.userfilter` (your filter in its own process); beside them the engine's inputs
+and outputs: :mod:`~app.engine.config` (what a user names by text), :mod:`~app.engine.commands`
+(what a user asks while it runs), :mod:`~app.engine.snapshot` (what it hands the window),
+:mod:`~app.engine.errors` (what goes wrong) and :mod:`~app.engine.warmup` (compiling the kernels).
+
 Submodules import each other directly (never this package), so this file only gathers names,
 and it imports a submodule only when one of its names is asked for: importing one small module
 of the engine (your filter's process imports only ``app.engine.userfilter``'s lean modules)
@@ -19,10 +28,11 @@ _WHERE = {
     "SetSensorEnabled": "commands", "SetSettings": "commands",
     "ConfigError": "config", "SourceOptions": "config", "load_settings": "config",
     "make_source": "config",
-    "evaluate_log": "offline", "filter_log": "offline", "run_offline": "offline",
-    "EstimatorRunner": "runner", "Rows": "runner",
+    "evaluate_log": "offline.filtering", "filter_log": "offline.filtering",
+    "run_offline": "offline.filtering",
+    "EstimatorRunner": "processing.runner", "Rows": "processing.runner",
     "Snapshot": "snapshot",
-    "Engine": "worker",
+    "Engine": "live.worker",
 }
 
 __all__ = ["Engine", "EstimatorRunner", "Rows", "Snapshot", "ConfigError", "SourceOptions",

@@ -128,6 +128,7 @@ class SetMarkerLabel:
 class SetFollowTimeline:
     """Replaying a recorded session: back to the recording (True: its recorded set-up and
     timeline, none of your overrides and changes), or every kind of its configuration yours, at
-    the values running now, for the whole replay (False). See app.engine.configuration."""
+    the values running now, for the whole replay (False). See
+    app.engine.processing.configuration."""
 
     enabled: bool

@@ -18,10 +18,10 @@ from pathlib import Path
 import ekf
 from ekf import SENSORS
 from ekf.settings import read_json
-from app.engine import profiles
+from app.engine.tuning import profiles
 from app.engine.errors import ConfigError   # defined apart (profiles raise it too)
-from app.engine.pipeline import check_start_state
-from app.engine.session import read_session, session_json_for
+from app.engine.processing.pipeline import check_start_state
+from app.engine.sessions.session import read_session, session_json_for
 from app.engine.userfilter.code import UserFilterError, is_filter_file
 from app.engine.userfilter.octave import (OctaveNotFound, filter_folder, find_octave,
                                           is_matlab_filter)

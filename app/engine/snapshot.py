@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 
 import ekf
-from app.engine.configuration import ConfigurationView
-from app.engine.user_problem import UserProblem
+from app.engine.processing.configuration import ConfigurationView
+from app.engine.errors import EngineFailure, UserProblem
 from app.stream.forwarder import ForwardStatus
 
 
@@ -134,21 +134,6 @@ INNOVATION_SOURCES = ("OWN", "YOURS")
 INNOVATION_SENSORS = ("acc", "mag", "gyr")
 
 
-@dataclass(frozen=True)
-class EngineFailure:
-    """An exception inside the engine: what the window shows and `serve` prints.
-
-    number counts failures from 1; message is one line with the exception and where it was
-    raised (file, line, function); details the whole traceback (the "copy details" text);
-    when the UTC time; fatal: the engine stopped after it (too many failures in a row)."""
-
-    number: int
-    message: str
-    details: str
-    when: str
-    fatal: bool = False
-
-
 @dataclass
 class UserHistory:
     """YOURS over the session so far, recomputed after a reload by re-running the replay's log
@@ -225,19 +210,19 @@ class Snapshot:
     replay: dict[str, Any] | None = None
     failures: list[EngineFailure] = field(default_factory=list)   # the latest, oldest first
     user: UserFilterStatus | None = None      # your filter (YOURS), when one is loaded
-    # the markers of the session shown (app.engine.session.Marker), oldest first
+    # the markers of the session shown (app.engine.sessions.session.Marker), oldest first
     markers: tuple = ()
     preparing: bool = False                   # the engine compiles/loads its kernels (start)
     # a recording in progress (or the last one): folder, elapsed_s, bytes, lines, error, active
     recording: dict[str, Any] | None = None
-    # a replay's whole session for the plots, once indexed (app.engine.session_index.SessionPlot;
+    # a replay's whole session for the plots, once indexed (app.engine.sessions.index.SessionPlot;
     # shared, never changed once handed out)
     session_plot: Any = None
     # samples of each tag fed to the estimators in this session, {"gyr", "acc", "mag", "ori"}
     # (empty: not known, e.g. a test double): which sensors the stream delivers
     session_samples: dict[str, int] = field(default_factory=dict)
-    # the filter's configuration over time (app.engine.configuration): what the pass applies,
-    # what of a replayed recording is yours (None: a test double)
+    # the filter's configuration over time (app.engine.processing.configuration): what the pass
+    # applies, what of a replayed recording is yours (None: a test double)
     configuration: ConfigurationView | None = None
 
 

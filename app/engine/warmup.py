@@ -16,7 +16,7 @@ from pathlib import Path
 
 from ekf import fast
 from ekf.simulate import simulate
-from app.engine.runner import EstimatorRunner
+from app.engine.processing.runner import EstimatorRunner
 from app.stream import fastparse, ordering
 from app.stream.demo import write_session
 from app.stream.logfile import read_log

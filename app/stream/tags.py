@@ -5,7 +5,7 @@ carries, whether they are numbers or text, their unit, the physical bound a samp
 and whether the filters use it. Everything else is made from it: the parsers' tag codes and
 value counts (:mod:`app.stream.protocol`, :mod:`app.stream.fastparse`), the damaged-line
 reasons, the orderer's per-tag state (:mod:`app.stream.ordering_kernels`), the runner's rows
-(:mod:`app.engine.runner_rows`) and the export columns (:mod:`app.engine.export`).
+(:mod:`app.engine.processing.runner`) and the export columns (:mod:`app.engine.offline.export`).
 
 The tags the filters use (``role`` "sensor" or "reference") get the codes 0, 1, ... in table
 order, which is also their order at equal times: the sensors first, in the order of

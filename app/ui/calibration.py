@@ -8,8 +8,8 @@ t_acc/acc, t_gyr/gyr, t_mag/mag). Apply sends ``SetSettings(settings,
 calibration=profile_dict, source="calibration")``; the engine records the profile in the
 session. A stretch of a loaded log is analysed with :meth:`analyse_log` (or "From log…").
 
-The numbers come from app.engine.calibration (the one path of `calibrate` and `calibrate-mag`)
-and the figures from app.ui.figures (the same drawings as their --plots PNGs).
+The numbers come from app.engine.tuning.calibration (the one path of `calibrate` and
+`calibrate-mag`) and the figures from app.ui.figures (the same drawings as their --plots PNGs).
 """
 
 from __future__ import annotations
@@ -25,9 +25,9 @@ from PySide6 import QtCore, QtWidgets
 import ekf
 from ekf import magcal
 from app.engine import config
-from app.engine.calibration import mag_from_log, rest_source
+from app.engine.tuning.calibration import mag_from_log, rest_source
 from app.engine.commands import SetSettings
-from app.engine.profiles import Profile, ProfileStore
+from app.engine.tuning.profiles import Profile, ProfileStore
 from app.ui import figures
 from app.ui.calibration_rest import RestTab
 from app.ui.calibration_rest import label as _label

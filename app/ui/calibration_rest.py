@@ -17,9 +17,9 @@ from PySide6 import QtCore, QtWidgets
 from ekf.calibration import UNITS
 from ekf.noise import VERDICT_RULE
 from app.engine import config
-from app.engine.calibration import (RestCalibration, RestSource, SampleCollector,
-                                    analyse_series, analyse_still, analyse_stretch,
-                                    collected_source)
+from app.engine.tuning.calibration import (RestCalibration, RestSource, SampleCollector,
+                                           analyse_series, analyse_still, analyse_stretch,
+                                           collected_source)
 from app.ui import figures
 from app.ui.no_data import NoDataText
 

@@ -2,7 +2,7 @@
 
 For one estimator (OWN: our EKF; YOURS: your filter, when it returns innovations) and one
 sensor, from the innovations nu and their covariances S the engine publishes (PlotChunk's
-innovation fields; see app.engine.innovations):
+innovation fields; see app.engine.processing.innovations):
 
 * each innovation component over time with its +-2 sigma and +-3 sigma bands, sigma_i =
   sqrt(S_ii), the updates a gate rejected marked with a red x;

@@ -16,7 +16,7 @@ from PySide6 import QtCore, QtWidgets
 
 from app.engine.commands import (AlignHeading, ResetFilter, SetComparisonsEnabled, SetEstimator,
                                  SetFollowTimeline, SetSensorEnabled)
-from app.engine.configuration import ConfigurationView
+from app.engine.processing.configuration import ConfigurationView
 from app.engine.snapshot import SENSOR_NAMES, Comparison, FilterStatus, absent_text
 
 ESTIMATOR_CHOICES = (

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from PySide6 import QtGui, QtWidgets
 
-from app.engine.snapshot import EngineFailure
+from app.engine.errors import EngineFailure
 
 
 class FailureDialog(QtWidgets.QDialog):

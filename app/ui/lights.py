@@ -14,7 +14,7 @@ import math
 
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from ekf import outputs
+from ekf import diagnostics as outputs
 from app.engine.snapshot import FilterStatus
 
 STATE_COLORS = {

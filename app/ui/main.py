@@ -20,9 +20,9 @@ from typing import Any
 
 from app import paths
 from app.engine.config import ConfigError, SourceOptions, load_settings, make_source, open_replay
-from app.engine.outputs import write_output
-from app.engine.shutdown import on_finishing_signals
-from app.engine.worker import Engine
+from app.engine.offline.outputs import write_output
+from app.engine.live.worker import on_finishing_signals
+from app.engine.live.worker import Engine
 from app.stream.forwarder import LineForwarder
 from app.stream.sources import DEMO_SESSION
 

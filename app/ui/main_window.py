@@ -36,7 +36,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 import ekf
 from app.engine.commands import LoadUserFilter
 from app.engine.config import ConfigError
-from app.engine.profiles import ProfileStore
+from app.engine.tuning.profiles import ProfileStore
 from app.engine.snapshot import SENSOR_NAMES, Snapshot, absent_sensors, absent_text
 from app.ui.calibration import CalibrationWorkspace
 from app.ui.connect_phone import ConnectPhoneDialog, PhoneAppsBox

@@ -188,7 +188,7 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
             self._dirty = True
 
     def set_session(self, session) -> None:
-        """Draw a replay's whole session (app.engine.session_index.SessionPlot: its arrays,
+        """Draw a replay's whole session (app.engine.sessions.index.SessionPlot: its arrays,
         not copied) instead of the rolling buffers; None: back to the rolling buffers. Paused,
         the user scrolls and zooms over the whole recording."""
         if session is self.session:
@@ -213,7 +213,7 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
                 self._dirty = True
 
     def set_markers(self, markers) -> None:
-        """Markers (app.engine.session.Marker) as labelled vertical lines in every plot."""
+        """Markers (app.engine.sessions.session.Marker) as labelled vertical lines in every plot."""
         shown = tuple((m.id, m.t_s, m.title) for m in markers if m.t_s is not None)
         if shown == self._markers_shown:
             return

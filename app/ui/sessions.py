@@ -19,8 +19,8 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.engine.commands import AddMarker, SetMarkerLabel
 from app.engine.config import ConfigError, open_replay
-from app.engine.configuration import replayed_setup
-from app.engine.session import session_json_of, session_label, sessions_dir, write_label
+from app.engine.processing.configuration import replayed_setup
+from app.engine.sessions.session import session_json_of, session_label, sessions_dir, write_label
 from app.engine.snapshot import Snapshot
 
 MAX_RECENT = 10
@@ -79,7 +79,7 @@ def export_path(source: str | Path, fmt: str) -> Path:
 
 
 def default_engine_factory(path: str):
-    from app.engine.worker import Engine
+    from app.engine.live.worker import Engine
     return Engine(open_replay(path))
 
 
@@ -439,7 +439,7 @@ class SessionControls(QtCore.QObject):
 
     def export(self, source: str, fmt: str, out: str, **options: Any) -> None:
         """Export in a background thread; the status bar says what was written."""
-        from app.engine.export import export_session
+        from app.engine.offline.export import export_session
 
         def run() -> None:
             try:

@@ -26,8 +26,8 @@ import ekf
 from ekf.settings import format_value
 from app.engine import config
 from app.engine.commands import SetSettings
-from app.engine.outputs import check_output, write_output
-from app.engine.profiles import Profile, ProfileStore
+from app.engine.offline.outputs import check_output, write_output
+from app.engine.tuning.profiles import Profile, ProfileStore
 
 COLUMNS = ("setting", "value", "unit", "default", "course")
 VALUE = 1

@@ -2,11 +2,11 @@
 with the previous run kept as a ghost (A/B), and auto-tune against the session's reference.
 
 * Left: the settings panel (app.ui.settings_panel). A change goes to the engine, which makes it
-  part of its configuration (app.engine.configuration: on a replay, your settings for the whole
-  replay; live, from the next sample); the configuration comes back with the next snapshot and
-  the session shown here is re-run with it in the background (app.engine.refilter.Refilterer):
-  the replayed session with its configuration over time, so its figures are the replay's;
-  another log with the configuration running now.
+  part of its configuration (app.engine.processing.configuration: on a replay, your settings for the
+  whole replay; live, from the next sample); the configuration comes back with the next snapshot and
+  the session shown here is re-run with it in the background
+  (app.engine.offline.refilter.Refilterer): the replayed session with its configuration over time,
+  so its figures are the replay's; another log with the configuration running now.
 * Right, "A/B re-filter": the current run's and the ghost's errors against PHONE over the whole
   session (total and heading; the ghost dashed), the angle between the two runs at the same
   instants, and the A/B error table (app.ui.tuning.ABCompareView) with Keep as ghost / Clear
@@ -31,10 +31,10 @@ from PySide6 import QtCore, QtWidgets
 
 import ekf
 from app.engine import config
-from app.engine.configuration import ConfigurationView, Setup, setup_for_log
-from app.engine.profiles import ProfileStore
-from app.engine.refilter import (PreparedLog, Refilterer, RefilterResult,
-                                 angle_between_runs_deg, prepare_path)
+from app.engine.processing.configuration import ConfigurationView, Setup, setup_for_log
+from app.engine.tuning.profiles import ProfileStore
+from app.engine.offline.refilter import (PreparedLog, Refilterer, RefilterResult,
+                                         angle_between_runs_deg, prepare_path)
 from app.ui.no_data import NoDataText
 from app.ui.settings_panel import SettingsPanel
 from app.ui.tuning import ABCompareView, TuningPanel
@@ -336,7 +336,7 @@ class TuneWorkspace(QtWidgets.QWidget):
 
     def setup(self) -> Setup:
         """The configuration a re-run of this workspace's session applies (see
-        app.engine.configuration.setup_for_log)."""
+        app.engine.processing.configuration.setup_for_log)."""
         return setup_for_log(self.configuration, self.prepared.path if self.prepared else None,
                              self._settings())
 

@@ -3,10 +3,10 @@
 * :class:`TuningPanel`: parameters with their ranges, the tuning and check ranges, Start,
   Cancel and a progress bar, before/after figures for both ranges and the over-fitting warning;
   the result can be applied (``SetSettings(best, source="tuned")``) and kept as a new profile.
-  The search runs in a thread (app.engine.tuning.TuningJob); its callbacks reach the GUI thread
-  through queued signals.
+  The search runs in a thread (app.engine.tuning.autotune.TuningJob); its callbacks reach the GUI
+  thread through queued signals.
 * :class:`ABCompareView`: the error table of the current re-filter run and the kept ghost
-  (app.engine.refilter.Refilterer), "Keep as ghost" / "Clear ghost", and the run time.
+  (app.engine.offline.refilter.Refilterer), "Keep as ghost" / "Clear ghost", and the run time.
 """
 
 from __future__ import annotations
@@ -17,11 +17,12 @@ from typing import Any
 from PySide6 import QtCore, QtWidgets
 
 import ekf
-from app.engine import config, tuning
+from app.engine import config
+from app.engine.tuning import autotune
 from app.engine.commands import SetSettings
-from app.engine.configuration import Setup
-from app.engine.profiles import Profile, ProfileStore
-from app.engine.refilter import PreparedLog, Refilterer, RefilterResult, ab_rows
+from app.engine.processing.configuration import Setup
+from app.engine.tuning.profiles import Profile, ProfileStore
+from app.engine.offline.refilter import PreparedLog, Refilterer, RefilterResult, ab_rows
 from app.engine.snapshot import SENSOR_NAMES
 from app.ui.elided import ElidedLabel
 
@@ -69,12 +70,12 @@ def _seconds_box(value: float, maximum: float) -> QtWidgets.QDoubleSpinBox:
 
 
 class TuningPanel(QtWidgets.QWidget):
-    """log: the PreparedLog to tune on (app.engine.refilter.prepare / prepare_path); send: the
-    engine's send; settings(): the settings to start from; store: profiles; setup(): the
+    """log: the PreparedLog to tune on (app.engine.offline.refilter.prepare / prepare_path); send:
+    the engine's send; settings(): the settings to start from; store: profiles; setup(): the
     configuration over time the log is re-run with (a candidate overrides its settings; None:
     the EKF with every sensor)."""
 
-    progressed = QtCore.Signal(object)          # tuning.Progress (from the worker thread)
+    progressed = QtCore.Signal(object)          # autotune.Progress (from the worker thread)
     finished = QtCore.Signal(object, object)    # TuneResult | None, error | None
 
     def __init__(self, log: PreparedLog, send: Callable[[Any], None],
@@ -86,8 +87,8 @@ class TuningPanel(QtWidgets.QWidget):
         self.log, self._send, self._settings = log, send, settings
         self._setup = setup
         self.store = store or ProfileStore()
-        self.job: tuning.TuningJob | None = None
-        self.result: tuning.TuneResult | None = None
+        self.job: autotune.TuningJob | None = None
+        self.result: autotune.TuneResult | None = None
         self.progressed.connect(self._on_progress, QtCore.Qt.ConnectionType.QueuedConnection)
         self.finished.connect(self._on_finished, QtCore.Qt.ConnectionType.QueuedConnection)
         self.parameters = self._parameter_table()
@@ -124,24 +125,24 @@ class TuningPanel(QtWidgets.QWidget):
     def _parameter_table(self) -> QtWidgets.QTableWidget:
         """One row per searchable setting: tune it or not, its range, before and after. A
         setting of a sensor the session lacks is unticked and greyed out (it has no effect)."""
-        names = list(tuning.RANGES)
-        present = tuning.sensors_in(self.log)
+        names = list(autotune.RANGES)
+        present = autotune.sensors_in(self.log)
         units = {row.name: row.unit for row in ekf.settings_rows()}
         table = QtWidgets.QTableWidget(len(names), 6)
         table.setHorizontalHeaderLabels(["tune", "low", "high", "before", "after", "unit"])
         table.setVerticalHeaderLabels(names)
         for r, name in enumerate(names):
-            sensor = tuning.setting_sensor(name)
+            sensor = autotune.setting_sensor(name)
             usable = sensor is None or sensor in present
             check = QtWidgets.QTableWidgetItem()
             check.setFlags(QtCore.Qt.ItemFlag.ItemIsUserCheckable
                            | (QtCore.Qt.ItemFlag.ItemIsEnabled if usable
                               else QtCore.Qt.ItemFlag.NoItemFlags))
             check.setCheckState(QtCore.Qt.CheckState.Checked
-                                if name in tuning.DEFAULT_PARAMETERS and usable
+                                if name in autotune.DEFAULT_PARAMETERS and usable
                                 else QtCore.Qt.CheckState.Unchecked)
             table.setItem(r, 0, check)
-            low, high = tuning.RANGES[name]
+            low, high = autotune.RANGES[name]
             table.setItem(r, 1, QtWidgets.QTableWidgetItem(f"{low:g}"))
             table.setItem(r, 2, QtWidgets.QTableWidgetItem(f"{high:g}"))
             unit = QtWidgets.QTableWidgetItem(units.get(name, "-"))
@@ -187,7 +188,7 @@ class TuningPanel(QtWidgets.QWidget):
 
     # -- the search ---------------------------------------------------------------------------
 
-    def chosen_parameters(self) -> list[tuning.Parameter]:
+    def chosen_parameters(self) -> list[autotune.Parameter]:
         """The checked rows with their (edited) ranges."""
         out = []
         for r in range(self.parameters.rowCount()):
@@ -195,13 +196,13 @@ class TuningPanel(QtWidgets.QWidget):
                 continue
             name = self.parameters.verticalHeaderItem(r).text()
             low, high = (float(self.parameters.item(r, c).text()) for c in (1, 2))
-            out.append(tuning.Parameter(name, low, high))
+            out.append(autotune.Parameter(name, low, high))
         return out
 
     def _target(self, start: QtWidgets.QDoubleSpinBox, end: QtWidgets.QDoubleSpinBox,
-                label: str) -> tuning.Target:
+                label: str) -> autotune.Target:
         t0 = self.log.start_ms
-        return tuning.Target(self.log, [[t0 + start.value() * 1000.0,
+        return autotune.Target(self.log, [[t0 + start.value() * 1000.0,
                                          t0 + end.value() * 1000.0]],
                              label=f"{label} {start.value():g}-{end.value():g} s",
                              setup=self._setup())
@@ -220,7 +221,7 @@ class TuningPanel(QtWidgets.QWidget):
         base = self._settings() or ekf.PRESETS["default"]
         check = (self._target(self.check_start, self.check_end, "check")
                  if self.check_end.value() > self.check_start.value() else None)
-        self.job = tuning.TuningJob(
+        self.job = autotune.TuningJob(
             self._target(self.tune_start, self.tune_end, "tune"), base, parameters, check,
             self.max_evals.value(), on_progress=self.progressed.emit,
             on_done=self.finished.emit)
@@ -236,12 +237,12 @@ class TuningPanel(QtWidgets.QWidget):
         if self.job is not None:
             self.job.cancel()
 
-    def _on_progress(self, progress: tuning.Progress) -> None:
+    def _on_progress(self, progress: autotune.Progress) -> None:
         self.progress.setValue(int(round(100 * progress.fraction)))
         self.progress.setFormat(f"{progress.evaluations}/{progress.max_evaluations}, best "
                                 f"{progress.best_deg:.2f}°")
 
-    def _on_finished(self, result: tuning.TuneResult | None, error: BaseException | None) -> None:
+    def _on_finished(self, result: autotune.TuneResult | None, error: BaseException | None) -> None:
         self.start_button.setEnabled(True)
         self.cancel_button.setEnabled(False)
         if error is not None or result is None:
@@ -254,7 +255,7 @@ class TuningPanel(QtWidgets.QWidget):
         for button in (self.apply_button, self.keep_button):
             button.setEnabled(True)
 
-    def _show_result(self, result: tuning.TuneResult) -> None:
+    def _show_result(self, result: autotune.TuneResult) -> None:
         names = [self.parameters.verticalHeaderItem(r).text()
                  for r in range(self.parameters.rowCount())]
         for name, _, _, before, after in result.parameter_rows():

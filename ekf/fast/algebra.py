@@ -1,21 +1,22 @@
-"""Compiled building blocks: quaternion helpers (``ekf.quaternion`` and the reference's start
-quaternions), the covariance of a fresh attitude, the normalisation and the Joseph-form
-measurement update. The covariance updates are hand-unrolled where they are hot: P is symmetric
-(upper triangle computed, then mirrored) and zero blocks of H and J are skipped.
+"""Compiled building blocks that have no twin in the reference: what ``numpy`` and
+``ekf.quaternion`` do for :mod:`ekf.reference` (quaternion helpers, the 3x3 inverse), the pieces
+of the Joseph-form update unrolled for the packed state (P is symmetric: the upper triangle is
+computed, then mirrored; zero blocks of H are skipped), and the smoother's recording of each
+time update. The reference's own steps, compiled, are in :mod:`ekf.fast.kernels`.
 """
 
 from __future__ import annotations
 
 import math
 
-from ekf.fast._jit import CACHE_KEY, check_cache, jit
-from ekf.fast.layout import C, S
+from ekf.fast.jit import CACHE_KEY, check_cache, jit
+from ekf.fast.layout import S
+from ekf.reference import ACQUIRED_INFO
 
-_INF = math.inf
 
-
+# ---- quaternions ------------------------------------------------------------------------------
 @jit
-def _quat_normalize(q0, q1, q2, q3):
+def quat_normalize(q0, q1, q2, q3):
     """ekf.quaternion.normalize: unit, w >= 0."""
     norm = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
     q0 = q0 / norm
@@ -28,22 +29,14 @@ def _quat_normalize(q0, q1, q2, q3):
 
 
 @jit
-def _rotate_world_about_up(q0, q1, q2, q3, angle):
-    """normalize(from_axis_angle(z, angle) ⊗ q)."""
-    c = math.cos(angle / 2)
-    sn = math.sin(angle / 2)
-    return _quat_normalize(c * q0 - sn * q3, c * q1 - sn * q2, c * q2 + sn * q1, c * q3 + sn * q0)
-
-
-@jit
-def _heading_of(q0, q1, q2, q3):
+def heading_of(q0, q1, q2, q3):
     """ekf.quaternion.heading_of: 2 atan2(z, w) of the normalised q."""
-    w, _x, _y, z = _quat_normalize(q0, q1, q2, q3)
+    w, _x, _y, z = quat_normalize(q0, q1, q2, q3)
     return 2.0 * math.atan2(z, w)
 
 
 @jit
-def _from_matrix(r00, r01, r02, r10, r11, r12, r20, r21, r22):
+def from_matrix(r00, r01, r02, r10, r11, r12, r20, r21, r22):
     """ekf.quaternion.from_matrix (Shepperd, first maximum of trace, R00, R11, R22)."""
     trace = r00 + r11 + r22
     k = 0
@@ -68,11 +61,11 @@ def _from_matrix(r00, r01, r02, r10, r11, r12, r20, r21, r22):
     else:
         sv = 2.0 * math.sqrt(max(1.0 - r00 - r11 + r22, 0.0))
         q = ((r10 - r01) / sv, (r02 + r20) / sv, (r12 + r21) / sv, 0.25 * sv)
-    return _quat_normalize(q[0], q[1], q[2], q[3])
+    return quat_normalize(q[0], q[1], q[2], q[3])
 
 
 @jit
-def _to_matrix(q0, q1, q2, q3):
+def to_matrix(q0, q1, q2, q3):
     """Q(q) of eq. (2a), row-major as a 9-tuple."""
     return (2 * (q0 * q0 + q1 * q1) - 1, 2 * (q1 * q2 - q0 * q3), 2 * (q1 * q3 + q0 * q2),
             2 * (q1 * q2 + q0 * q3), 2 * (q0 * q0 + q2 * q2) - 1, 2 * (q2 * q3 - q0 * q1),
@@ -80,48 +73,13 @@ def _to_matrix(q0, q1, q2, q3):
 
 
 @jit
-def _cross(a0, a1, a2, b0, b1, b2):
+def cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
+# ---- covariance blocks and the field reference -----------------------------------------------
 @jit
-def _tilt_quaternion(a0, a1, a2):
-    """ekf.reference.tilt_quaternion."""
-    na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-    u0 = a0 / na
-    u1 = a1 / na
-    u2 = a2 / na
-    if abs(u0) < 0.9:
-        n0, n1, n2 = _cross(u0, u1, u2, 1.0, 0.0, 0.0)
-    else:
-        n0, n1, n2 = _cross(u0, u1, u2, 0.0, 1.0, 0.0)
-    nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-    n0 /= nn
-    n1 /= nn
-    n2 /= nn
-    e0, e1, e2 = _cross(n0, n1, n2, u0, u1, u2)
-    q0, q1, q2, q3 = _from_matrix(e0, e1, e2, n0, n1, n2, u0, u1, u2)
-    return _rotate_world_about_up(q0, q1, q2, q3, -_heading_of(q0, q1, q2, q3))
-
-
-@jit
-def _acc_mag_quaternion(a0, a1, a2, m0, m1, m2):
-    """ekf.reference.acc_mag_quaternion (TRIAD)."""
-    na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-    u0 = a0 / na
-    u1 = a1 / na
-    u2 = a2 / na
-    e0, e1, e2 = _cross(m0, m1, m2, u0, u1, u2)
-    ne = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
-    e0 /= ne
-    e1 /= ne
-    e2 /= ne
-    n0, n1, n2 = _cross(u0, u1, u2, e0, e1, e2)
-    return _from_matrix(e0, e1, e2, n0, n1, n2, u0, u1, u2)
-
-
-@jit
-def _attitude_cov(s, scale, add):
+def attitude_cov(s, scale, add):
     """P[:4, :4] = scale * S̄(q) S̄(q)^T, or += with add (the other blocks untouched)."""
     q0 = s[S.x]
     q1 = s[S.x + 1]
@@ -139,73 +97,60 @@ def _attitude_cov(s, scale, add):
 
 
 @jit
-def _set_attitude_cov(s, scale):
+def set_attitude_cov(s, scale):
     """P[:4, :4] = scale * S̄(q) S̄(q)^T (the other blocks untouched)."""
-    _attitude_cov(s, scale, False)
+    attitude_cov(s, scale, False)
 
 
 @jit
-def _add_attitude_cov(s, scale):
+def add_attitude_cov(s, scale):
     """P[:4, :4] += scale * S̄(q) S̄(q)^T."""
-    _attitude_cov(s, scale, True)
+    attitude_cov(s, scale, True)
 
 
 @jit
-def _normalise(s):
-    """q <- q/|q| (w >= 0), P <- J P J^T with J = (I - u u^T)/|q| on the q block, u = q/|q|.
-
-    J P J^T = (P - u w^T - w u^T + (u.w) u u^T)/|q|^2 with w = P_qq u; the q-bias block is
-    J P_qb. The sign flip for w >= 0 multiplies J by -1 (cancels in the q block)."""
-    n = int(s[S.n])
-    q0 = s[S.x]
-    q1 = s[S.x + 1]
-    q2 = s[S.x + 2]
-    q3 = s[S.x + 3]
-    norm = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
-    inv_norm = 1.0 / norm   # one division on the critical path instead of six
-    u = (q0 * inv_norm, q1 * inv_norm, q2 * inv_norm, q3 * inv_norm)
-    sign = -1.0 if u[0] < 0.0 else 1.0
-    for i in range(4):
-        s[S.x + i] = sign * u[i]
-    P = S.P
-    w0 = s[P + 0] * u[0] + s[P + 1] * u[1] + s[P + 2] * u[2] + s[P + 3] * u[3]
-    w1 = s[P + 7] * u[0] + s[P + 8] * u[1] + s[P + 9] * u[2] + s[P + 10] * u[3]
-    w2 = s[P + 14] * u[0] + s[P + 15] * u[1] + s[P + 16] * u[2] + s[P + 17] * u[3]
-    w3 = s[P + 21] * u[0] + s[P + 22] * u[1] + s[P + 23] * u[2] + s[P + 24] * u[3]
-    w = (w0, w1, w2, w3)
-    a = u[0] * w0 + u[1] * w1 + u[2] * w2 + u[3] * w3
-    scale = inv_norm * inv_norm
-    for i in range(4):
-        for j in range(i, 4):
-            v = (s[P + 7 * i + j] - u[i] * w[j] - w[i] * u[j] + a * u[i] * u[j]) * scale
-            s[P + 7 * i + j] = v
-            s[P + 7 * j + i] = v
-    if n == 7:
-        f = sign * inv_norm
-        for j in range(4, 7):
-            z = (u[0] * s[P + j] + u[1] * s[P + 7 + j] + u[2] * s[P + 14 + j]
-                 + u[3] * s[P + 21 + j])
-            for i in range(4):
-                v = f * (s[P + 7 * i + j] - u[i] * z)
-                s[P + 7 * i + j] = v
-                s[P + 7 * j + i] = v
+def field_dip_deg(m0, m1, m2):
+    """Angle between up and the field m0 (ENU) [deg] (``ekf.state.reference_dip_deg``)."""
+    return math.degrees(math.acos(m2 / (math.sqrt(m0 * m0 + m1 * m1 + m2 * m2) + 1e-300)))
 
 
 @jit
-def _flip_sign(s):
-    """reference ``_flip_sign``: q <- -q (same rotation, w >= 0); P_qb changes sign."""
-    for i in range(4):
-        s[S.x + i] = -s[S.x + i]
-    if int(s[S.n]) == 7:
-        for i in range(4):
-            for j in range(4, 7):
-                v = -s[S.P + 7 * i + j]
-                s[S.P + 7 * i + j] = v
-                s[S.P + 7 * j + i] = v
+def level_m0(s, y0, y1, y2):
+    """m0 = (0, sqrt(mx^2 + my^2), mz) of the reading expressed in the (level) world frame."""
+    Q = to_matrix(s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3])
+    mw0 = Q[0] * y0 + Q[1] * y1 + Q[2] * y2
+    mw1 = Q[3] * y0 + Q[4] * y1 + Q[5] * y2
+    mw2 = Q[6] * y0 + Q[7] * y1 + Q[8] * y2
+    s[S.m0] = 0.0
+    s[S.m0 + 1] = math.hypot(mw0, mw1)
+    s[S.m0 + 2] = mw2
 
 
 @jit
-def _inverse3(s, src, dst):
+def turn_pair(s, F):
+    """The hard-iron fit's open pair: its turn since the first reading, from the gyro alone
+    (mag_pair_q <- F mag_pair_q, the reference's _time_update_gyro)."""
+    M = S.mag_pair_q
+    p0, p1, p2, p3 = s[M], s[M + 1], s[M + 2], s[M + 3]
+    for i in range(4):
+        s[M + i] = F[i][0] * p0 + F[i][1] * p1 + F[i][2] * p2 + F[i][3] * p3
+
+
+@jit
+def record_prediction(s, T):
+    """For the smoother (c[C.record_prediction]): x, P and T right after a time update."""
+    for i in range(7):
+        s[S.work_pred_x + i] = s[S.x + i]
+    for i in range(49):
+        s[S.work_pred_P + i] = s[S.P + i]
+    s[S.work_pred_T] = T
+    for i in range(3):
+        s[S.work_pred_omega + i] = s[S.omega + i]
+
+
+# ---- the Joseph-form update, unrolled ----------------------------------------------------------
+@jit
+def inverse3(s, src, dst):
     """dst = src^-1 (3x3, row-major in the state's scratch) by the adjugate; returns det."""
     a = s[src + 0]
     b = s[src + 1]
@@ -234,10 +179,33 @@ def _inverse3(s, src, dst):
 
 
 @jit
-def _gain_n(s, e0, e1, e2, gate, n):
+def measurement_blocks(s, c, h, cov, scale, n):
+    """B = P H^T (n x 3) at S.work_pht and S = H P H^T + R (3x3) at S.work_s for a measurement
+    whose H (3 x n) is non-zero only in the q columns: h = the 3x4 block (row-major 12-tuple),
+    cov = offset of R in the settings, R x scale."""
+    B = S.work_pht
+    P = S.P
+    for i in range(n):
+        p0 = s[P + 7 * i]
+        p1 = s[P + 7 * i + 1]
+        p2 = s[P + 7 * i + 2]
+        p3 = s[P + 7 * i + 3]
+        for r in range(3):
+            s[B + 3 * i + r] = (p0 * h[4 * r] + p1 * h[4 * r + 1] + p2 * h[4 * r + 2]
+                                + p3 * h[4 * r + 3])
+    for r in range(3):
+        for col in range(3):
+            s[S.work_s + 3 * r + col] = (h[4 * r] * s[B + col] + h[4 * r + 1] * s[B + 3 + col]
+                                         + h[4 * r + 2] * s[B + 6 + col]
+                                         + h[4 * r + 3] * s[B + 9 + col]) \
+                + c[cov + 3 * r + col] * scale
+
+
+@jit
+def optimal_gain(s, e0, e1, e2, gate, n):
     """The NIS and, when it passes the gate, the optimal gain K = B S^-1 (n x 3) at S.work_gain,
     given B = P H^T (n x 3) at S.work_pht and S = H P H^T + R (3x3) at S.work_s."""
-    _inverse3(s, S.work_s, S.work_s_inv)
+    inverse3(s, S.work_s, S.work_s_inv)
     Si = S.work_s_inv
     t0 = s[Si + 0] * e0 + s[Si + 1] * e1 + s[Si + 2] * e2
     t1 = s[Si + 3] * e0 + s[Si + 4] * e1 + s[Si + 5] * e2
@@ -258,7 +226,7 @@ def _gain_n(s, e0, e1, e2, gate, n):
 
 
 @jit
-def _correct_state_n(s, e0, e1, e2, n):
+def correct_state(s, e0, e1, e2, n):
     """x <- x + K e with the gain at S.work_gain."""
     K = S.work_gain
     for i in range(n):
@@ -266,18 +234,10 @@ def _correct_state_n(s, e0, e1, e2, n):
 
 
 @jit
-def _joseph_update_n(s, e0, e1, e2, gate, n):
-    """reference ``_update`` for a 3-vector measurement, given B = P H^T (n x 3) at S.work_pht
-    and the innovation covariance H P H^T + R (3x3) at S.work_s. Returns the NIS; the state is
-    untouched when NIS > gate.
-
-    With the optimal gain K = B S^-1 (K S = B), the Joseph form
-    (I - KH) P (I - KH)^T + K R K^T = P - K B^T - B K^T + K S K^T equals P - K B^T exactly;
-    that (symmetric: upper triangle, mirrored) is what is evaluated."""
-    nis = _gain_n(s, e0, e1, e2, gate, n)
-    if nis > gate:
-        return nis
-    _correct_state_n(s, e0, e1, e2, n)
+def joseph_optimal_gain(s, n):
+    """P <- (I - KH) P (I - KH)^T + K R K^T for the optimal gain K = B S^-1 at S.work_gain (K S
+    = B), given B = P H^T at S.work_pht: the Joseph form P - K B^T - B K^T + K S K^T equals
+    P - K B^T exactly; that (symmetric: upper triangle, mirrored) is what is evaluated."""
     B = S.work_pht
     K = S.work_gain
     for i in range(n):
@@ -289,44 +249,14 @@ def _joseph_update_n(s, e0, e1, e2, gate, n):
                                       + k2 * s[B + 3 * j + 2])
             s[S.P + 7 * i + j] = v
             s[S.P + 7 * j + i] = v
-    _normalise(s)
-    return nis
 
 
 @jit
-def _joseph_update(s, e0, e1, e2, gate):
-    # n = 4 or 7 as a compile-time constant: fixed loops are unrolled.
-    if int(s[S.n]) == 7:
-        return _joseph_update_n(s, e0, e1, e2, gate, 7)
-    return _joseph_update_n(s, e0, e1, e2, gate, 4)
-
-
-@jit
-def _tilt_only_update_n(s, e0, e1, e2, gate, n):
-    """reference ``_update`` with ``keep = _tilt_only(q)``: the gain K = B S^-1 (``_gain_n``)
-    without its component along a turn about world up in q (u, the direction of
-    (0,0,0,1) ⊗ q) and along up in the bias (v, the third row of Q(q)); for a gain that is not
-    the optimal one the Joseph form is P - K B^T - B K^T + K S K^T."""
-    nis = _gain_n(s, e0, e1, e2, gate, n)
-    if nis > gate:
-        return nis
-    q0, q1, q2, q3 = s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3]
-    u = (-q3, -q2, q1, q0)
-    inv_uu = 1.0 / (q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
-    v = (2 * (q1 * q3 - q0 * q2), 2 * (q2 * q3 + q0 * q1), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3)
-    inv_vv = 1.0 / (v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+def joseph_any_gain(s, n):
+    """P <- P - K B^T - B K^T + K S K^T, the Joseph form for any gain K at S.work_gain (the
+    projected tilt-only gain), given B = P H^T at S.work_pht and S = H P H^T + R at S.work_s."""
     B = S.work_pht
     K = S.work_gain
-    for r in range(3):
-        uk = (u[0] * s[K + r] + u[1] * s[K + 3 + r] + u[2] * s[K + 6 + r]
-              + u[3] * s[K + 9 + r]) * inv_uu
-        for i in range(4):
-            s[K + 3 * i + r] -= uk * u[i]
-        if n == 7:
-            vk = (v[0] * s[K + 12 + r] + v[1] * s[K + 15 + r] + v[2] * s[K + 18 + r]) * inv_vv
-            for i in range(3):
-                s[K + 3 * (4 + i) + r] -= vk * v[i]
-    _correct_state_n(s, e0, e1, e2, n)
     W = S.work_s
     for i in range(n):
         # (K S)[i, :]
@@ -344,57 +274,48 @@ def _tilt_only_update_n(s, e0, e1, e2, gate, n):
                     + ks0 * kj0 + ks1 * kj1 + ks2 * kj2)
             s[S.P + 7 * i + j] = v_ij
             s[S.P + 7 * j + i] = v_ij
-    _normalise(s)
-    return nis
+
+
+# ---- the hard-iron fit's normal matrix ---------------------------------------------------------
+@jit
+def inverse_plus(s, d):
+    """(M + d I)^-1 of the fit's normal matrix M by the adjugate: its upper triangle c00, c01,
+    c02, c11, c12, c22 (to be multiplied by) 1 / det."""
+    M = S.mag_offset_info
+    a00 = s[M] + d
+    a01 = s[M + 1]
+    a02 = s[M + 2]
+    a11 = s[M + 4] + d
+    a12 = s[M + 5]
+    a22 = s[M + 8] + d
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    c11 = a00 * a22 - a02 * a02
+    c12 = a01 * a02 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    return c00, c01, c02, c11, c12, c22, 1.0 / (a00 * c00 + a01 * c01 + a02 * c02)
 
 
 @jit
-def _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, n, scale, tilt_only):
-    """Update with a measurement whose H (3 x n) is non-zero only in the q columns:
-    h = the 3x4 block (row-major 12-tuple), cov = offset of R in the settings, R x scale;
-    tilt_only: the gain without what gravity cannot observe (``_tilt_only_update_n``)."""
-    B = S.work_pht
-    P = S.P
-    for i in range(n):
-        p0 = s[P + 7 * i]
-        p1 = s[P + 7 * i + 1]
-        p2 = s[P + 7 * i + 2]
-        p3 = s[P + 7 * i + 3]
-        for r in range(3):
-            s[B + 3 * i + r] = (p0 * h[4 * r] + p1 * h[4 * r + 1] + p2 * h[4 * r + 2]
-                                + p3 * h[4 * r + 3])
-    for r in range(3):
-        for col in range(3):
-            s[S.work_s + 3 * r + col] = (h[4 * r] * s[B + col] + h[4 * r + 1] * s[B + 3 + col]
-                                         + h[4 * r + 2] * s[B + 6 + col]
-                                         + h[4 * r + 3] * s[B + 9 + col]) \
-                + c[cov + 3 * r + col] * scale
-    if tilt_only:
-        return _tilt_only_update_n(s, e0, e1, e2, gate, n)
-    return _joseph_update(s, e0, e1, e2, gate)
-
-
-@jit
-def _measurement_update_q(s, c, h, e0, e1, e2, cov, gate, scale=1.0, tilt_only=False):
-    # n = 4 or 7 as a compile-time constant: fixed loops are unrolled.
-    if int(s[S.n]) == 7:
-        return _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, 7, scale, tilt_only)
-    return _measurement_update_q_n(s, c, h, e0, e1, e2, cov, gate, 4, scale, tilt_only)
-
-
-@jit
-def _zero_rate_update(s, c, w0, w1, w2):
-    """reference ``_zero_rate_update``: H = [0 I], R = I std^2, innovation omega - b."""
-    B = S.work_pht
-    P = S.P
-    for i in range(7):
-        for r in range(3):
-            s[B + 3 * i + r] = s[P + 7 * i + 4 + r]
-    var = c[C.rest_rate_noise_std] ** 2
-    for r in range(3):
-        for col in range(3):
-            s[S.work_s + 3 * r + col] = s[P + 7 * (4 + r) + 4 + col] + (var if r == col else 0.0)
-    _joseph_update(s, w0 - s[S.x + 4], w1 - s[S.x + 5], w2 - s[S.x + 6], _INF)
+def known_everywhere(s):
+    """The normal matrix's smallest eigenvalue >= ACQUIRED_INFO: M - ACQUIRED_INFO I positive
+    semi-definite, i.e. every principal minor of it >= 0."""
+    M = S.mag_offset_info
+    a00 = s[M] - ACQUIRED_INFO
+    a01 = s[M + 1]
+    a02 = s[M + 2]
+    a11 = s[M + 4] - ACQUIRED_INFO
+    a12 = s[M + 5]
+    a22 = s[M + 8] - ACQUIRED_INFO
+    if a00 < 0.0 or a11 < 0.0 or a22 < 0.0:
+        return False
+    m01 = a00 * a11 - a01 * a01
+    m02 = a00 * a22 - a02 * a02
+    m12 = a11 * a22 - a12 * a12
+    if m01 < 0.0 or m02 < 0.0 or m12 < 0.0:
+        return False
+    return a00 * m12 - a01 * (a01 * a22 - a12 * a02) + a02 * (a01 * a12 - a11 * a02) >= 0.0
 
 
 @jit
@@ -402,4 +323,4 @@ def _compiled_cache_key():
     return CACHE_KEY
 
 
-check_cache(_compiled_cache_key, globals())
+check_cache(_compiled_cache_key, globals(), CACHE_KEY)

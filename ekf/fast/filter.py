@@ -1,7 +1,8 @@
 """The compiled EKF's Python face: :class:`FastEKF` keeps the packed state and settings arrays
-(``ekf.fast.layout``) and calls the one compiled dispatch ``_step`` per row, or the compiled
-batch loop. ``reset``, ``set_enabled``, ``set_settings`` and ``align_heading`` are not
-per-sample: they run in Python on the packed array, line by line as in the reference.
+(``ekf.fast.layout``) and calls the one compiled dispatch ``kernels.step`` per row, or the
+compiled batch loop over it (:func:`batch_loop`; :func:`batch_loop_recording` for the smoother).
+``reset``, ``set_enabled``, ``set_settings`` and ``align_heading`` are not per-sample: they run
+in Python on the packed array, line by line as in the reference.
 """
 
 from __future__ import annotations
@@ -14,10 +15,11 @@ from numpy.typing import ArrayLike
 
 import ekf.quaternion as quat
 from ekf.estimator import SENSORS, BatchResult, EstimatorBase, batch_rows, ekf_name
-from ekf.fast.layout import S, pack_settings, pack_state, unpack_record, unpack_state
-from ekf.fast.field import _reference_dip_deg
-from ekf.fast.steps import ACC, GYR, MAG, _run_batch, _step
-from ekf.outputs import Diagnostics, Flags
+from ekf.fast.algebra import field_dip_deg
+from ekf.fast.jit import CACHE_KEY, check_cache, jit
+from ekf.fast.kernels import ACC, GYR, MAG, step
+from ekf.fast.layout import C, S, pack_settings, pack_state, unpack_record, unpack_state
+from ekf.diagnostics import Diagnostics, Flags
 from ekf.settings import EKFSettings
 from ekf.state import EKFState, check_state
 
@@ -155,24 +157,24 @@ class FastEKF(EstimatorBase):
             # Turning our world turns the Earth field in it by the same angle.
             s[S.m0:S.m0 + 3] = quat.rotate(quat.from_axis_angle([0, 0, 1], delta),
                                            s[S.m0:S.m0 + 3].copy())
-            s[S.mag_reference_dip_deg] = _reference_dip_deg(s)
+            s[S.mag_reference_dip_deg] = field_dip_deg(s[S.m0], s[S.m0 + 1], s[S.m0 + 2])
 
     # ---------------------------------------------------------------------------------------
-    # sample entry points: all through the one compiled dispatch _step
+    # sample entry points: all through the one compiled dispatch kernels.step
     def update_gyr(self, t: float, gyr: ArrayLike) -> None:
         """A gyroscope sample [rad/s, sensor frame] at time t [s]."""
         v0, v1, v2 = _as3(gyr)
-        _step(self._packed, self._cfg, float(t), GYR, v0, v1, v2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        step(self._packed, self._cfg, float(t), GYR, v0, v1, v2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
     def update_acc(self, t: float, acc: ArrayLike) -> None:
         """An accelerometer sample [m/s^2, sensor frame] at time t [s]."""
         v0, v1, v2 = _as3(acc)
-        _step(self._packed, self._cfg, float(t), ACC, 0.0, 0.0, 0.0, v0, v1, v2, 0.0, 0.0, 0.0)
+        step(self._packed, self._cfg, float(t), ACC, 0.0, 0.0, 0.0, v0, v1, v2, 0.0, 0.0, 0.0)
 
     def update_mag(self, t: float, mag: ArrayLike) -> None:
         """A magnetometer sample [uT, sensor frame] at time t [s]."""
         v0, v1, v2 = _as3(mag)
-        _step(self._packed, self._cfg, float(t), MAG, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, v0, v1, v2)
+        step(self._packed, self._cfg, float(t), MAG, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, v0, v1, v2)
 
     def step(self, t: float, gyr: ArrayLike | None = None, acc: ArrayLike | None = None,
              mag: ArrayLike | None = None) -> None:
@@ -188,7 +190,7 @@ class FastEKF(EstimatorBase):
         if mag is not None:
             present |= MAG
             m0, m1, m2 = _as3(mag)
-        _step(self._packed, self._cfg, float(t), present, g0, g1, g2, a0, a1, a2, m0, m1, m2)
+        step(self._packed, self._cfg, float(t), present, g0, g1, g2, a0, a1, a2, m0, m1, m2)
 
     def run_batch(self, t_s: ArrayLike, gyr: ArrayLike | None, acc: ArrayLike | None,
                   mag: ArrayLike | None) -> BatchResult:
@@ -203,9 +205,77 @@ class FastEKF(EstimatorBase):
         out_q = np.empty((n, 4))
         out_flags = np.zeros((n, 3), dtype=np.bool_)
         out_bias = np.empty((n, 3))
-        _run_batch(self._packed, self._cfg, t, g, a, m, out_q, out_flags, out_bias)
+        batch_loop(self._packed, self._cfg, t, g, a, m, out_q, out_flags, out_bias)
         return BatchResult(t, out_q, out_flags[:, 0].copy(), out_flags[:, 1].copy(),
                            out_flags[:, 2].copy(), gyro_bias=out_bias)
+
+
+@jit
+def batch_loop(s, c, t, gyr, acc, mag, out_q, out_flags, out_bias):
+    """All rows through step in one loop (a row with any NaN in a sensor's columns has no such
+    sample). out_flags columns: acc_rejected, mag_rejected, at_rest."""
+    for k in range(t.shape[0]):
+        g0 = gyr[k, 0]
+        g1 = gyr[k, 1]
+        g2 = gyr[k, 2]
+        a0 = acc[k, 0]
+        a1 = acc[k, 1]
+        a2 = acc[k, 2]
+        m0 = mag[k, 0]
+        m1 = mag[k, 1]
+        m2 = mag[k, 2]
+        present = 0
+        if not (math.isnan(g0) or math.isnan(g1) or math.isnan(g2)):
+            present |= GYR
+        if not (math.isnan(a0) or math.isnan(a1) or math.isnan(a2)):
+            present |= ACC
+        if not (math.isnan(m0) or math.isnan(m1) or math.isnan(m2)):
+            present |= MAG
+        step(s, c, t[k], present, g0, g1, g2, a0, a1, a2, m0, m1, m2)
+        for i in range(4):
+            out_q[k, i] = s[S.x + i]
+        out_flags[k, 0] = s[S.acc_rejected] != 0.0
+        out_flags[k, 1] = s[S.mag_rejected] != 0.0
+        out_flags[k, 2] = s[S.at_rest] != 0.0
+        if int(s[S.n]) == 7:
+            for i in range(3):
+                out_bias[k, i] = s[S.x + 4 + i]
+        else:
+            for i in range(3):
+                out_bias[k, i] = c[C.gyr_bias + i]
+
+
+@jit
+def batch_loop_recording(s, c, t, gyr, acc, mag, out_q, out_flags, out_x, out_P, out_xp, out_Pp,
+                      out_omega, out_T):
+    """batch_loop for the smoother (c[C.record_prediction] = 1): per row also x and P after
+    the row, x and P after the row's time update (before its measurements), the gyroscope
+    sample that drove it and its T (-1: the row had no time update)."""
+    for k in range(t.shape[0]):
+        s[S.work_pred_T] = -1.0
+        present = 0
+        if not (math.isnan(gyr[k, 0]) or math.isnan(gyr[k, 1]) or math.isnan(gyr[k, 2])):
+            present |= GYR
+        if not (math.isnan(acc[k, 0]) or math.isnan(acc[k, 1]) or math.isnan(acc[k, 2])):
+            present |= ACC
+        if not (math.isnan(mag[k, 0]) or math.isnan(mag[k, 1]) or math.isnan(mag[k, 2])):
+            present |= MAG
+        step(s, c, t[k], present, gyr[k, 0], gyr[k, 1], gyr[k, 2], acc[k, 0], acc[k, 1],
+              acc[k, 2], mag[k, 0], mag[k, 1], mag[k, 2])
+        for i in range(4):
+            out_q[k, i] = s[S.x + i]
+        out_flags[k, 0] = s[S.acc_rejected] != 0.0
+        out_flags[k, 1] = s[S.mag_rejected] != 0.0
+        out_flags[k, 2] = s[S.at_rest] != 0.0
+        for i in range(7):
+            out_x[k, i] = s[S.x + i]
+            out_xp[k, i] = s[S.work_pred_x + i]
+            for j in range(7):
+                out_P[k, i, j] = s[S.P + 7 * i + j]
+                out_Pp[k, i, j] = s[S.work_pred_P + 7 * i + j]
+        for i in range(3):
+            out_omega[k, i] = s[S.work_pred_omega + i]
+        out_T[k] = s[S.work_pred_T]
 
 
 def warm_up() -> None:
@@ -221,3 +291,11 @@ def warm_up() -> None:
         est.update_gyr(0.05, gyr[0])
         est.step(0.06)
         est.align_heading(quat.IDENTITY)
+
+
+@jit
+def _compiled_cache_key():
+    return CACHE_KEY
+
+
+check_cache(_compiled_cache_key, globals(), CACHE_KEY)

@@ -2,7 +2,7 @@
 
 * ``S``: offsets into the float64 state array. One slot range per :class:`ekf.state.EKFState`
   field in declaration order (x: 7, P: 7x7 row-major, numbers: 1, booleans as 0.0/1.0), the
-  :class:`~ekf.outputs.Flags` and :class:`~ekf.outputs.Diagnostics` fields by their own names,
+  :class:`~ekf.diagnostics.Flags` and :class:`~ekf.diagnostics.Diagnostics` fields by their own names,
   then the kernels' scratch (:data:`WORK`, not state: never packed or unpacked).
 * ``C``: offsets into the float64 settings array: every numeric :class:`ekf.settings.EKFSettings`
   field (vectors 3, matrices 3x3 row-major, booleans 0.0/1.0, m0 None as NaN), then the derived

@@ -14,7 +14,7 @@ from hypothesis import given, settings as hsettings, strategies as st
 
 from ekf.fast import layout
 from ekf.fast.layout import C, S, pack_settings, pack_state, unpack_state
-from ekf.outputs import Diagnostics, Flags, output_rows
+from ekf.diagnostics import Diagnostics, Flags, output_rows
 from ekf.settings import PRESETS, EKFSettings, format_value, settings_rows
 from ekf.state import EKFState, check_state, state_dict
 

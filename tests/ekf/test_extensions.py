@@ -14,7 +14,7 @@ import pytest
 
 import ekf
 from ekf import quaternion as Q
-from ekf.outputs import ACC_NORM_GATE, MAG_UNCALIBRATED
+from ekf.diagnostics import ACC_NORM_GATE, MAG_UNCALIBRATED
 from ekf.reference import OrientationEKF
 from ekf.settings import PRESETS
 from fixed_settings import FIXED

@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 from ekf import quaternion as quat
-from ekf.batch import BatchResult, filter_batch
+from ekf.estimators import BatchResult, filter_batch
 from ekf.estimators import make_estimator
 from ekf.fast import FastEKF, warm_up
-from ekf.outputs import Diagnostics, Flags
+from ekf.diagnostics import Diagnostics, Flags
 from ekf.reference import OrientationEKF
 from ekf.settings import PRESETS
 
@@ -386,14 +386,15 @@ def test_a_field_along_gravity_at_the_start_gives_no_nan(preset):
 
 
 def test_cache_guard_flushes_compilations_built_against_another_layout(monkeypatch):
-    """numba keys its disk cache on each function's own file; ekf.fast.check_cache flushes a
-    kernel module's cached compilations when they were built against other layouts or kernel
-    sources (ekf.fast._jit)."""
+    """numba keys its disk cache on each function's own file; ekf.fast.jit.check_cache flushes
+    a kernel module's cached compilations when they were built against other layouts or kernel
+    sources."""
     from numba import njit
 
-    from ekf.fast import _jit, algebra
+    from ekf.fast import algebra
+    from ekf.fast import jit as fast_jit
 
-    key = _jit.CACHE_KEY
+    key = fast_jit.CACHE_KEY
 
     @njit
     def current_key():
@@ -416,45 +417,105 @@ def test_cache_guard_flushes_compilations_built_against_another_layout(monkeypat
 
     own, other = Recorder(), Recorder()
     monkeypatch.setattr(kernel, "_cache", own)
-    monkeypatch.setattr(algebra._normalise, "_cache", other)
-    module = {"__name__": __name__, "kernel": kernel, "imported": algebra._normalise}
-    _jit.check_cache(current_key, module)
+    monkeypatch.setattr(algebra.quat_normalize, "_cache", other)
+    module = {"__name__": __name__, "kernel": kernel, "imported": algebra.quat_normalize}
+    fast_jit.check_cache(current_key, module, key)
     assert own.flushed == 0
-    _jit.check_cache(stale_key, module)
+    fast_jit.check_cache(stale_key, module, key)
     assert own.flushed == 1 and other.flushed == 0   # only the module's own functions
 
 
-def test_the_mapping_table_names_functions_that_exist():
-    """ekf.fast's docstring maps each compiled function to the reference method it mirrors."""
-    import importlib
-    import re
+def _defined_in_order(tree, skip):
+    """The names of the functions a module or class body defines, in source order."""
+    import ast
 
-    import ekf.fast
-    import ekf.estimator
+    return [node.name for node in tree.body
+            if isinstance(node, ast.FunctionDef) and not skip(node)]
 
-    doc = ekf.fast.__doc__
-    lines = doc.splitlines()
-    rules = [i for i, line in enumerate(lines) if line.startswith("=====")]
-    rows = [line for line in lines[rules[1] + 1:rules[2]] if line.strip()]
-    assert len(rows) > 20
-    module = None
-    for line in rows:
-        left, right = line[:44], line[44:]
-        for token in re.findall(r"``([^`]+)``", left):
-            if "." in token:
-                module, token = token.split(".", 1)
-            names = token.split("/")
-            names = [names[0]] + [names[0][:names[0].rindex("_")] + part for part in names[1:]]
-            for name in names:
-                assert hasattr(importlib.import_module(f"ekf.fast.{module}"), name), (module, name)
-        for token in re.findall(r"``([^`]+)``", right):
-            if token.startswith("ekf."):
-                mod, _, name = token.rpartition(".")
-                assert hasattr(importlib.import_module(mod), name), token
-            elif token.startswith("EstimatorBase."):
-                assert hasattr(ekf.estimator.EstimatorBase, token.split(".")[1]), token
-            else:
-                assert hasattr(OrientationEKF, token), token
+
+def _reference_names():
+    """ekf.reference's module functions, then OrientationEKF's methods that a sample runs
+    through (its properties, __init__ and the control methods FastEKF runs in Python left
+    out), in source order."""
+    import ast
+    import inspect
+
+    import ekf.reference
+
+    tree = ast.parse(inspect.getsource(ekf.reference))
+    cls = next(node for node in tree.body
+               if isinstance(node, ast.ClassDef) and node.name == "OrientationEKF")
+
+    def plumbing(node):
+        decorators = {ast.unparse(d) for d in node.decorator_list}
+        return (node.name.startswith("__") or node.name in CONTROL
+                or "property" in decorators or any(d.endswith(".setter") for d in decorators))
+
+    return (_defined_in_order(tree, lambda node: False)
+            + _defined_in_order(cls, plumbing))
+
+
+CONTROL = ("set_enabled", "set_settings", "align_heading")
+"""OrientationEKF's methods that are not per-sample: FastEKF runs them in Python."""
+
+
+def test_the_compiled_kernels_are_the_reference_function_for_function():
+    """ekf.fast.kernels defines the reference's functions under the same names in the same
+    order (an `X_n` is X's n-specialised body and follows X); each is compiled; nothing else
+    is defined there but the cache-guard key."""
+    import ast
+    import inspect
+
+    from numba.core.dispatcher import Dispatcher
+
+    from ekf.fast import kernels
+
+    tree = ast.parse(inspect.getsource(kernels))
+    compiled = _defined_in_order(tree, lambda node: node.name == "_compiled_cache_key")
+    bodies = [name for name in compiled if name.endswith("_n")]
+    for body in bodies:
+        assert compiled[compiled.index(body) - 1] == body[:-2], body
+    twins = [name for name in compiled if name not in bodies]
+    reference = _reference_names()
+    assert len(reference) > 50
+    assert twins == reference
+    for name in compiled:
+        assert isinstance(getattr(kernels, name), Dispatcher), name
+
+
+def test_the_compiled_filter_has_the_reference_control_methods():
+    """The methods FastEKF runs in Python are the reference's, in the same order."""
+    import ast
+    import inspect
+
+    from ekf.fast.filter import FastEKF
+
+    def methods(cls):
+        tree = ast.parse(inspect.getsource(cls))
+        return [name for name in _defined_in_order(tree.body[0], lambda node: False)
+                if name in CONTROL]
+
+    assert methods(FastEKF) == methods(OrientationEKF) == list(CONTROL)
+
+
+def test_no_module_of_ekf_imports_a_private_name_of_another():
+    """Shared pieces are public in the module that owns them (the settings' declarations are
+    being folded into one module apart from this check)."""
+    import ast
+    from pathlib import Path
+
+    import ekf
+
+    root = Path(ekf.__file__).parent
+    offenders = []
+    for path in sorted(root.rglob("*.py")):
+        if path.name.startswith("settings"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                offenders += [f"{path.relative_to(root)}: {node.module}.{alias.name}"
+                              for alias in node.names if alias.name.startswith("_")]
+    assert offenders == []
 
 
 def test_a_silent_magnetometer_matches_reference():

@@ -17,7 +17,7 @@ import ekf
 from ekf import Estimator, make_estimator
 from ekf.estimator import BatchResult
 from ekf.fast import FastEKF, warm_up
-from ekf.outputs import (ACC_NIS_GATE, ACC_NORM_GATE, MAG_DIP_GATE, MAG_NIS_GATE, MAG_SETTLING,
+from ekf.diagnostics import (ACC_NIS_GATE, ACC_NORM_GATE, MAG_DIP_GATE, MAG_NIS_GATE, MAG_SETTLING,
                          MAG_STRENGTH_GATE, NOT_REJECTED, Diagnostics, Flags)
 from ekf.reference import OrientationEKF
 from ekf.settings import PRESETS
@@ -112,7 +112,7 @@ def test_run_batch_is_the_step_loop(item, rows):
 
 
 def test_filter_batch_is_run_batch_and_batch_result_has_one_home():
-    assert ekf.batch.BatchResult is BatchResult is ekf.BatchResult
+    assert ekf.estimators.BatchResult is BatchResult is ekf.BatchResult
     t = np.arange(0.0, 1.0, 0.01)
     gyr = np.tile([0.0, 0.0, 0.1], (t.size, 1))
     acc = np.tile(G0, (t.size, 1))

@@ -303,7 +303,7 @@ def test_on_a_clean_recording_the_smoother_is_no_worse_than_forward(seed):
 def test_fuse_information_is_the_combination_of_two_gaussian_estimates():
     """Information form against the covariance form of the same combination:
     x = P_b (P_f + P_b)^-1 x_f + P_f (P_f + P_b)^-1 x_b,  P = P_f (P_f + P_b)^-1 P_b."""
-    from ekf.gaussian import fuse_information
+    from ekf.smoother import fuse_information
 
     rng = np.random.default_rng(4)
     for _ in range(20):
@@ -326,7 +326,7 @@ def test_the_consistency_statistic_is_chi_square_with_three_degrees_of_freedom()
     """Two independent Gaussian estimates of one truth: their attitude difference tested
     against the sum of their attitude covariances exceeds the 99 % point about 1 % of the
     time, and the gate's value is that point."""
-    from ekf.gaussian import consistency
+    from ekf.smoother import consistency
     from ekf.smoother import CHI2_99
 
     rng = np.random.default_rng(7)

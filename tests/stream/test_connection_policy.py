@@ -21,8 +21,8 @@ from hypothesis import strategies as st
 from waiting import wait_until as _wait
 
 from app.engine.commands import AcceptConnection, IgnoreConnection, SetAllowedNetworks
-from app.engine.offline import filter_log
-from app.engine.worker import Engine
+from app.engine.offline.filtering import filter_log
+from app.engine.live.worker import Engine
 from app.stream.emulator import PhoneEmulator
 from app.stream.fastparse import count_good_lines
 from app.stream.logfile import read_log

@@ -6,7 +6,7 @@ import socket
 
 from waiting import wait_for_snapshot
 
-from app.engine.worker import Engine
+from app.engine.live.worker import Engine
 from app.stream.sources import DemoOrPhoneSource, TcpSource, demo_source
 
 

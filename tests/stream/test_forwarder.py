@@ -13,7 +13,7 @@ import pytest
 from waiting import wait_until
 
 from app.engine.config import ConfigError, forward_target
-from app.engine.worker import Engine
+from app.engine.live.worker import Engine
 from app.stream.emulator import PhoneEmulator
 from app.stream.forwarder import LineForwarder
 from app.stream.sources import TcpSource

@@ -15,8 +15,8 @@ from phone_logs import by_tag, log_samples, simulated_lines
 from test_forwarder import Receiver
 from waiting import wait_for_snapshot, wait_until
 
-from app.engine.offline import filter_log
-from app.engine.worker import Engine
+from app.engine.offline.filtering import filter_log
+from app.engine.live.worker import Engine
 from app.stream.forwarder import LineForwarder
 from app.stream.logfile import read_log
 from app.stream.phyphox import PhyphoxSource

@@ -19,8 +19,8 @@ import pytest
 
 from waiting import wait_until as _wait
 
-from app.engine.estimates import EstimatesWriter
-from app.engine.worker import Engine
+from app.engine.offline.filtering import EstimatesWriter
+from app.engine.live.worker import Engine
 from app.stream.emulator import PhoneEmulator
 from app.stream.recorder import Recorder, holds_session
 from app.stream.sources import TcpSource

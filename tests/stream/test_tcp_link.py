@@ -10,7 +10,7 @@ import pytest
 
 from waiting import wait_until as _wait
 
-from app.engine.worker import Engine
+from app.engine.live.worker import Engine
 from app.stream.emulator import PhoneEmulator, send_log
 from app.stream.sources import TcpSource
 from app.stream.events import Chunk, SourceEvent

@@ -12,7 +12,7 @@ import pytest
 
 from ui_helpers import make_snapshot
 
-from app.engine.runner import COMBINATIONS, combination_name
+from app.engine.processing.runner import COMBINATIONS, combination_name
 from app.engine.snapshot import Comparison
 
 NO_GYR = {"acc": 250, "mag": 125, "ori": 250}
@@ -130,7 +130,7 @@ def _write_log(path: Path, session, keep=lambda t_ms, tag: True) -> Path:
 def test_a_real_replay_without_a_gyroscope_says_so_everywhere(make_window, tmp_path, qtbot):
     from ekf.simulate import simulate
 
-    from app.engine.worker import Engine
+    from app.engine.live.worker import Engine
     from app.stream.sources import LogFileSource
     log = _write_log(tmp_path / "walk.txt", simulate(duration_s=6.0, seed=4,
                                                       rates_hz={"gyr": 0.0}))
@@ -160,7 +160,7 @@ def test_a_real_replay_without_a_gyroscope_says_so_everywhere(make_window, tmp_p
 def test_a_gyroscope_that_starts_late_ends_the_notes(make_window, tmp_path, qtbot):
     from ekf.simulate import simulate
 
-    from app.engine.worker import Engine
+    from app.engine.live.worker import Engine
     from app.stream.sources import LogFileSource
     session = simulate(duration_s=7.0, seed=5, t0_ms=1_000_000)
     log = _write_log(tmp_path / "late.txt", session,

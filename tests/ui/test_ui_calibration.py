@@ -10,7 +10,7 @@ import pytest
 import ekf
 from ekf.simulate import DEFAULT_NOISE_STD, simulate
 from app.engine.commands import SetSettings
-from app.engine.profiles import ProfileStore
+from app.engine.tuning.profiles import ProfileStore
 from app.engine.snapshot import PlotChunk, Snapshot
 from ekf.calibration import UNITS
 from app.stream.demo import write_session
@@ -282,7 +282,7 @@ def test_a_stretch_is_chosen_on_the_time_series_or_the_whole_taken(workspace, tm
     assert workspace.analyse_log(log, 1.0, 2.0)
     assert rest.result.analysis.duration_s == pytest.approx(1.0, abs=0.02)
     # the command line's path gives the same figures for the same stretch
-    from app.engine.calibration import rest_from_log
+    from app.engine.tuning.calibration import rest_from_log
     from app.engine.config import open_log
     cli = rest_from_log(open_log(log), 1.0, 2.0)
     np.testing.assert_array_equal(cli.analysis.result.gyr.cov, rest.result.analysis.result.gyr.cov)

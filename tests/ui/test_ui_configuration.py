@@ -9,7 +9,7 @@ from ui_helpers import make_snapshot
 
 import ekf
 from app.engine.commands import SetFollowTimeline
-from app.engine.configuration import Config, ConfigurationView, Setup, summary_line
+from app.engine.processing.configuration import Config, ConfigurationView, Setup, summary_line
 
 TUNED = dataclasses.replace(ekf.PRESETS["default"], acc_gate=0.7)
 

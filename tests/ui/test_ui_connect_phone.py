@@ -100,7 +100,7 @@ def test_the_panel_shows_what_to_type_and_how(qtbot):
 
 
 def test_the_window_switches_to_phyphox(qtbot, settings_file, fake_engine):
-    from app.engine.worker import Engine
+    from app.engine.live.worker import Engine
     from app.stream.phyphox import PhyphoxSource
     from app.ui.main_window import MainWindow
 

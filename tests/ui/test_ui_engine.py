@@ -24,7 +24,7 @@ def small_log(tmp_path: Path) -> Path:
 
 
 def test_window_on_a_real_engine_replay(make_window, small_log, qtbot):
-    from app.engine.worker import Engine
+    from app.engine.live.worker import Engine
     from app.stream.sources import LogFileSource
 
     engine = Engine(LogFileSource(small_log, speed=2.0, loop=True))
@@ -65,7 +65,7 @@ def test_window_on_a_real_engine_replay(make_window, small_log, qtbot):
 
 
 def test_a_replay_that_ends_offers_play_and_is_drawn_whole(make_window, small_log, qtbot):
-    from app.engine.worker import Engine
+    from app.engine.live.worker import Engine
     from app.stream.sources import LogFileSource
 
     engine = Engine(LogFileSource(small_log, speed=0.0), comparisons=False)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from PySide6 import QtCore, QtWidgets
 
-from app.engine.snapshot import EngineFailure
+from app.engine.errors import EngineFailure
 from ui_helpers import make_snapshot
 
 

@@ -11,7 +11,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 from app.engine.commands import (AcceptConnection, AlignHeading, IgnoreConnection, ReplayControl,
                                  ResetFilter, SetAllowedNetworks, SetComparisonsEnabled,
                                  SetEstimator, SetSensorEnabled)
-from ekf import outputs
+from ekf import diagnostics as outputs
 from app.engine.snapshot import Comparison, FilterStatus, StreamHealth
 from app.ui.connection import ConnectionPanel
 from app.ui.controls import ComparisonPanel, FilterPanel

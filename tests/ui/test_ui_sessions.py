@@ -11,8 +11,8 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.engine.commands import (AddMarker, ReplayControl, SetMarkerLabel, StartRecording,
                                  StopRecording)
-from app.engine.session import Marker
-from app.engine.session_index import SessionPlot
+from app.engine.sessions.session import Marker
+from app.engine.sessions.index import SessionPlot
 from app.ui.transport import TransportBar
 
 from ui_helpers import FakeEngine, make_chunk, make_snapshot
@@ -357,7 +357,7 @@ def test_a_session_is_labelled_and_named_by_its_label(window, fake_engine, tmp_p
     """Issue 51: sessions were named by their time stamp only."""
     import types
 
-    from app.engine.session import read_session, session_label
+    from app.engine.sessions.session import read_session, session_label
     old = _recorded_session(tmp_path / "2026-12-01_10-00-00")          # no label: loads
     assert session_label(old) == "" and read_session(old / "session.json")
     replayed = types.SimpleNamespace(path=str(old / "raw.txt"), kind="replay", name="raw.txt")

@@ -7,7 +7,7 @@ import pytest
 
 import ekf
 from app.engine.commands import SetSettings
-from app.engine.profiles import Profile, ProfileStore
+from app.engine.tuning.profiles import Profile, ProfileStore
 from app.ui.settings_panel import SettingsPanel, parse_value
 
 

@@ -9,8 +9,8 @@ from PySide6 import QtGui
 import ekf
 from ekf.simulate import simulate
 from app.engine.commands import SetSettings
-from app.engine.profiles import ProfileStore
-from app.engine.refilter import PreparedLog, Refilterer
+from app.engine.tuning.profiles import ProfileStore
+from app.engine.offline.refilter import PreparedLog, Refilterer
 from app.stream.demo import write_session
 from app.engine.config import open_log
 from app.ui.tuning import ABCompareView, TuningPanel

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.engine.worker import Engine
+from app.engine.live.worker import Engine
 from app.stream.sources import LogFileSource
 from app.ui.consistency import ConsistencyView
 from app.ui.phone_view import PhoneView

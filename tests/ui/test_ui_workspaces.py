@@ -259,7 +259,7 @@ def test_tune_loads_the_replayed_session_when_first_shown(qtbot, make_window, fa
 def test_tune_offers_the_smoother_against_the_forward_ghost(qtbot, make_window, fake_engine,
                                                             sim_log):
     from app.engine.config import open_log
-    from app.engine.offline import filter_log
+    from app.engine.offline.filtering import filter_log
     window = make_window(fake_engine)
     tune = window.tune
     assert tune.set_log(sim_log)

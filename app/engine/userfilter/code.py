@@ -3,7 +3,7 @@
 A user filter is one Python file defining ``class Filter`` with ``step(self, t, gyr, acc,
 mag)``. It is the user's own code and runs in its own process (app.engine.userfilter.child),
 with the user's rights; nothing here sandboxes it. This module, which runs in that process,
-turns everything that can go wrong with it into a :class:`~app.engine.user_problem.UserProblem`
+turns everything that can go wrong with it into a :class:`~app.engine.errors.UserProblem`
 (file, line, one-line message, the traceback of the user's frames) instead of an exception:
 
 * :func:`load_code` reads and executes the file (its SHA-256 is of exactly the bytes run);
@@ -32,7 +32,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from app.engine.user_problem import UserProblem
+from app.engine.errors import UserProblem
 from app.engine.userfilter.octave import is_matlab_filter
 from app.engine.userfilter.protocol import INNOVATION_SENSORS
 from app.engine.userfilter.watchdog import UserCodeTimeout, guard

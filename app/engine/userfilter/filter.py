@@ -43,7 +43,7 @@ import ekf.quaternion as quat
 from ekf import SENSORS
 from ekf.estimator import batch_rows
 from ekf.settings import EKFSettings, resolve_settings
-from app.engine.user_problem import UserProblem
+from app.engine.errors import UserProblem
 from app.engine.userfilter.code import UserFilterError, is_filter_file
 from app.engine.userfilter.octave_remote import load_filter_process
 from app.engine.userfilter.remote import BlockResult, RemoteFilter, filter_settings

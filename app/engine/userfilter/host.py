@@ -20,13 +20,13 @@ filter is resumed. What happens to the session so far:
   session recordings issue brings checkpoints) and the status says so.
 
 After a seek the same happens: the engine restores a checkpoint of its own estimators before the
-target (app.engine.replay), and your filter, which is not part of a checkpoint (it is your
+target (app.engine.sessions.replay), and your filter, which is not part of a checkpoint (it is your
 object), re-runs the log from the pass's start up to that checkpoint in the background, then the
 re-sync lines, so it is exactly where playing would have brought it and is never decimated by a
 seek. A new pass of a replay (a loop) starts your filter afresh, as it starts ours, with the
 pass's settings. A re-run applies the configuration over time as the engine does
-(:mod:`app.engine.configuration`): the sensors switched off at a sample reach your filter as
-None there, new settings restart it, resets reset it.
+(:mod:`app.engine.processing.configuration`): the sensors switched off at a sample reach your filter
+as None there, new settings restart it, resets reset it.
 
 What your filter prints is kept (the last PRINTED_SHOWN lines are in the status, for the dock)
 and logged to the ``orientation_lab.your_filter`` logger, at most LOG_LINES_PER_S lines a second.
@@ -44,10 +44,10 @@ from typing import Callable
 import numpy as np
 
 import ekf
-from app.engine.compare import ErrorSums
-from app.engine.configuration import Config, Setup
-from app.engine.pipeline import Pipeline
-from app.engine.runner import EstimatorRunner
+from app.engine.processing.compare import ErrorSums
+from app.engine.processing.configuration import Config, Setup
+from app.engine.processing.pipeline import Pipeline
+from app.engine.processing.runner import EstimatorRunner
 from app.engine.snapshot import Comparison, UserFilterStatus, UserHistory, UserProblem
 from app.engine.userfilter.code import UserFilterError
 from app.engine.userfilter.filter import UserFilterEstimator

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from app.engine.user_problem import UserProblem
+from app.engine.errors import UserProblem
 from app.engine.userfilter.code import (USER_ERRORS, BadOutput, FilterCode, Output,
                                         UserFilterError, instantiate, output_problem,
                                         parse_output, problem_from_exception)

@@ -8,8 +8,8 @@ PHONE's samples, a restart of your filter, the end of a stream. The queue is wor
 to the first rows whose results have not come back, so YOURS' rows, its errors against PHONE (at
 PHONE's times, as OWN's) and its restarts happen in the order the engine saw them, only later.
 Rows are sent with which sensors each row gives your filter (``given``: a sample there; the
-runner hands the rows with the sensors switched off in OWN left out, app.engine.runner), so a
-switch takes effect at exactly its row, wherever it comes from (the configuration over time).
+runner hands the rows with the sensors switched off in OWN left out, app.engine.processing.runner),
+so a switch takes effect at exactly its row, wherever it comes from (the configuration over time).
 
 Never holding up the engine: with ``realtime`` (the live engine) at most LAG_BUDGET_S of your
 filter's work (its process's time per row times the rows) is handed over and not yet answered;
@@ -34,7 +34,7 @@ from typing import Callable
 
 import numpy as np
 
-from app.engine.compare import ErrorRows, ErrorSums, SameInstant
+from app.engine.processing.compare import ErrorRows, ErrorSums, SameInstant
 from app.engine.userfilter.remote import BlockResult, RemoteFilter
 
 LAG_BUDGET_S = 0.1          # of your filter's work handed over and not answered yet (live)

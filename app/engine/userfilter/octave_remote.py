@@ -32,7 +32,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ekf.settings import EKFSettings
-from app.engine.user_problem import UserProblem
+from app.engine.errors import UserProblem
 from app.engine.userfilter.code import UserFilterError
 from app.engine.userfilter.octave import (MatlabFolder, OctaveNotFound, find_octave,
                                           is_matlab_filter, octave_command, private_copy)

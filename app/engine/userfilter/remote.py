@@ -35,7 +35,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ekf.settings import EKFSettings
-from app.engine.user_problem import UserProblem
+from app.engine.errors import UserProblem
 from app.engine.userfilter import code as user_code
 from app.engine.userfilter.code import MAX_MESSAGE, UserFilterError
 from app.engine.userfilter.process import FilterProcess, python_command
