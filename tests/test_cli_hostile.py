@@ -244,7 +244,7 @@ def test_evaluate_skip_gives_finite_figures_or_one_line(skip, files, capsys):
 def test_measured_values_the_filter_refuses_are_one_line(files, tmp_path, capsys, monkeypatch):
     """Was: a SettingsError traceback when the measured values made no valid settings."""
     from ekf.calibration import CalibrationResult
-    from ekf.settings_fields import SettingsError
+    from ekf.settings import SettingsError
 
     def refused(self, base=None, replace_noise=None):
         raise SettingsError("setting m0 = (0, 0, -48): must have a horizontal part")

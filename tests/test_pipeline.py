@@ -11,7 +11,7 @@ import pytest
 import ekf
 from app.stream.logfile import read_log
 from app.stream.protocol import Sample
-from app.stream.tags import FILTER_TAGS, WIDTHS
+from app.stream.protocol import FILTER_TAGS, WIDTHS
 from app.engine.offline.filtering import run_offline
 from app.engine.processing.compare import SameInstant
 from app.engine.processing.runner import COMBINATIONS, EstimatorRunner

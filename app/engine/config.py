@@ -31,10 +31,10 @@ from app.stream.lines import LogError, log_chunks
 from app.stream.logfile import LogData, LogFile, read_log
 from app.stream.protocol import DEFAULT_LIMITS, Limits
 from app.stream.phyphox import PhyphoxSource
-from app.stream.phyphox_api import parse_address as _phyphox_address
+from app.stream.phyphox import parse_address as _phyphox_address
 from app.stream.sensor_logger import DEFAULT_PORT as SENSOR_LOGGER_PORT
+from app.stream.sensor_logger import FRAMES as SENSOR_LOGGER_FRAMES
 from app.stream.sensor_logger import SensorLoggerSource
-from app.stream.sensor_logger_convert import FRAMES as SENSOR_LOGGER_FRAMES
 from app.stream.sources import DemoOrPhoneSource, LogFileSource, Source, TcpSource, demo_source
 from app.stream.tcp_server import DEFAULT_PORT, parse_networks
 

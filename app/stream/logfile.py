@@ -19,13 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from app.stream.fastparse import TAG_WIDTHS, FastLineParser, samples_to_arrays
+from app.stream.fastparse import FastLineParser, samples_to_arrays
 from app.stream.lines import CHUNK_BYTES, LogError, log_chunks
-from app.stream.ordering import OrderedArrays, OrderStats, TimeOrderer
-from app.stream.protocol import (DEFAULT_LIMITS, FILTER_TAGS, Limits, ParseStats, Sample,
-                                 reasons_text)
-from app.stream.repeats import Last, repeats
-from app.stream.tags import MAX_WIDTH
+from app.stream.ordering import Last, OrderedArrays, OrderStats, TimeOrderer, repeats
+from app.stream.protocol import (DEFAULT_LIMITS, FILTER_TAGS, MAX_WIDTH, WIDTHS, Limits,
+                                 ParseStats, Sample, reasons_text)
 
 
 @dataclass
@@ -159,7 +157,7 @@ class LogData:
         if self._arrays is None:
             t_ms = np.unique(self.t_ms)
             columns = {}
-            for code, (tag, width) in enumerate(zip(FILTER_TAGS, TAG_WIDTHS)):
+            for code, (tag, width) in enumerate(zip(FILTER_TAGS, WIDTHS)):
                 column = np.full((len(t_ms), width), np.nan)
                 chosen = self.tag == code
                 # fancy assignment: the last of duplicate rows wins

@@ -1,6 +1,8 @@
-"""The settings panel: every filter setting with its value, unit, default and course value, and
-below the table what the chosen one means, all taken from the declarations
-(``ekf.settings_rows()``, no second copy), editable live.
+"""The settings panel: every filter setting with its value, unit, default and course value, under
+the title of its group, and below the table what the chosen one means, all taken from the
+declarations (``ekf.settings.grouped_rows()``, no second copy), editable live. A setting that
+has no effect in the settings shown (its group's switch is off, or the setting it requires) is
+greyed out, and says why.
 
 A change is parsed and checked (``EKFSettings.from_dict``, the rules of `--settings` files) and
 sent as ``SetSettings`` (the engine applies it at the next batch and records it in the session
@@ -20,10 +22,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from PySide6 import QtCore, QtWidgets
+from PySide6 import QtCore, QtGui, QtWidgets
 
 import ekf
-from ekf.settings import format_value
+from ekf.settings import Group, SettingRow, format_value, grouped_rows, inactive_reason, switch_text
 from app.engine import config
 from app.engine.commands import SetSettings
 from app.engine.offline.outputs import check_output, write_output
@@ -93,9 +95,12 @@ class SettingsPanel(QtWidgets.QWidget):
         self._send = send
         self.store = store or ProfileStore()
         self.settings = settings if settings is not None else ekf.PRESETS["default"]
-        self.rows = ekf.settings_rows()
+        # the table's rows: each group's title, then its settings
+        self.lines: list[Group | SettingRow] = [
+            line for group, rows in grouped_rows() for line in (group, *rows)]
+        self.rows = [line for line in self.lines if isinstance(line, SettingRow)]
         self._filling = False
-        self.table = QtWidgets.QTableWidget(len(self.rows), len(COLUMNS))
+        self.table = QtWidgets.QTableWidget(len(self.lines), len(COLUMNS))
         self.table.setHorizontalHeaderLabels([c.capitalize() for c in COLUMNS])
         self.table.verticalHeader().setVisible(False)
         self.table.setHorizontalScrollBarPolicy(QtCore.Qt.ScrollBarPolicy.ScrollBarAsNeeded)
@@ -155,28 +160,11 @@ class SettingsPanel(QtWidgets.QWidget):
     def _fill(self) -> None:
         self._filling = True
         try:
-            for r, row in enumerate(self.rows):
-                value = getattr(self.settings, row.name)
-                cells = (row.name, format_value(value), row.unit, format_value(row.default),
-                         format_value(row.course))
-                for c, text in enumerate(cells):
-                    item = self.table.item(r, c)
-                    new = item is None
-                    if new:
-                        item = QtWidgets.QTableWidgetItem()
-                    item.setText(text)
-                    shown = f"{COLUMNS[c]}: {text}\n" if c in (VALUE, 3, 4) else ""
-                    item.setToolTip(f"{shown}{row.name} [{row.unit}]: {row.doc} (allowed: "
-                                    f"{row.allowed})")
-                    flags = QtCore.Qt.ItemFlag.ItemIsEnabled | QtCore.Qt.ItemFlag.ItemIsSelectable
-                    if c == VALUE:
-                        flags |= QtCore.Qt.ItemFlag.ItemIsEditable
-                    item.setFlags(flags)
-                    font = item.font()
-                    font.setBold(c == VALUE and value != row.default)
-                    item.setFont(font)
-                    if new:      # an item the table owns already stays where it is
-                        self.table.setItem(r, c, item)
+            for r, line in enumerate(self.lines):
+                if isinstance(line, Group):
+                    self._fill_group(r, line)
+                else:
+                    self._fill_setting(r, line)
             self.table.resizeColumnsToContents()
             for column in (VALUE, 3, 4):
                 if self.table.columnWidth(column) > MAX_VALUE_COLUMN_PX:
@@ -185,11 +173,72 @@ class SettingsPanel(QtWidgets.QWidget):
             self._filling = False
         self.show_meaning(self.table.currentRow())
 
+    def _item(self, r: int, c: int) -> QtWidgets.QTableWidgetItem:
+        item = self.table.item(r, c)
+        if item is None:      # an item the table owns already stays where it is
+            item = QtWidgets.QTableWidgetItem()
+            self.table.setItem(r, c, item)
+        return item
+
+    def _fill_group(self, r: int, group: Group) -> None:
+        off = group.switch is not None and not group.switch.holds(self.settings)
+        item = self._item(r, 0)
+        item.setText(group.title + (" (off)" if off else ""))
+        item.setToolTip(self._group_text(group))
+        item.setFlags(QtCore.Qt.ItemFlag.ItemIsEnabled)
+        font = item.font()
+        font.setBold(True)
+        item.setFont(font)
+        if self.table.columnSpan(r, 0) != len(COLUMNS):
+            self.table.setSpan(r, 0, 1, len(COLUMNS))
+
+    def _fill_setting(self, r: int, row: SettingRow) -> None:
+        value = getattr(self.settings, row.name)
+        inactive = inactive_reason(self.settings, row.name)
+        cells = (row.name, format_value(value), row.unit, format_value(row.default),
+                 format_value(row.course))
+        for c, text in enumerate(cells):
+            item = self._item(r, c)
+            item.setText(text)
+            shown = f"{COLUMNS[c]}: {text}\n" if c in (VALUE, 3, 4) else ""
+            item.setToolTip(f"{shown}{self._setting_text(row)}")
+            flags = QtCore.Qt.ItemFlag.ItemIsEnabled | QtCore.Qt.ItemFlag.ItemIsSelectable
+            if c == VALUE:
+                flags |= QtCore.Qt.ItemFlag.ItemIsEditable
+            item.setFlags(flags)
+            font = item.font()
+            font.setBold(c == VALUE and value != row.default)
+            item.setFont(font)
+            item.setForeground(self.palette().color(
+                QtGui.QPalette.ColorGroup.Disabled if inactive else QtGui.QPalette.ColorGroup.Active,
+                QtGui.QPalette.ColorRole.Text))
+
+    def _setting_text(self, row: SettingRow) -> str:
+        """A setting's unit, meaning, typical value and what it allows, and why it has no
+        effect now when it has none (tooltips and the line below the table)."""
+        text = (f"{row.name} [{row.unit}]: {row.doc} (typical: {row.typical}; allowed: "
+                f"{row.allowed})")
+        if row.requires:
+            text += f"; needs {row.requires}"
+        inactive = inactive_reason(self.settings, row.name)
+        return text + (f". No effect now: it {inactive}." if inactive else "")
+
+    def _group_text(self, group: Group) -> str:
+        switch = switch_text(group).replace("`", "")
+        state = ""
+        if group.switch is not None:
+            state = "; on now" if group.switch.holds(self.settings) else "; off now"
+        return f"{group.title}: {group.doc.replace('`', '')}. Switch: {switch}{state}."
+
     def show_meaning(self, row: int) -> None:
-        """Below the table: what the setting of `row` means, its unit and allowed values (the
-        first setting's while none is chosen)."""
-        spec = self.rows[row if 0 <= row < len(self.rows) else 0]
-        text = f"<b>{spec.name}</b> [{spec.unit}]: {spec.doc} (allowed: {spec.allowed})"
+        """Below the table: what the setting (or group) of table row `row` means, its unit,
+        typical and allowed values (the first setting's while none is chosen)."""
+        line = self.lines[row] if 0 <= row < len(self.lines) else self.rows[0]
+        if isinstance(line, Group):
+            text = self._group_text(line)
+        else:
+            text = self._setting_text(line)
+            text = f"<b>{line.name}</b>" + text[len(line.name):]
         if self.meaning.text() != text:
             self.meaning.setText(text)
 
@@ -207,7 +256,9 @@ class SettingsPanel(QtWidgets.QWidget):
     # -- edits --------------------------------------------------------------------------------
 
     def row_of(self, name: str) -> int:
-        return [r.name for r in self.rows].index(name)
+        """The table row of setting `name`."""
+        return [line.name if isinstance(line, SettingRow) else None
+                for line in self.lines].index(name)
 
     def edit(self, name: str, text: str) -> bool:
         """Set one setting from text, as typing it in the cell does; True when it was sent."""
@@ -216,9 +267,10 @@ class SettingsPanel(QtWidgets.QWidget):
         return self.settings is not before
 
     def _on_item_changed(self, item: QtWidgets.QTableWidgetItem) -> None:
-        if self._filling or item.column() != VALUE:
+        line = self.lines[item.row()]
+        if self._filling or item.column() != VALUE or not isinstance(line, SettingRow):
             return
-        name = self.rows[item.row()].name
+        name = line.name
         try:
             value = parse_value(getattr(self.settings, name), item.text())
             data = self.settings.to_dict()

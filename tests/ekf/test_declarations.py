@@ -15,7 +15,8 @@ from hypothesis import given, settings as hsettings, strategies as st
 from ekf.fast import layout
 from ekf.fast.layout import C, S, pack_settings, pack_state, unpack_state
 from ekf.diagnostics import Diagnostics, Flags, output_rows
-from ekf.settings import PRESETS, EKFSettings, format_value, settings_rows
+from ekf.settings import (GROUPS, PRESETS, EKFSettings, format_value, grouped_rows,
+                          settings_rows, switch_text)
 from ekf.state import EKFState, check_state, state_dict
 
 FILTER_DOC = Path(__file__).resolve().parents[2] / "docs" / "filter.md"
@@ -157,14 +158,59 @@ def _cell(text: str) -> str:
     return str(text).replace("|", "\\|")
 
 
-def settings_table() -> str:
-    lines = ["| setting | default | course | unit | allowed | search range | meaning |",
-             "|---|---|---|---|---|---|---|"]
+SETTINGS_BEGIN = "<!-- the settings tables: generated from ekf/settings.py by tests/ekf/test_declarations.py -->"
+SETTINGS_END = "<!-- end of the settings tables -->"
+
+
+def settings_tables() -> str:
+    """The settings section of docs/filter.md: per group its title, switch and what it does,
+    then a table of its settings (`python tests/ekf/test_declarations.py` writes it)."""
+    out = [SETTINGS_BEGIN]
+    for group, rows in grouped_rows():
+        if group.switch is None:
+            state = ""
+        else:
+            on = {name: group.switch.holds(PRESETS[name]) for name in ("default", "course")}
+            state = (f"; {'on' if on['default'] else 'off'} in the default preset, "
+                     f"{'on' if on['course'] else 'off'} in the course preset")
+        out += ["", f"### {group.title}", "",
+                f"Group `{group.name}`: {group.doc}. Switch: {switch_text(group)}{state}.", "",
+                "| setting | default | course | typical | unit | allowed | search range | "
+                "meaning |", "|---|---|---|---|---|---|---|---|"]
+        for r in rows:
+            needs = f"*needs {r.requires}:* " if r.requires else ""
+            out.append(f"| `{r.name}` | {_cell(format_value(r.default))} | "
+                       f"{_cell(format_value(r.course))} | {_cell(r.typical)} | {_cell(r.unit)} "
+                       f"| {_cell(r.allowed)} | {_cell(r.search)} | {_cell(needs + r.doc)} |")
+    return "\n".join(out + ["", SETTINGS_END])
+
+
+def _settings_section(text: str) -> str:
+    begin, end = text.find(SETTINGS_BEGIN), text.find(SETTINGS_END)
+    assert 0 <= begin < end, "docs/filter.md has no generated settings tables"
+    return text[begin:end + len(SETTINGS_END)]
+
+
+def test_filter_doc_settings_tables_are_the_declarations():
+    expected = settings_tables()
+    assert _settings_section(FILTER_DOC.read_text(encoding="utf-8")) == expected, (
+        "docs/filter.md's settings tables differ from the declarations; write them with "
+        "`.venv/bin/python tests/ekf/test_declarations.py`")
+
+
+def test_every_setting_is_in_one_declared_group_and_every_group_has_settings():
+    grouped = grouped_rows()
+    assert [g.name for g, _ in grouped] == [g.name for g in GROUPS]
+    assert sorted(r.name for _, rows in grouped for r in rows) == sorted(
+        f.name for f in fields(EKFSettings))
+    assert all(rows for _, rows in grouped)
+    for group, rows in grouped:
+        if group.switch is not None:      # a group's switch is one of its own settings
+            assert group.switch.name in [r.name for r in rows], group.name
     for r in settings_rows():
-        lines.append(f"| `{r.name}` | {_cell(format_value(r.default))} | "
-                     f"{_cell(format_value(r.course))} | {_cell(r.unit)} | {_cell(r.allowed)} | "
-                     f"{_cell(r.search)} | {_cell(r.doc)} |")
-    return "\n".join(lines)
+        assert r.typical and "\n" not in r.typical, f"{r.name} needs a typical value"
+        assert "with `" not in r.doc and "with '" not in r.doc, (
+            f"{r.name}: a dependency belongs in its group's switch or its requires=")
 
 
 def outputs_table(cls: type) -> str:
@@ -184,10 +230,20 @@ def _doc_table(first_header_cell: str) -> str:
     return match.group(0)
 
 
-@pytest.mark.parametrize("name,make", [("setting", settings_table),
-                                       ("flag", lambda: outputs_table(Flags)),
+@pytest.mark.parametrize("name,make", [("flag", lambda: outputs_table(Flags)),
                                        ("diagnostic", lambda: outputs_table(Diagnostics))])
 def test_filter_doc_tables_are_the_declarations(name, make):
     expected = make()
     assert _doc_table(name) == expected, (
         f"docs/filter.md's {name} table differs from the declarations; it should read:\n{expected}")
+
+
+def write_settings_tables() -> None:
+    """Replace docs/filter.md's settings tables by the ones the declarations give."""
+    text = FILTER_DOC.read_text(encoding="utf-8")
+    FILTER_DOC.write_text(text.replace(_settings_section(text), settings_tables()),
+                          encoding="utf-8")
+
+
+if __name__ == "__main__":
+    write_settings_tables()

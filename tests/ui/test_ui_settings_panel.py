@@ -4,11 +4,13 @@ SetSettings, bad values refused, resets, files and profiles."""
 from __future__ import annotations
 
 import pytest
+from PySide6 import QtCore, QtGui
 
 import ekf
 from app.engine.commands import SetSettings
 from app.engine.tuning.profiles import Profile, ProfileStore
 from app.ui.settings_panel import SettingsPanel, parse_value
+from ekf.settings import grouped_rows
 
 
 @pytest.fixture
@@ -20,19 +22,48 @@ def panel(qtbot, tmp_path):
     return widget
 
 
-def test_every_setting_is_listed_with_unit_default_course_and_doc(panel):
-    rows = ekf.settings_rows()
-    assert panel.table.rowCount() == len(rows)
-    for r, row in enumerate(rows):
-        assert panel.table.item(r, 0).text() == row.name
-        assert panel.table.item(r, 2).text() == row.unit
-        assert row.doc in panel.table.item(r, 0).toolTip()   # the declaration's own doc
+def test_every_setting_is_listed_under_its_group_with_unit_default_course_and_doc(panel):
+    groups = grouped_rows()
+    assert panel.table.rowCount() == len(groups) + len(ekf.settings_rows())
+    r = 0
+    for group, rows in groups:           # the group's title over its settings, in order
+        assert panel.table.item(r, 0).text().startswith(group.title)
+        assert panel.table.columnSpan(r, 0) == panel.table.columnCount()
+        assert not panel.table.item(r, 0).flags() & QtCore.Qt.ItemFlag.ItemIsEditable
+        for row in rows:
+            r += 1
+            assert panel.row_of(row.name) == r
+            assert panel.table.item(r, 0).text() == row.name
+            assert panel.table.item(r, 2).text() == row.unit
+            assert row.doc in panel.table.item(r, 0).toolTip()   # the declaration's own doc
+            assert row.typical in panel.table.item(r, 0).toolTip()
+        r += 1
     assert panel.table.columnCount() == 5
     panel.table.setCurrentCell(panel.row_of("acc_gate"), 1)
     assert panel.meaning.text().startswith("<b>acc_gate</b> [m/s²]: ")
-    assert panel.rows[panel.row_of("acc_gate")].doc in panel.meaning.text()
+    assert {r.name: r for r in ekf.settings_rows()}["acc_gate"].doc in panel.meaning.text()
     assert panel.table.item(panel.row_of("acc_gate"), 3).text() == "2"
     assert panel.table.item(panel.row_of("acc_gate"), 4).text() == "1"
+
+
+def test_a_switched_off_group_greys_its_settings_and_says_why(panel):
+    def grey(name: str) -> bool:
+        color = panel.table.item(panel.row_of(name), 0).foreground().color()
+        return color == panel.palette().color(QtGui.QPalette.ColorGroup.Disabled,
+                                              QtGui.QPalette.ColorRole.Text)
+
+    assert not grey("acc_noise_adapt") and not grey("mag_noise_adapt_clip")
+    panel.reset_to("course")                 # no low-pass, no unevenness adaptation
+    assert grey("acc_noise_adapt") and not grey("acc_lowpass_s")
+    assert "No effect now: it needs `acc_lowpass_s` > 0" in (
+        panel.table.item(panel.row_of("acc_noise_adapt"), 0).toolTip())
+    assert grey("mag_noise_adapt_clip")      # its requires=, inside an always-on group
+    title = panel.table.item(panel.row_of("acc_lowpass_s") - 1, 0)
+    assert title.text() == "Accelerometer low-pass (off)"
+    assert panel.edit("acc_lowpass_s", "0.5")
+    assert not grey("acc_noise_adapt")
+    assert panel.table.item(panel.row_of("acc_lowpass_s") - 1, 0).text() == (
+        "Accelerometer low-pass")
 
 
 def test_an_edit_is_sent_as_set_settings_and_shown_bold(panel, qtbot):

@@ -33,7 +33,7 @@ from ekf import magcal
 from ekf.metrics import ErrorSummary, interpolate_quat, intervals_mask, rmse
 from app.engine.processing.runner import SENSORS, TAG_NAMES, EstimatorRunner, Rows
 from app.stream.logfile import LogData, LogStats
-from app.stream.tags import REFERENCE_CODE, SENSOR_CODES
+from app.stream.protocol import REFERENCE_CODE, SENSOR_CODES
 
 
 

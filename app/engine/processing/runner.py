@@ -9,7 +9,7 @@ by chunk: each estimator runs over a chunk in one compiled call) and the result 
 on the chunking, so a file and its live replay give bit-identical estimates.
 
 A row is what one estimator step is fed: the sensor samples of one phone time in code order
-(gyr, acc, mag; :mod:`app.stream.tags`). :class:`ChunkLayout` cuts a chunk of ordered samples
+(gyr, acc, mag; :mod:`app.stream.protocol`). :class:`ChunkLayout` cuts a chunk of ordered samples
 into rows and distinct-time groups, :func:`run_rows` / :func:`step_rows` run an estimator over
 the rows and :class:`Rows` holds the estimates per distinct time that the runner gives.
 
@@ -27,15 +27,15 @@ import numpy as np
 
 import ekf
 from ekf import SENSORS, magcal
+from ekf.fast.jit import check_cache
 from app.engine.processing.compare import ErrorRows, ErrorSums, SameInstant
 from app.engine.processing.innovations import YOURS, InnovationBuffer, InnovationProbe
 from app.engine.userfilter.filter import make_estimator
 from app.engine.userfilter.lane import UserLane
 from app.stream.fastparse import samples_to_arrays
-from app.stream.kernels import check_cache, jit
-from app.stream.protocol import Sample
-from app.stream.repeats import Last, repeats
-from app.stream.tags import FILTER_TAGS, REFERENCE_CODE, SENSOR_CODES, TABLE_KEY, WIDTHS
+from app.stream.ordering import Last, repeats
+from app.stream.protocol import (FILTER_TAGS, REFERENCE_CODE, SENSOR_CODES, TABLE_KEY, WIDTHS,
+                                 Sample, jit)
 
 
 @dataclass
@@ -744,4 +744,4 @@ def _table_key():
     return TABLE_KEY
 
 
-check_cache(_table_key, globals())
+check_cache(_table_key, globals(), TABLE_KEY)
