@@ -153,11 +153,8 @@ class TuningPanel(QtWidgets.QWidget):
 
     def _parameter_table(self) -> QtWidgets.QTableWidget:
         """One row per searchable setting: tune it or not, its range, before and after. A
-        setting of a sensor the session lacks is unticked and greyed out (it has no effect). The
-        default parameters come first, in the order `tune` searches them, so the window's search
-        is the command line's."""
-        names = [*autotune.DEFAULT_PARAMETERS,
-                 *(name for name in autotune.RANGES if name not in autotune.DEFAULT_PARAMETERS)]
+        setting of a sensor the session lacks is unticked and greyed out (it has no effect)."""
+        names = list(autotune.RANGES)
         present = autotune.sensors_in(self.log)
         units = {row.name: row.unit for row in ekf.settings_rows()}
         table = QtWidgets.QTableWidget(len(names), 6)
