@@ -7,7 +7,12 @@ course writes them) and tests/octave_filters/course_lean (the same equations wit
 formulas written inside the four functions). Peers in the same run: the same functions in a
 plain filterTemplate loop in ``octave-cli`` (no bridge: the data read from a file, the loop in
 one .m script), the course EKF in Python through its own process (examples/course_ekf.py) and
-the built-in ``course`` estimator.
+the built-in ``course`` estimator. The plain loop does the work the host's loop does on this
+session: the course's gates (|a| within 1 m/s^2 of g, |m| within 5 uT of its low-pass), a time
+update on every row after the first gyroscope sample (no gaps here, so the host's rules for
+gaps change nothing), the estimate kept for every row (filterTemplate's xhat.x); it has no
+checks of what the functions return, no start (tilt, heading) and a fixed m0, and calls the
+functions as often as the host does (within a call or two in 60,000 rows).
 
 The session is simulated: 100 Hz per sensor, GYR, ACC and MAG stamped together every 10 ms as
 the Sensor Fusion app stamps them (the course's logs: 3 samples a row).
@@ -76,6 +81,7 @@ addpath(getenv('COURSE_M'));
 fid = fopen(getenv('ROWS_FILE'), 'r'); D = fread(fid, [10, Inf], 'double'); fclose(fid);
 n = columns(D); Rw = 1e-4*eye(3); Ra = 0.1*eye(3); Rm = 2*eye(3); g0 = [0; 0; 9.81];
 x = [1; 0; 0; 0]; P = eye(4); omega = []; m0 = [0; 15.5; -48]; L = norm(m0); tprev = NaN;
+xhat = zeros(4, n);
 c0 = cputime;
 for k = 1:n
   t = D(1, k);
@@ -98,6 +104,7 @@ for k = 1:n
       [x, P] = mu_normalizeQ(x, P);
     end
   end
+  xhat(:, k) = x;
 end
 printf('%.6f\n', cputime - c0);
 """

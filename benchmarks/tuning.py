@@ -30,7 +30,7 @@ import ekf  # noqa: E402
 from ekf.simulate import simulate  # noqa: E402
 from app.engine import config  # noqa: E402
 from app.engine.tuning import autotune  # noqa: E402
-from app.engine.offline.refilter import PreparedLog, refilter  # noqa: E402
+from app.engine.offline.refilter import refilter  # noqa: E402
 from app.stream.demo import write_session  # noqa: E402
 
 SHARED = REPO.parent / "shared" / "data"
@@ -44,7 +44,7 @@ def bench_refilter(duration_s: float, repeats: int) -> None:
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "session.txt"
         write_session(simulate(duration_s=duration_s, seed=1), path)
-        prepared = PreparedLog.from_log(config.open_log(path))
+        prepared = config.open_log(path)
     rows = len(prepared.t_ms)
     refilter(prepared, ekf.PRESETS["course"])            # warm-up (kernels loaded)
     times = []
@@ -60,7 +60,7 @@ def bench_refilter(duration_s: float, repeats: int) -> None:
 
 
 def _target(path: Path, label: str, skip_s: float = 0.0) -> autotune.Target:
-    prepared = PreparedLog.from_log(config.open_log(path))
+    prepared = config.open_log(path)
     sibling = path.with_suffix(".json")
     intervals = config.read_intervals(sibling) if sibling.is_file() else None
     return autotune.Target(prepared, intervals, skip_s, label)

@@ -189,3 +189,40 @@ def test_widgets_do_not_reach_into_the_filter():
                           "import socket", "app.cli"):
             assert forbidden not in text, f"{path.name} uses {forbidden}"
 
+
+
+# ---- one owner: no private attribute read from outside ---------------------------------------
+
+def _private_reads_from_outside(source: str) -> list[str]:
+    """`obj._x` where `_x` is none of this module's own names (an attribute it sets on `self`
+    or `cls`, a function, class or class attribute it defines): a private attribute of another
+    module's object, by line."""
+    tree = ast.parse(source)
+    own: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            own.add(node.name)
+        elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store) \
+                and isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"):
+            own.add(node.attr)
+        elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+            own.add(node.id)
+    return sorted({f"{node.lineno}: {ast.unparse(node)}" for node in ast.walk(tree)
+                   if isinstance(node, ast.Attribute) and node.attr.startswith("_")
+                   and not node.attr.startswith("__") and node.attr not in own
+                   and not (isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"))})
+
+
+def test_no_module_of_the_window_reads_another_modules_private_attributes():
+    offences = [f"{path.relative_to(REPO)}:{found}"
+                for path in sorted((REPO / "app" / "ui").glob("*.py"))
+                for found in _private_reads_from_outside(path.read_text())]
+    assert offences == []
+
+
+def test_the_private_read_check_finds_what_it_looks_for():
+    assert _private_reads_from_outside("window._action(menu)") == ["1: window._action"]
+    assert _private_reads_from_outside("self.scene._buffer = None") == ["1: self.scene._buffer"]
+    assert _private_reads_from_outside("self._buffer = 1\nx = other._buffer") == []
+    assert _private_reads_from_outside("class A:\n    _n = 1\nA()._n") == []
+    assert _private_reads_from_outside("self._x = 1; self.__class__") == []

@@ -18,9 +18,10 @@ from app.engine.tuning import autotune
 from app.engine.commands import SetSettings
 from app.engine.offline.filtering import evaluate_log, filter_log
 from app.engine.tuning.profiles import Profile, ProfileStore, load_profile
-from app.engine.offline.refilter import (PreparedLog, Refilterer, ab_rows, angle_between_runs_deg,
+from app.engine.offline.refilter import (Refilterer, ab_rows, angle_between_runs_deg,
                                          refilter)
 from app.stream.demo import write_session
+from app.stream.logfile import LogData
 
 SOFT = np.array([[1.1, 0.05, 0.0], [0.05, 0.92, 0.03], [0.0, 0.03, 1.0]])
 SOFT = SOFT / np.linalg.det(SOFT) ** (1 / 3)
@@ -134,7 +135,7 @@ def test_the_runner_corrects_a_distorted_magnetometer_before_every_estimator(tmp
 # ---- instant re-filter ------------------------------------------------------------------------
 
 def test_refilter_gives_the_rows_and_figures_of_filter_and_evaluate(sim_log):
-    prepared = PreparedLog.from_log(sim_log)
+    prepared = sim_log
     result = refilter(prepared, ekf.PRESETS["course"])
     rows = filter_log(sim_log, "ekf", ekf.PRESETS["course"])
     mine = result.rows.select(result.rows.has_sample)
@@ -146,7 +147,7 @@ def test_refilter_gives_the_rows_and_figures_of_filter_and_evaluate(sim_log):
 
 
 def test_ab_table_and_the_difference_curve(sim_log):
-    prepared = PreparedLog.from_log(sim_log)
+    prepared = sim_log
     a = refilter(prepared, None)
     b = refilter(prepared, ekf.PRESETS["course"])
     table = ab_rows(a, b)
@@ -189,12 +190,12 @@ def test_a_failing_run_is_reported_not_lost(sim_log):
 
 # ---- auto-tune --------------------------------------------------------------------------------
 
-def _noisy(tmp_path_factory, seed: int, duration_s: float) -> PreparedLog:
+def _noisy(tmp_path_factory, seed: int, duration_s: float) -> LogData:
     """A phone with a much noisier gyroscope and magnetometer than the presets assume."""
     path = tmp_path_factory.mktemp("noisy") / f"noisy{seed}.txt"
     write_session(simulate(duration_s=duration_s, seed=seed, noise={"gyr": 0.03, "mag": 1.5}),
                   path)
-    return PreparedLog.from_log(config.open_log(path))
+    return config.open_log(path)
 
 
 @pytest.fixture(scope="module")

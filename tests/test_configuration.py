@@ -22,7 +22,7 @@ from app.engine.commands import (LoadUserFilter, ReplayControl, SetEstimator, Se
 from app.engine.processing.configuration import (Change, Config, Configuration, Setup,
                                                  setup_for_log, summary_line)
 from app.engine.processing.pipeline import Pipeline
-from app.engine.offline.refilter import prepare_path, refilter
+from app.engine.offline.refilter import read_replayed, refilter
 from app.engine.processing.runner import EstimatorRunner, Rows
 from app.engine.sessions.session import SessionInfo, read_session
 from app.engine.live.worker import Engine
@@ -238,7 +238,7 @@ def test_a_tune_edit_keeps_the_recorded_gyroscope_and_applies_the_settings_every
         wait_until(through_the_replay, 30, what="your filter through the replay")
         seconds = (played.t_ms[-1] - played.t_ms[0]) / 1000.0
         assert seconds > 20.0
-        prepared = prepare_path(session)
+        prepared = read_replayed(session)
         tune = refilter(prepared, None, setup=setup_for_log(view, raw)).rows
         assert np.array_equal(tune.t_ms, played.t_ms)
         assert np.array_equal(tune.quat, played.quat)
@@ -309,7 +309,7 @@ def test_the_auto_tune_and_an_export_run_the_replays_configuration(session, tmp_
                          path=str(raw)).view(0)
     setup = setup_for_log(view, raw)
     assert [c.kind for c in setup.timeline] == ["sensor", "sensor"]
-    prepared = prepare_path(session)
+    prepared = read_replayed(session)
     # a candidate of the auto-tune is the replay with those settings (the switches recorded)
     target = autotune.Target(prepared, None, 1.0, setup=setup)
     want = refilter(prepared, None, setup=setup.overridden("settings", TUNED), skip_s=1.0)

@@ -40,7 +40,7 @@ from app.engine.commands import (LoadUserFilter, ReplayControl, SetEstimator, Se
 from app.engine.processing.configuration import setup_for_log
 from app.engine.offline.filtering import csv_lines
 from app.engine.processing.pipeline import Pipeline
-from app.engine.offline.refilter import prepare_path, refilter
+from app.engine.offline.refilter import read_replayed, refilter
 from app.engine.processing.runner import EstimatorRunner, Rows
 from app.engine.live.worker import Engine
 from app.stream.protocol import Sample, format_line
@@ -404,7 +404,7 @@ def session(tmp_path_factory) -> Session:
 
 
 def test_every_consumer_follows_one_configuration_through_random_user_actions(session):
-    prepared = prepare_path(session.folder)
+    prepared = read_replayed(session.folder)
     run_state_machine_as_test(
         lambda: ConfigurationMachine(session, prepared),
         settings=settings(max_examples=5, stateful_step_count=10, deadline=None,

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -20,12 +22,15 @@ import ekf
 from app import cli
 from app.engine.config import ConfigError, estimator_names, open_log
 from app.engine.offline.filtering import filter_log
-from app.engine.offline.refilter import prepare, refilter
+from app.engine.offline.refilter import refilter
 from app.engine.userfilter import octave
 from app.engine.userfilter.code import UserFilterError
 from app.engine.userfilter.filter import UserFilterEstimator
 from app.engine.userfilter.matlab_template import template_files
+from app.engine.userfilter.protocol import settings_to_wire
+from app.engine.userfilter.remote import filter_settings
 from matlab_filters import COURSE_LEAN, COURSE_M, matlab_filter, needs_octave
+from ekf.simulate import simulate
 from user_filters import log_lines
 
 pytestmark = needs_octave
@@ -66,6 +71,76 @@ def test_the_solved_course_filter_in_m_gives_the_course_estimates(realphone_dir,
     assert np.array_equal(theirs.at_rest, ours.at_rest)
 
 
+def _rows_on_a_grid(seconds: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A simulated session's GYR, ACC, MAG readings stamped together every 10 ms, as the Sensor
+    Fusion app stamps them: times [s] (n,) and values (n, 9) (NaN: none)."""
+    sim = simulate(duration_s=seconds, rates_hz={"gyr": 100.0, "acc": 100.0, "mag": 100.0},
+                   seed=seed)
+    rows: dict[int, np.ndarray] = {}
+    for t, tag, values in sim.iter_rows():
+        if tag in ("GYR", "ACC", "MAG"):
+            row = rows.setdefault(int(t) - int(t) % 10, np.full(9, np.nan))
+            at = ("GYR", "ACC", "MAG").index(tag) * 3
+            row[at:at + 3] = values[:3]
+    t_ms = sorted(rows)
+    return np.array(t_ms, float) / 1000.0, np.array([rows[k] for k in t_ms])
+
+
+def test_irregular_rows_give_the_course_estimates():
+    """What the host works out before its loop (which readings count, the time steps, the
+    gyroscope rate held, where the filter starts) is what the course estimator does row by row:
+    late sensors, gaps, absurd readings, times that go back or repeat, a long pause."""
+    t, values = _rows_on_a_grid(12.0, seed=3)
+    values[:40, 3:6] = np.nan                 # no accelerometer at first: the start comes later
+    values[:20, 6:9] = np.nan
+    values[300:360, 0:3] = np.nan             # a gyroscope gap: q stays, P grows
+    values[500:504, 3:6] = np.nan
+    values[610, 0] = 1e7                      # absurd or empty readings are not used
+    values[700, 3:6] = 0.0
+    values[800, 6:9] = 0.0
+    t[900] = t[899] - 0.004                   # a time that goes back, one that repeats
+    t[901] = t[899]
+    t[1000:] += 0.8                           # longer than max_dt
+    values[1100] = np.nan                     # a row with nothing
+    columns = (values[:, 0:3], values[:, 3:6], values[:, 6:9])
+    theirs = ekf.make_estimator("course", COURSE).run_batch(t, *columns)
+    with UserFilterEstimator(COURSE_LEAN, COURSE) as mine:
+        ours = mine.run_batch(t, *columns)
+        assert mine.problem is None
+    assert np.max(np.abs(ours.quat - theirs.quat)) < 1e-9
+    for flag in ("acc_rejected", "mag_rejected", "at_rest"):
+        assert np.array_equal(getattr(ours, flag), getattr(theirs, flag)), flag
+
+
+def test_a_block_reply_times_the_loop_and_the_whole_block(tmp_path):
+    """seconds (the loop) and block_seconds (the whole block: the loop and the work before and
+    after it) are the block's own, in seconds."""
+    t, values = _rows_on_a_grid(2.0, seed=1)
+    data = tmp_path / "rows.bin"
+    np.concatenate([t[:, None], values], axis=1).astype("<f8").tofile(data)
+    wire = tmp_path / "settings.json"
+    wire.write_text(json.dumps(settings_to_wire(filter_settings(COURSE))))
+    script = tmp_path / "block.m"
+    script.write_text(f"""
+        addpath('{octave.HOST_DIR}');
+        fid = fopen('{data}', 'r'); D = fread(fid, [10, Inf], 'double'); fclose(fid);
+        cd('{COURSE_LEAN}');
+        ctx = ol_load(pwd, pwd, jsondecode(fileread('{wire}')));
+        V = D(2:10, :)';
+        t0 = tic;
+        [ctx, reply] = ol_run_block(ctx, D(1, :)', ~isnan(V(:, [1, 4, 7])), V, false);
+        printf('\\ntimes %.9f %.9f %.9f %d\\n', reply.seconds, reply.block_seconds, toc(t0), ...
+               reply.run);
+    """)
+    out = subprocess.run([str(octave.find_octave()), "--no-gui", "--norc", "--quiet",
+                          "--no-window-system", str(script)], capture_output=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    # the last line, after the progress frames
+    seconds, block_seconds, wall, run = out.stdout.rsplit(b"\ntimes ", 1)[1].decode().split()
+    assert int(run) == len(t)
+    assert 0 < float(seconds) <= float(block_seconds) <= float(wall)
+
+
 @pytest.mark.shared
 def test_filter_and_evaluate_on_the_command_line(realphone_dir, capsys):
     log = str(realphone_dir / "tsrt14_lab2_magdisturbance.txt")
@@ -85,7 +160,7 @@ def test_filter_and_evaluate_on_the_command_line(realphone_dir, capsys):
 
 @pytest.mark.shared
 def test_the_re_filter_that_tune_runs_takes_the_m_filter(realphone_dir):
-    prepared = prepare(open_log(realphone_dir / "tsrt14_lab2_rotation.txt"))
+    prepared = open_log(realphone_dir / "tsrt14_lab2_rotation.txt")
     mine = refilter(prepared, COURSE, str(COURSE_M))
     ours = refilter(prepared, COURSE, "course")
     assert np.max(np.abs(mine.rows.quat - ours.rows.quat)) < 1e-9

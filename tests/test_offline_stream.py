@@ -134,6 +134,48 @@ def test_a_gzip_log_that_breaks_off_is_one_line_and_nothing_written(logs, tmp_pa
     assert not out.exists() and [p.name for p in tmp_path.iterdir()] == ["broken.txt.gz"]
 
 
+@given(size=st.integers(1, 5000), which=st.sampled_from(["one", "two"]),
+       positions=st.lists(st.integers(0, 4000), min_size=4, max_size=4))
+@hsettings(max_examples=8, deadline=None, suppress_health_check=HEALTH)
+def test_a_configuration_over_time_runs_the_same_in_any_chunks(logs, size, which, positions):
+    """Tune's re-run of a Setup (run_log with setup): the changes apply at their sample
+    positions whatever the chunks, as one pipeline pass over each whole session gives."""
+    from app.engine.processing.configuration import Change, Setup
+    from app.engine.processing.pipeline import Pipeline
+    from app.engine.processing.runner import EstimatorRunner
+    log = read_log(logs[which])
+    a, b, c, d = sorted(positions)
+    setup = Setup(comparisons=False, timeline=(
+        Change.of("gyr", False, a), Change.of("gyr", True, b),
+        Change.of("estimator", "course", c), Change(d, "reset")))
+    runner = EstimatorRunner(collect_plot=False)
+    pipeline = Pipeline(runner)
+    pipeline.begin(pipeline.initial_checkpoint(setup), setup.timeline)
+    previous = 0
+    for start in list(log.session_starts) + [len(log)]:
+        pipeline.feed_samples(log.t_ms[previous:start], log.tag[previous:start],
+                              log.values[previous:start])
+        if start < len(log):
+            runner.new_session()
+        previous = start
+    runner.finish()
+    expected = runner.take_rows()
+    _same_rows(run_offline(_chunked(log, size), setup=setup), expected)
+
+
+def _chunked(log, size):
+    """The log in chunks of `size` samples."""
+
+    class Chunked:
+        path = log.path
+
+        @staticmethod
+        def chunks():
+            return log.chunks(size=size)
+
+    return Chunked()
+
+
 def _one_chunk(log):
     """The whole log as one chunk."""
 

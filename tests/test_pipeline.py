@@ -11,12 +11,19 @@ import pytest
 import ekf
 from app.stream.logfile import read_log
 from app.stream.protocol import Sample
-from app.stream.tags import FILTER_TAGS, WIDTHS
+from app.stream.protocol import FILTER_TAGS, WIDTHS
 from app.engine.offline.filtering import run_offline
 from app.engine.processing.compare import SameInstant
 from app.engine.processing.runner import COMBINATIONS, EstimatorRunner
+from app.stream.fastparse import samples_to_arrays
 
 REALPHONE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "realphone"
+
+
+def _feed(runner: EstimatorRunner, samples: list[Sample]) -> None:
+    """Samples in order (a test's readings) to the runner as the arrays it takes."""
+    arrays = samples_to_arrays(list(samples))
+    runner.feed_arrays(arrays.t_ms, arrays.tag, arrays.values)
 
 
 def _still_samples(seconds: float = 3.0) -> list[Sample]:
@@ -30,7 +37,7 @@ def _still_samples(seconds: float = 3.0) -> list[Sample]:
 
 def test_rows_per_distinct_time_and_errors_at_the_phone_times():
     runner = EstimatorRunner()
-    runner.feed_many(_still_samples())
+    _feed(runner, _still_samples())
     runner.finish()
     rows = runner.take_rows()
     assert len(rows) == 600                           # sensor times and ORI times
@@ -47,7 +54,7 @@ def test_rows_per_distinct_time_and_errors_at_the_phone_times():
 
 def test_comparisons_cover_the_seven_sensor_sets():
     runner = EstimatorRunner(comparisons=True)
-    runner.feed_many(_still_samples())
+    _feed(runner, _still_samples())
     runner.finish()
     assert [c.name for c in runner.comparisons] == [
         "gyr+acc+mag", "gyr+acc", "gyr+mag", "acc+mag", "gyr", "acc", "mag"]
@@ -77,7 +84,7 @@ def test_commands_switch_sensors_and_estimator():
     with pytest.raises(ValueError):
         runner.set_sensor_enabled("baro", True)
     assert runner.align_heading() is None           # no ORI yet
-    runner.feed_many(_still_samples(0.5))
+    _feed(runner, _still_samples(0.5))
     turned = runner.align_heading()
     assert turned is not None and math.isfinite(turned)
 
@@ -173,7 +180,7 @@ def test_chunked_batch_path_equals_feeding_sample_by_sample(name):
     start = 0
     while start < len(samples):
         size = int(rng.integers(1, 40))
-        runner.feed_many(samples[start:start + size])
+        _feed(runner, samples[start:start + size])
         start += size
     runner.finish()
     out = runner.take_rows()
@@ -198,7 +205,7 @@ def test_batch_path_equals_feeding_sample_by_sample_on_real_logs():
         rows, acc_flags, mag_flags, _, _ = _per_sample_reference(samples)
         runner = EstimatorRunner(collect_plot=True)
         for start in range(0, len(samples), 333):
-            runner.feed_many(samples[start:start + 333])
+            _feed(runner, samples[start:start + 333])
         runner.finish()
         out = runner.take_rows()
         plot = runner.take_plot_samples()

@@ -16,7 +16,7 @@ import pytest
 import ekf
 from app.engine.offline.filtering import run_offline
 from app.engine.userfilter.code import UserFilterError, load_code
-from app.engine.userfilter.filter import UserFilterEstimator, filter_settings, make_estimator
+from app.engine.userfilter.filter import UserFilterEstimator, estimator_for, filter_settings
 from app.engine.userfilter.instance import FilterInstance
 from app.engine.userfilter.protocol import settings_from_wire, settings_to_wire
 from app.engine.userfilter.template import template_text, write_template
@@ -315,12 +315,12 @@ def test_snapshot_restore_and_align_heading(tmp_path):
     assert 2 * math.atan2(estimator.quat[3], estimator.quat[0]) == pytest.approx(-0.1)
 
 
-def test_make_estimator_takes_names_files_and_objects(tmp_path):
+def test_estimator_for_takes_names_files_and_objects(tmp_path):
     path = write_filter(tmp_path, "flat")
-    assert make_estimator(str(path)).name == "flat.py"
-    assert make_estimator("course").name == "course"
+    assert estimator_for(str(path)).name == "flat.py"
+    assert estimator_for("course").name == "course"
     estimator = UserFilterEstimator(path)
-    assert make_estimator(estimator) is estimator
+    assert estimator_for(estimator) is estimator
     assert textwrap.dedent(FILTERS["flat"]) in path.read_text()
 
 

@@ -419,7 +419,7 @@ def test_a_sample_at_the_same_time_with_other_values_is_no_repeat(tmp_path, caps
                      max_size=40),
        cuts=st.lists(st.integers(0, 40), max_size=5))
 def test_repeats_match_a_plain_set_of_seen_samples_however_the_stream_is_cut(rows, cuts):
-    from app.stream.repeats import repeats
+    from app.stream.ordering import repeats
     rows = sorted(rows, key=lambda r: r[0])       # release times never go back
     t = np.array([r[0] for r in rows], np.int64)
     g = np.array([r[1] for r in rows], np.int64)

@@ -16,12 +16,13 @@ from typing import Any
 import ekf
 from ekf.calibration import CalibrationResult
 from app.cli import options
-from app.cli.offline import FiniteCheck, intervals_of, read_log, warn_absent
+from app.cli.offline import FiniteCheck, intervals_of, open_log_noted, warn_absent
 from app.engine import config
 from app.engine.tuning import autotune, profiles
 from app.engine.tuning.calibration import RestCalibration, mag_from_log, rest_from_log
 from app.engine.offline.outputs import check_output, write_output
-from app.engine.offline.refilter import PreparedLog, refilter
+from app.engine.offline.refilter import refilter
+from app.stream.logfile import LogData
 
 
 def _write_json(path: str, payload: dict[str, Any], *inputs: str | None) -> None:
@@ -129,7 +130,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     _plots_folder(args.plots)
     if args.output:
         check_output(args.output, args.log)
-    log = read_log(args.log, args.limits)
+    log = open_log_noted(args.log, args.limits)
     start, end = args.range if args.range else (None, None)
     with warnings.catch_warnings(record=True) as caught:     # kept until the data is checked
         warnings.simplefilter("always")
@@ -163,7 +164,7 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
     _plots_folder(args.plots)
     if args.output:
         check_output(args.output, args.log)
-    log = read_log(args.log, args.limits)
+    log = open_log_noted(args.log, args.limits)
     start, end = args.range if args.range else (None, None)
     result, raw = mag_from_log(log, start, None if end == float("inf") else end)
     print(result.format_report())
@@ -182,7 +183,7 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
 
 # ---- tune -----------------------------------------------------------------------------------------
 
-def _range_ms(prepared: PreparedLog, span: tuple[float, float],
+def _range_ms(prepared: LogData, span: tuple[float, float],
               flag: str = "--range") -> list[list[float]]:
     """A START:END range in seconds as phone-time ms; ConfigError when it starts at or after
     the log's end."""
@@ -195,7 +196,7 @@ def _range_ms(prepared: PreparedLog, span: tuple[float, float],
     return [[start + span[0] * 1000.0, start + hi * 1000.0]]
 
 
-def _targets(args: argparse.Namespace, prepared: PreparedLog) -> tuple[autotune.Target,
+def _targets(args: argparse.Namespace, prepared: LogData) -> tuple[autotune.Target,
                                                                           autotune.Target | None]:
     """The tuning range and the check range: given, or the log's halves."""
     if args.range:
@@ -204,7 +205,7 @@ def _targets(args: argparse.Namespace, prepared: PreparedLog) -> tuple[autotune.
         tune_ms, tune_label = intervals_of(args)
     check_prepared, check_label = prepared, ""
     if args.check_log:
-        check_prepared, check_label = PreparedLog.from_log(read_log(args.check_log, args.limits)), \
+        check_prepared, check_label = open_log_noted(args.check_log, args.limits), \
             Path(args.check_log).name
     if args.check_intervals:
         check_ms = config.read_intervals(args.check_intervals)
@@ -224,7 +225,7 @@ def _targets(args: argparse.Namespace, prepared: PreparedLog) -> tuple[autotune.
             autotune.Target(check_prepared, check_ms, args.skip, check_label))
 
 
-def _check_computable(prepared: PreparedLog, result: autotune.TuneResult, estimator: str,
+def _check_computable(prepared: LogData, result: autotune.TuneResult, estimator: str,
                       sensors: tuple[str, ...]) -> None:
     """ConfigError (one line) when the best settings found give an estimate that is not finite
     somewhere in the log: `filter` would refuse them, so they are neither written nor kept."""
@@ -247,8 +248,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
     parameters = autotune.parse_parameters(args.params, base)
     if args.output:                                  # before the search, not after it
         check_output(args.output, args.log, args.check_log)
-    log = read_log(args.log, args.limits)
-    prepared = PreparedLog.from_log(log)
+    log = open_log_noted(args.log, args.limits)
+    prepared = log
     if len(prepared.ori_times) == 0:
         raise config.ConfigError(f"tune: {args.log} has no ORI lines to tune against")
     absent = warn_absent(log, sensors, names, tuple(autotune.sensors_in(prepared)))

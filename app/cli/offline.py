@@ -33,7 +33,7 @@ from app.engine.offline.filtering import (HEADER, LogScan, evaluate_log, evaluat
                                           filter_rows, scan_log, sibling_truth, write_rows)
 from app.engine.offline.outputs import check_output, open_output
 from app.engine.sessions.session import read_session, session_json_for
-from app.engine.userfilter.filter import UserFilterEstimator
+from app.engine.userfilter.filter import UserFilterEstimator, estimator_for
 from app.engine.userfilter.matlab_template import write_matlab_template
 from app.engine.userfilter.template import write_template
 from app.stream.demo import write_session_to
@@ -41,7 +41,7 @@ from app.stream.lines import LogError
 from app.stream.logfile import LogData, LogFile, LogStats
 
 
-def read_log(path: str, limits=None) -> LogData:
+def open_log_noted(path: str, limits=None) -> LogData:
     """The whole log in memory (calibrate, tune), with its one-line summary (damage by reason,
     clock quirks) on stderr."""
     log = config.open_log(path, limits or config.sensor_limits(""))
@@ -281,7 +281,7 @@ def _filter(args: argparse.Namespace) -> int:
         raise config.ConfigError("filter: give exactly one --estimator")
     settings, which = settings_of(args, names)
     _check_smooth(args, names)
-    estimator = config.make_estimator(names[0], settings, sensors)   # before a long read
+    estimator = estimator_for(names[0], settings, sensors)   # before a long read
     try:
         return _filter_with(args, names, settings, which, sensors, estimator)
     finally:
@@ -408,7 +408,7 @@ def _evaluate(args: argparse.Namespace, estimators: list) -> int:
     _check_smooth(args, names)
     intervals, where = intervals_of(args)
     for name in names:
-        estimators.append(config.make_estimator(name, settings, sensors))
+        estimators.append(estimator_for(name, settings, sensors))
     log, found = scan(args.log, args.limits, ori=True)
     user_filters(estimators, log)
     check_estimable(found, sensors)

@@ -13,9 +13,8 @@ from pathlib import Path
 
 from app.engine import config
 from app.engine.offline.outputs import check_output, open_output
-from app.stream.phyphox_emulator import PhyphoxPhone
+from app.stream.emulator import PLATFORMS, PhyphoxPhone, SensorLoggerPhone, parse_push_url
 from app.stream.phyphox_experiment import FILE_NAME, experiment_xml, qr_code
-from app.stream.sensor_logger_emulator import PLATFORMS, SensorLoggerPhone, parse_push_url
 
 APPS = ("sensor-fusion", "phyphox", "sensor-logger")
 

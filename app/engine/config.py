@@ -22,19 +22,18 @@ from app.engine.tuning import profiles
 from app.engine.errors import ConfigError   # defined apart (profiles raise it too)
 from app.engine.processing.pipeline import check_start_state
 from app.engine.sessions.session import read_session, session_json_for
-from app.engine.userfilter.code import UserFilterError, is_filter_file
+from app.engine.userfilter.code import is_filter_file
 from app.engine.userfilter.octave import (OctaveNotFound, filter_folder, find_octave,
                                           is_matlab_filter)
-from app.engine.userfilter.filter import make_estimator as _make_estimator
 from app.stream.fastparse import FastLineParser
 from app.stream.lines import LogError, log_chunks
 from app.stream.logfile import LogData, LogFile, read_log
 from app.stream.protocol import DEFAULT_LIMITS, Limits
 from app.stream.phyphox import PhyphoxSource
-from app.stream.phyphox_api import parse_address as _phyphox_address
+from app.stream.phyphox import parse_address as _phyphox_address
 from app.stream.sensor_logger import DEFAULT_PORT as SENSOR_LOGGER_PORT
+from app.stream.sensor_logger import FRAMES as SENSOR_LOGGER_FRAMES
 from app.stream.sensor_logger import SensorLoggerSource
-from app.stream.sensor_logger_convert import FRAMES as SENSOR_LOGGER_FRAMES
 from app.stream.sources import DemoOrPhoneSource, LogFileSource, Source, TcpSource, demo_source
 from app.stream.tcp_server import DEFAULT_PORT, parse_networks
 
@@ -45,7 +44,7 @@ __all__ = ["ConfigError", "DEFAULT_HOST", "DEFAULT_PORT", "SENSORS", "SourceOpti
            "load_settings", "estimator_names", "sensor_list", "port_number", "replay_speed",
            "make_source", "open_log", "open_replay", "resolve_log_path", "read_intervals",
            "sensor_limits", "allowed_network", "allowed_networks", "recording_note",
-           "megabytes", "filter_file", "forward_target", "make_estimator", "phyphox_url",
+           "megabytes", "filter_file", "forward_target", "phyphox_url",
            "sensor_logger_listen", "sensor_logger_frames"]
 
 
@@ -122,16 +121,6 @@ def octave_program(text: str) -> str:
         return str(find_octave(text))
     except OctaveNotFound as error:
         raise ConfigError(str(error)) from None
-
-
-def make_estimator(name: str, settings: ekf.EKFSettings | None = None,
-                   sensors: Iterable[str] = SENSORS) -> ekf.Estimator:
-    """The estimator a name stands for: a built-in or a user's filter file (loaded; a file that
-    does not load is a ConfigError naming its line)."""
-    try:
-        return _make_estimator(name, settings, tuple(sensors))
-    except UserFilterError as error:
-        raise ConfigError(error.problem.message) from None
 
 
 def forward_target(text: str) -> tuple[str, int]:

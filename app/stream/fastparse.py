@@ -27,22 +27,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from app.stream.kernels import check_cache, jit
-from app.stream.protocol import (DEFAULT_LIMITS, FILTER_TAGS, MAX_LINE_BYTES, Limits,
-                                 LineParser, Sample, parse_line, ParseError)
-from app.stream.tags import (CODES, KERNEL_BOUND_SLOTS, KERNEL_FLOORS, KERNEL_NAMES,
-                             KERNEL_WIDTHS, MAX_WIDTH, N_FILTER_TAGS, REFERENCE_CODE, TABLE_KEY,
-                             WIDTHS)
+from ekf.fast.jit import check_cache
 
-#: Tag codes of the array form (equal to their priority at equal times: GYR < ACC < MAG < ORI),
-#: and the values each carries (app.stream.tags).
-TAG_CODES: dict[str, int] = CODES
-TAG_WIDTHS = WIDTHS
+from app.stream.protocol import (DEFAULT_LIMITS, FILTER_TAGS, KERNEL_BOUND_SLOTS, KERNEL_FLOORS,
+                                 KERNEL_NAMES, KERNEL_WIDTHS, MAX_BAD_EXAMPLES, MAX_LINE_BYTES,
+                                 MAX_TIME_DIGITS, MAX_WIDTH, N_FILTER_TAGS, REFERENCE_CODE,
+                                 TABLE_KEY, TAG_CODES, WIDTHS, Limits, LineParser, ParseError,
+                                 Sample, jit, parse_line)
 
 _POW10 = np.array([float(10 ** k) for k in range(23)])   # exact doubles
-_TWO_POW_53 = 2 ** 53
-_MAX_TIME_DIGITS = 18            # fits int64; longer times go to Python (damaged there)
-_MAX_BAD_EXAMPLES = 20           # LineParser keeps this many example messages
 # Kernel kinds of a line: Python parses it / compiled sample / compiled sample with numbers
 # Python converts / empty / damaged (reason code below)
 _PYTHON, _FAST, _FAST_SLOW, _EMPTY, _DAMAGED = 0, 1, 2, 3, 4
@@ -166,7 +159,7 @@ def _parse_line(buf, a, b, max_line_bytes, pow10, bounds, out_t, out_tag, out_v,
     while p < e and 48 <= buf[p] <= 57:
         t = t * 10 + (buf[p] - 48)
         p += 1
-        if p - a > _MAX_TIME_DIGITS:
+        if p - a > MAX_TIME_DIGITS:
             return _PYTHON, n_slow, 0
     if p == a or p + 5 > e or buf[p] != 9 or buf[p + 4] != 9:
         return _PYTHON, n_slow, 0
@@ -249,7 +242,7 @@ def _classify(buf, a, b, max_line_bytes):
         return _EMPTY, 0
     if tab < 0:
         return _DAMAGED, 2
-    if tab == a or tab - a > _MAX_TIME_DIGITS:
+    if tab == a or tab - a > MAX_TIME_DIGITS:
         return _DAMAGED, 3
     for p in range(a, tab):
         if not 48 <= buf[p] <= 57:
@@ -368,7 +361,7 @@ class ParsedArrays:
 
     def filter_samples(self) -> list[Sample]:
         """The filter-tag rows as Samples (values as Python floats)."""
-        return [Sample(int(t), FILTER_TAGS[tag], tuple(row[:TAG_WIDTHS[tag]]))
+        return [Sample(int(t), FILTER_TAGS[tag], tuple(row[:WIDTHS[tag]]))
                 for t, tag, row in zip(self.t_ms.tolist(), self.tag.tolist(),
                                        self.values.tolist())]
 
@@ -525,14 +518,14 @@ class FastLineParser(LineParser):
         stats = self.stats
         python_rows = np.flatnonzero(kind == _PYTHON)
         damaged_rows = np.flatnonzero(kind == _DAMAGED)
-        wanted = max(0, _MAX_BAD_EXAMPLES - len(stats.bad_examples))
+        wanted = max(0, MAX_BAD_EXAMPLES - len(stats.bad_examples))
         visit = np.union1d(python_rows, damaged_rows[:wanted]) if wanted else python_rows
         other: list[tuple[int, Sample]] = []
         for index in visit.tolist():
             stats.lines = base + int(line[index])
             if index > first_ori:
                 self._ori4_seen = True   # a 4-value ORI line came before (compiled)
-            if kind[index] == _DAMAGED and len(stats.bad_examples) >= _MAX_BAD_EXAMPLES:
+            if kind[index] == _DAMAGED and len(stats.bad_examples) >= MAX_BAD_EXAMPLES:
                 self._count_bad("damaged", "", KERNEL_REASONS[int(reason[index])])
                 continue
             out: list[Sample] = []
@@ -599,7 +592,7 @@ def _table_key():
     return TABLE_KEY
 
 
-check_cache(_table_key, globals())
+check_cache(_table_key, globals(), TABLE_KEY)
 
 
 def warm_up() -> None:

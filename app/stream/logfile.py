@@ -19,13 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from app.stream.fastparse import TAG_WIDTHS, FastLineParser, samples_to_arrays
+from app.stream.fastparse import FastLineParser, samples_to_arrays
 from app.stream.lines import CHUNK_BYTES, LogError, log_chunks
-from app.stream.ordering import OrderedArrays, OrderStats, TimeOrderer
-from app.stream.protocol import (DEFAULT_LIMITS, FILTER_TAGS, Limits, ParseStats, Sample,
-                                 reasons_text)
-from app.stream.repeats import Last, repeats
-from app.stream.tags import MAX_WIDTH
+from app.stream.ordering import Last, OrderedArrays, OrderStats, TimeOrderer, repeats
+from app.stream.protocol import (DEFAULT_LIMITS, FILTER_TAGS, MAX_WIDTH, REFERENCE_CODE, WIDTHS,
+                                 Limits, ParseStats, Sample, reasons_text)
 
 
 @dataclass
@@ -113,7 +111,8 @@ class LogArrays:
 @dataclass
 class LogData:
     """Ordered filter-tag samples as arrays: a whole log (:func:`read_log`) or a chunk of one
-    (:meth:`LogFile.chunks`, :meth:`chunks`).
+    (:meth:`LogFile.chunks`, :meth:`chunks`). The one form in which the offline path takes a log:
+    `filter` and `evaluate`, Tune's re-runs and the auto-tune, the smoother and calibration.
 
     t_ms (n,) int64 aligned phone ms; tag (n,) int64 codes (GYR 0, ACC 1, MAG 2, ORI 3);
     values (n, 4) float64 (rad/s, m/s^2, uT; ORI w x y z; NaN in column 3 for the 3-value
@@ -130,9 +129,31 @@ class LogData:
     session_starts: tuple[int, ...] = ()
     stats: LogStats | None = None
     _arrays: LogArrays | None = field(default=None, repr=False)
+    _ori_times: np.ndarray | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.t_ms)
+
+    @property
+    def ori_times(self) -> np.ndarray:
+        """The distinct times of the phone's orientation (ORI) samples, sorted. Cached."""
+        if self._ori_times is None:
+            self._ori_times = np.unique(self.t_ms[self.tag == REFERENCE_CODE])
+        return self._ori_times
+
+    @property
+    def start_ms(self) -> int:
+        return int(self.t_ms[0]) if len(self.t_ms) else 0
+
+    def until(self, t_end_ms: float | None) -> LogData:
+        """The samples up to and including t_end_ms (None: all): a run scored up to there needs
+        nothing later."""
+        if t_end_ms is None:
+            return self
+        n = int(np.searchsorted(self.t_ms, t_end_ms, side="right"))
+        return LogData(self.path, self.t_ms[:n], self.tag[:n], self.values[:n],
+                       tuple(k for k in self.session_starts if k < n),
+                       _ori_times=self.ori_times[self.ori_times <= t_end_ms])
 
     @property
     def first_bad_line_number(self) -> int | None:
@@ -159,7 +180,7 @@ class LogData:
         if self._arrays is None:
             t_ms = np.unique(self.t_ms)
             columns = {}
-            for code, (tag, width) in enumerate(zip(FILTER_TAGS, TAG_WIDTHS)):
+            for code, (tag, width) in enumerate(zip(FILTER_TAGS, WIDTHS)):
                 column = np.full((len(t_ms), width), np.nan)
                 chosen = self.tag == code
                 # fancy assignment: the last of duplicate rows wins

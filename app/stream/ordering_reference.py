@@ -1,87 +1,20 @@
-"""The executable specification of :class:`app.stream.ordering.TimeOrderer`, in plain Python
-(the algorithm is described in :mod:`app.stream.ordering`; tests compare the two), and what
-both share: their parameters (:class:`OrderOptions`), :class:`OrderStats` and the window rule.
+"""The executable specification of :class:`app.stream.ordering.TimeOrderer`, in plain Python.
+
+The algorithm is described in :mod:`app.stream.ordering`, which also holds what both twins
+share (their parameters, counters, the window rule and the clock alignment). Its steps are the
+private methods below, in the order the compiled twin defines them (a test compares the
+names); tests compare the two orderers' releases and counters.
 """
 
 from __future__ import annotations
 
 import heapq
 from collections.abc import Iterable
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import fields
 
-from app.stream.protocol import FILTER_TAGS, TAG_PRIORITY, Sample
-
-_MAX_QUIRKS = 20
-LAG_BUCKET_MS = 5000     # lags are the largest of the current and the previous 5 s of phone time
-
-
-@dataclass(frozen=True)
-class OrderOptions:
-    """The orderers' parameters, in phone ms (their meaning: :mod:`app.stream.ordering`).
-
-    window_ms: the least reorder window; gap_ms: a tag's own clock jumping this far starts a
-    new segment; align_threshold_ms: a tag starting this far from the reference clock is on
-    another clock; max_pending: samples held at most; restart_gap_ms: the pause a looping
-    replay gets; startup_hold_ms: the start-up hold; max_window_ms: the largest window (at
-    least window_ms); late_horizon_ms: how far back a late block may lie; session_gap_ms: a
-    segment starting this much later than the last release starts a new session."""
-
-    window_ms: int = 100
-    gap_ms: int = 2000
-    align_threshold_ms: int = 250
-    max_pending: int = 20_000
-    restart_gap_ms: int = 1500
-    startup_hold_ms: int = 250
-    max_window_ms: int = 500
-    late_horizon_ms: int = 10_000
-    session_gap_ms: int = 600_000
-
-    def __post_init__(self) -> None:
-        for item in fields(self):
-            object.__setattr__(self, item.name, int(getattr(self, item.name)))
-        object.__setattr__(self, "max_window_ms", max(self.max_window_ms, self.window_ms))
-
-    @staticmethod
-    def of(options: OrderOptions | None = None, **overrides: int) -> OrderOptions:
-        """`options` (default: the defaults) with `overrides` by field name (TypeError for a
-        name that is none)."""
-        return replace(options or OrderOptions(), **overrides)
-
-
-@dataclass
-class OrderStats:
-    """Counters of a :class:`TimeOrderer`."""
-
-    pushed: int = 0                 # filter-tag samples pushed
-    released: int = 0
-    out_of_order: int = 0           # dropped: older than released, a tag going back, late blocks
-    forced: int = 0                 # released early because the buffer bound was reached
-    restarts: int = 0               # segments started after the first
-    restart_times_ms: list[int] = field(default_factory=list)   # aligned start of the last 100
-    clock_quirks: list[str] = field(default_factory=list)
-    offsets_ms: dict[str, int] = field(default_factory=dict)    # current tag -> aligned offset
-    sessions: int = 0               # new sessions (a clock that did not continue) after the first
-    session_starts: list[int] = field(default_factory=list)     # `released` at the last 100
-    window_ms: int = 0              # the reorder window now
-    lags_ms: dict[str, int] = field(default_factory=dict)       # tag -> learned lag (> 0 only)
-
-    def copy(self) -> OrderStats:
-        return OrderStats(self.pushed, self.released, self.out_of_order, self.forced,
-                          self.restarts, list(self.restart_times_ms), list(self.clock_quirks),
-                          dict(self.offsets_ms), self.sessions, list(self.session_starts),
-                          self.window_ms, dict(self.lags_ms))
-
-
-def effective_window(lag_ms: int, window_ms: int, max_window_ms: int) -> int:
-    """The reorder window for the largest learned lag (0: none learned)."""
-    if lag_ms == 0:
-        return window_ms
-    return min(max_window_ms, max(window_ms, lag_ms + lag_ms // 4 + 10))
-
-
-def _append_bounded(values: list, value, keep: int = 100) -> None:
-    values.append(value)
-    del values[:-keep]
+from app.stream.ordering import (LAG_BUCKET_MS, OrderOptions, OrderStats, clock_offset,
+                                 effective_window, segment_clock)
+from app.stream.protocol import FILTER_TAGS, TAG_CODES, Sample
 
 
 class ReferenceTimeOrderer:
@@ -103,24 +36,27 @@ class ReferenceTimeOrderer:
         self._continue_time = False
         self._suspects: list[Sample] = []             # samples that jumped, in arrival order
         self._suspect_span: dict[str, tuple[int, int]] = {}   # tag -> (first, latest) time
-        self._new_segment(first=True, keep_offsets=False)
+        self._new_segment(keep_offsets=False)
+        self.stats.restarts = 0          # the first segment is no restart
 
     # -- public ------------------------------------------------------------------------------
 
     def push(self, sample: Sample) -> list[Sample]:
         """Take one sample (any tag); return what it releases, in release order."""
-        if sample.tag not in TAG_PRIORITY:
+        if sample.tag not in TAG_CODES:
             return [sample]
         out: list[Sample] = []
-        self._push(sample, out)
+        self.stats.pushed += 1
+        self._place(sample, out)
         self._update_stats()
         return out
 
     def push_many(self, samples: Iterable[Sample]) -> list[Sample]:
         out: list[Sample] = []
         for sample in samples:
-            if sample.tag in TAG_PRIORITY:
-                self._push(sample, out)
+            if sample.tag in TAG_CODES:
+                self.stats.pushed += 1
+                self._place(sample, out)
             else:
                 out.append(sample)
         self._update_stats()
@@ -141,7 +77,7 @@ class ReferenceTimeOrderer:
         continue_time (a looping replay): shift the next segment after the last release
         instead of starting a new session when its clock goes back."""
         out = self.flush()
-        self._new_segment(first=False, keep_offsets=False)
+        self._new_segment(keep_offsets=False)
         self._continue_time = bool(continue_time)
         self._update_stats()
         return out
@@ -150,9 +86,9 @@ class ReferenceTimeOrderer:
     def pending(self) -> int:
         return len(self._heap) + len(self._suspects)
 
-    # -- internals -----------------------------------------------------------------------------
+    # -- internals: the steps, in the compiled twin's order ---------------------------------------
 
-    def _new_segment(self, first: bool, keep_offsets: bool) -> None:
+    def _new_segment(self, keep_offsets: bool) -> None:
         # within one stream the reference tag keeps its clock offset into the next segment
         self._previous_offsets = dict(self._offsets) if keep_offsets else {}
         self._offsets = {}
@@ -167,8 +103,7 @@ class ReferenceTimeOrderer:
         self._lag_previous: dict[str, int] = {}  # ... in the bucket before
         self._lag_bucket: int | None = None
         self.stats.offsets_ms = self._offsets
-        if not first:
-            self.stats.restarts += 1
+        self.stats.restarts += 1
 
     def _update_stats(self) -> None:
         lags = {tag: max(self._lag_current.get(tag, 0), self._lag_previous.get(tag, 0))
@@ -180,60 +115,33 @@ class ReferenceTimeOrderer:
         lag = max([0] + list(self._lag_current.values()) + list(self._lag_previous.values()))
         return effective_window(lag, self.window_ms, self.max_window_ms)
 
-    def _quirk(self, text: str) -> None:
-        quirks = self.stats.clock_quirks
-        if text not in quirks:
-            quirks.append(text)
-            del quirks[:-_MAX_QUIRKS]
-
     def _start_segment_clock(self, sample: Sample) -> int:
-        """The reference tag of a new segment: its offset, and whether a session starts."""
-        raw = sample.t_ms
+        """The reference tag of a new segment: its offset (a new session may start)."""
         self._reference = sample.tag
         base = self._previous_offsets.get(sample.tag, 0)
-        t = raw + base
-        shift = 0
+        t = sample.t_ms + base
         last = self.last_released_ms
-        if last is not None:
-            if self._continue_time:
-                if t <= last:
-                    shift = last + self.restart_gap_ms - t
-            elif t <= last or t - last > self.session_gap_ms:
-                # A clock that does not continue the previous one: a new session, on its own
-                # times (never shifted by an earlier stream's); the consumer starts afresh.
-                self.last_released_ms = None
-                self.stats.sessions += 1
-                _append_bounded(self.stats.session_starts, self.stats.released)
+        shift, new_session = segment_clock(t, last, self._continue_time, self.options)
+        if new_session:
+            self.last_released_ms = None
+            self.stats.start_session(self.stats.released)
         self._continue_time = False
         if self.stats.restarts or last is not None:
-            _append_bounded(self.stats.restart_times_ms, t + shift)
+            self.stats.start_segment(t + shift)
         self._segment_start = t + shift
         return base + shift
 
     def _learn_offset(self, sample: Sample) -> int:
         if self._reference is None:
             return self._start_segment_clock(sample)
-        raw = sample.t_ms
-        reference_latest = self._last[self._reference]
         reference_offset = self._offsets[self._reference]
-        if abs(raw + reference_offset - reference_latest) > self.align_threshold_ms:
-            # Another tag's clock (a phone's GYR and MAG share one)? Then its offset, exactly.
-            offset = next((self._offsets[other] for other in FILTER_TAGS
-                           if other in self._offsets and abs(
-                               raw + self._offsets[other] - reference_latest)
-                           <= self.align_threshold_ms), None)
-            if offset is None:
-                offset = reference_latest - raw
-                # The estimate is off by the batching delay (~10 ms); the known quirk is a
-                # whole number of seconds (131,072 s), so snap to one when this close to it.
-                whole_seconds = round((offset - reference_offset) / 1000) * 1000 \
-                    + reference_offset
-                if abs(offset - whole_seconds) <= self.window_ms // 2:
-                    offset = whole_seconds
-            difference = -(offset - reference_offset)
-            self._quirk(f"{sample.tag} clock {difference:+d} ms vs {self._reference} (aligned)")
-            return offset
-        return reference_offset
+        offset = clock_offset(sample.t_ms, self._last[self._reference], reference_offset,
+                              [self._offsets[tag] for tag in FILTER_TAGS if tag in self._offsets],
+                              self.options)
+        if offset is None:
+            return reference_offset
+        self.stats.note_clock(sample.tag, self._reference, offset - reference_offset)
+        return offset
 
     def _late(self, tag: str, t: int, last: int) -> bool:
         """A sample more than gap_ms behind its tag's latest: a block written late (dropped),
@@ -259,10 +167,6 @@ class ReferenceTimeOrderer:
             return "drop"
         self._late_since.pop(tag, None)
         return "ok"
-
-    def _push(self, sample: Sample, out: list[Sample]) -> None:
-        self.stats.pushed += 1
-        self._place(sample, out)
 
     def _place(self, sample: Sample, out: list[Sample]) -> None:
         stats = self.stats
@@ -301,21 +205,24 @@ class ReferenceTimeOrderer:
             self._newest = t
             self._rotate_lags()
             if first_of_tag:
-                # A tag showing up ahead of the others: they are this far behind it (the
-                # tags already there cannot show it by arriving late until their next sample).
-                for other, last in self._last.items():
-                    if other != tag and 0 < t - last <= self.max_window_ms \
-                            and t - last > self._lag_current.get(other, 0):
-                        self._lag_current[other] = t - last
+                self._lags_behind_newcomer(tag, t)
         if offset:
             sample = sample._replace(t_ms=t)
         self._sequence += 1
-        heapq.heappush(self._heap, (t, TAG_PRIORITY[tag], self._sequence, sample))
+        heapq.heappush(self._heap, (t, TAG_CODES[tag], self._sequence, sample))
         if not self._warm:
             if self._holding():
                 return
             self._warm = True
         self._release(out)
+
+    def _lags_behind_newcomer(self, tag: str, t: int) -> None:
+        """A tag showing up ahead of the others: they are this far behind it (the tags already
+        there cannot show it by arriving late until their next sample)."""
+        for other, last in self._last.items():
+            if other != tag and 0 < t - last <= self.max_window_ms \
+                    and t - last > self._lag_current.get(other, 0):
+                self._lag_current[other] = t - last
 
     def _suspect(self, sample: Sample, t: int, out: list[Sample]) -> None:
         """Hold a sample whose own clock jumped (aligned time t on the segment's clocks);
@@ -337,7 +244,7 @@ class ReferenceTimeOrderer:
             return
         held, self._suspects, self._suspect_span = self._suspects, [], {}
         self._release_all(out)
-        self._new_segment(first=False, keep_offsets=True)
+        self._new_segment(keep_offsets=True)
         for suspect in held:
             self._place(suspect, out)
 

@@ -22,8 +22,7 @@ import numpy as np
 from ekf import quaternion as quat
 
 from app.stream.events import Chunk, SourceEvent
-from app.stream.protocol import Sample, format_line
-from app.stream.tags import CODES
+from app.stream.protocol import TAG_CODES, Sample, format_line
 
 #: The quaternion that turns a world frame with x north, y west, z up into East-North-Up:
 #: a rotation by +90 degrees about z (north (1, 0, 0) -> (0, 1, 0)).
@@ -44,7 +43,7 @@ class PhoneSample(NamedTuple):
 
 
 def _order_key(sample: PhoneSample) -> tuple[int, int]:
-    return sample.t_ms, CODES.get(sample.tag, len(CODES))
+    return sample.t_ms, TAG_CODES.get(sample.tag, len(TAG_CODES))
 
 
 def lines_of(samples: Iterable[PhoneSample]) -> bytes:

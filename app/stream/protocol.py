@@ -14,32 +14,139 @@ Plausibility: every sensor value is checked against physical bounds (:class:`Lim
 beyond any phone: |a| <= 2,000 m/s^2, |w| <= 100 rad/s, |m| <= 10,000 uT, ORI a unit
 quaternion). A sample outside them is a damaged line ("ACC out of range", ...), so a finite but
 absurd value (1e160) never reaches a filter.
+
+Tags: :data:`TAGS` is the one table of every tag the app knows (../shared/PROTOCOL.md,
+"Tags"): its name, how many fields a line carries, whether they are numbers or text, their
+unit, the physical bound a sample must respect and whether the filters use it. Everything else
+is made from it: the parsers' tag codes and value counts (here and in
+:mod:`app.stream.fastparse`), the damaged-line reasons, the orderer's per-tag state
+(:mod:`app.stream.ordering`), the runner's rows and the export columns (app.engine).
+
+The tags the filters use (``role`` "sensor" or "reference") get the codes 0, 1, ...
+(:data:`TAG_CODES`) in table order, which is also their order at equal times: the sensors
+first, in the order of :data:`ekf.estimator.SENSORS` (each row of an estimator is fed gyr, acc,
+mag), then the phone's own orientation, which estimates are compared with and which no filter
+is fed.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
-from app.stream.tags import BY_NAME, CODES, FILTER_TAGS, OUT_OF_RANGE, TAGS
+from ekf.estimator import SENSORS
 
-#: Number of values per numeric tag (app.stream.tags). ORI also accepts 3 (w reconstructed).
+
+@dataclass(frozen=True)
+class Tag:
+    """One stream tag.
+
+    name: the tag on the line; width: the fields after it (ORI also accepts 3, its w dropped);
+    text: the fields are strings (kept as text, never checked); unit: of its numbers;
+    bound: the :class:`~app.stream.protocol.Limits` field bounding the norm of each of its
+    3-vectors ("ori": a unit quaternion within ``Limits.ori_tolerance``), None: unchecked;
+    floor: a zero vector is no reading of it (norm at least ``Limits.floor``);
+    role: "sensor" (fed to the filters as ``name.lower()``), "reference" (the phone's own
+    orientation, compared with the estimates) or None (passed through, never filtered);
+    plotted: its values have plots of their own in the window."""
+
+    name: str
+    width: int
+    text: bool = False
+    unit: str = ""
+    bound: str | None = None
+    floor: bool = False
+    role: str | None = None
+    plotted: bool = False
+
+    @property
+    def sensor(self) -> str | None:
+        """The filters' name of the sensor ("gyr", ...), None when no filter is fed it."""
+        return self.name.lower() if self.role == "sensor" else None
+
+
+TAGS: tuple[Tag, ...] = (
+    Tag("GYR", 3, unit="rad/s", bound="gyr", role="sensor", plotted=True),
+    Tag("ACC", 3, unit="m/s^2", bound="acc", floor=True, role="sensor", plotted=True),
+    Tag("MAG", 3, unit="uT", bound="mag", floor=True, role="sensor", plotted=True),
+    Tag("ORI", 4, bound="ori", role="reference", plotted=True),
+    Tag("GPS", 3),
+    Tag("PRS", 1, unit="hPa"),
+    Tag("LGT", 1, unit="lx"),
+    Tag("PRX", 1, unit="cm"),
+    Tag("TMP", 1, unit="degC"),
+    Tag("BAT", 3),
+    Tag("RAWGYR", 6, unit="rad/s", bound="gyr"),
+    Tag("RAWMAG", 6, unit="uT", bound="mag"),
+    Tag("RSSWIFI", 4, text=True),
+    Tag("RSSCELL", 6, text=True),
+    Tag("RSSBLE", 3, text=True),
+)
+
+BY_NAME: dict[str, Tag] = {tag.name: tag for tag in TAGS}
+
+#: The tags the filters use, in code order (= their order at equal times).
+FILTER: tuple[Tag, ...] = tuple(tag for tag in TAGS if tag.role is not None)
+FILTER_TAGS: tuple[str, ...] = tuple(tag.name for tag in FILTER)
+#: tag name -> code (0, 1, ...: also their order at equal times).
+TAG_CODES: dict[str, int] = {name: code for code, name in enumerate(FILTER_TAGS)}
+N_FILTER_TAGS = len(FILTER)
+#: Values per filter tag, by code, and the widest (the width of the value arrays).
+WIDTHS: tuple[int, ...] = tuple(tag.width for tag in FILTER)
+MAX_WIDTH = max(WIDTHS)
+#: The codes of the sensor tags (in the order of ekf's SENSORS) and of the phone's orientation.
+SENSOR_CODES: tuple[int, ...] = tuple(code for code, tag in enumerate(FILTER)
+                                      if tag.role == "sensor")
+REFERENCE_CODE: int = next(code for code, tag in enumerate(FILTER) if tag.role == "reference")
+#: Out-of-range reasons of the tags with a bound, in table order ("GYR out of range", ...).
+OUT_OF_RANGE: tuple[str, ...] = tuple(f"{tag.name} out of range" for tag in TAGS if tag.bound)
+
+if tuple(FILTER[code].sensor for code in SENSOR_CODES) != SENSORS:
+    raise ImportError(f"app.stream.protocol: the sensor tags "
+                      f"{[FILTER[c].name for c in SENSOR_CODES]} do not match ekf's sensors "
+                      f"{SENSORS}")
+if not all(len(tag.name) == 3 and tag.name.isascii() for tag in FILTER):
+    raise ImportError("app.stream.protocol: the compiled parser reads filter tags of 3 ASCII "
+                      "letters")
+
+#: The compiled parser's view of the filter tags: their ASCII bytes (N, 3), widths, the index
+#: of their bound in ``Limits.squared`` (-1: the unit quaternion), whether a floor applies.
+KERNEL_NAMES = np.array([[ord(c) for c in tag.name] for tag in FILTER], np.int64)
+KERNEL_WIDTHS = np.array(WIDTHS, np.int64)
+_SQUARED_SLOT = {"gyr": 0, "acc": 1, "mag": 2, "ori": -1}
+KERNEL_BOUND_SLOTS = np.array([_SQUARED_SLOT[tag.bound] for tag in FILTER], np.int64)
+KERNEL_FLOORS = np.array([tag.floor for tag in FILTER], np.bool_)
+
+#: A hash of this module (the table above is in it): compiled stream kernels that read the
+#: arrays above as constants are flushed from numba's cache when it changes (each module of
+#: such kernels calls ``ekf.fast.jit.check_cache`` with it when imported; numba caches a
+#: function keyed on its own source file only).
+TABLE_KEY = int.from_bytes(hashlib.sha256(Path(__file__).read_bytes()).digest()[:7], "little")
+#: The decorator of the stream's compiled kernels (the parser's, the orderer's, the runner's).
+jit = njit(cache=True, nogil=True)
+
+
+# -- the line protocol ---------------------------------------------------------------------------
+
+#: Number of values per numeric tag. ORI also accepts 3 (w reconstructed).
 NUMERIC_TAG_COUNTS: dict[str, int] = {tag.name: tag.width for tag in TAGS if not tag.text}
 #: Number of text fields per text tag (kept as strings).
 TEXT_TAG_COUNTS: dict[str, int] = {tag.name: tag.width for tag in TAGS if tag.text}
 KNOWN_TAGS: frozenset[str] = frozenset(BY_NAME)
-#: The tags the orientation filters use, in the order they are fed at equal times.
-TAG_PRIORITY: dict[str, int] = CODES
 
 MAX_LINE_BYTES = 4096          # longer lines are discarded (bounded memory whatever a client sends)
 PARSE_ERROR_KINDS = ("damaged", "unknown_tag", "empty", "too_long")
-MAX_TIME_DIGITS = 18   # a time stamp with more digits is damaged (it would not fit int64)
+#: A time stamp with more digits is damaged (it would not fit the int64 times downstream).
+MAX_TIME_DIGITS = 18
 
 #: Why a line is damaged (ParseStats.damaged_reasons counts each). "binary data": a control byte
 #: (NUL, ...) in the line; "cut off": the connection ended in the middle of the line.
@@ -300,7 +407,8 @@ def reasons_text(reasons: dict[str, int]) -> str:
     return ", ".join(f"{count} {reason}" for reason, count in ordered)
 
 
-_MAX_BAD_EXAMPLES = 20
+#: Example messages of bad lines a parse keeps (ParseStats.bad_examples).
+MAX_BAD_EXAMPLES = 20
 
 
 class LineParser:
@@ -401,7 +509,7 @@ class LineParser:
         if stats.first_bad_line_number is None:
             stats.first_bad_line_number = stats.lines
             stats.first_bad_message = f"{kind}: {message}"
-        if len(stats.bad_examples) < _MAX_BAD_EXAMPLES:
+        if len(stats.bad_examples) < MAX_BAD_EXAMPLES:
             stats.bad_examples.append((stats.lines, kind, message))
 
     def _line(self, raw: bytes, had_newline: bool, out: list[Sample],

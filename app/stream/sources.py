@@ -22,9 +22,8 @@ from ekf.simulate import simulate
 from app.stream.demo import DEMO_SESSION_PATH as DEMO_SESSION
 from app.stream.events import CONNECTION_COMMANDS, Chunk, SourceEvent
 from app.stream.lines import LogError, line_starts, pacing_array, read_log_bytes
-from app.stream.netinfo import lan_ipv4_addresses
 from app.stream.protocol import DEFAULT_LIMITS, Limits, Sample, format_line
-from app.stream.tcp_server import DEFAULT_PORT, TcpServer
+from app.stream.tcp_server import DEFAULT_PORT, TcpServer, lan_ipv4_addresses
 
 _MAX_LINES_PER_CHUNK = 4096
 # Paced replay hands out what is due at most this often [s]: a 500 Hz log at 10x would otherwise

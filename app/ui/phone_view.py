@@ -16,9 +16,8 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.ui.elided import ElidedLabel
 from app.ui.scene import (AXIS_LENGTH, CAMERA, DETAIL_INTERVAL_S, REDRAW_QUAT_CHANGE,
-                          RING_REDRAW_CHANGE, PhoneScene, opengl_available, software_gl)
-from app.ui.uncertainty import (attitude_covariance, axis_tip_ellipses,
-                                quat_to_matrix)
+                          RING_REDRAW_CHANGE, PhoneScene, attitude_covariance,
+                          axis_tip_ellipses, opengl_available, quat_to_matrix, software_gl)
 
 __all__ = ["PhoneView", "opengl_available", "software_gl"]
 

@@ -20,29 +20,537 @@ resumes (the window also calls follow() on a replay's seek or Play). The legend 
 its plots (never over the data); the cursor reads every visible curve into a small table.
 A sensor the stream does not deliver has its plot say so ("no gyroscope in this stream").
 
-What is drawn (the plots, curves, legends, the readout's table) is declared in plot_specs.py,
-the graphics items are in plot_items.py, and the panel's construction is in plot_build.py.
+The module in the order it is built: the numbers behind the plots in numpy (bounded sample
+buffers, peak downsampling, Euler angles wrapped with their lines broken at a wrap or unwrapped
+in one turn, rejected samples as spans, time labels); what is drawn (the tabs and their plots,
+the curves of each with stream, column, colour, line style and the legend toggles that show it,
+the legends, the cursor readout's table); the graphics items (a curve whose bounds come with its
+data, the time axis, the legend icons, one tab's group of plots, a plot's no-data message); and
+the panel (PlotPanel) that builds and draws them.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6 import QtCore, QtWidgets
+from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.engine.snapshot import FilterStatus, PlotChunk
-from app.ui.no_data import NoDataText
-from app.ui.plot_build import PlotPanelBuild
-from app.ui.plot_data import (OffSpans, SampleBuffer, break_at_wraps, peak_downsample,
-                              rejected_spans, time_text, unwrap_deg, unwrap_in_turn)
-from app.ui.plot_items import Curve, PlotGroup
-from app.ui.plot_specs import (BAND_FRACTION, FIRST_PLOTS, GROUPS, MARKER_COLOR, OFF_JOIN_S,
-                               STREAM_COLUMNS, USER_STREAMS, USER_TOGGLES, CurveSpec,
-                               curve_specs, readout_table)
+from app.ui.elided import ElidedLabel
 
-class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
+
+# ---- the numbers behind the plots (numpy, no Qt) -------------------------------------------
+
+# Rows kept per stream: 2 minutes at 500 Hz. The buffer holds up to twice this before it
+# drops the oldest half, so memory is bounded (about 6 MB for the widest stream).
+BUFFER_ROWS = 60_000
+WRAPPING_COLUMNS = (0, 2)   # yaw and roll wrap at ±180°; pitch stays within ±90°
+
+
+class SampleBuffer:
+    """Time-stamped rows in one contiguous float64 array, bounded in size.
+
+    Appending is amortised O(1): rows are written after the last one, and when the array
+    is full the newest `capacity` rows move to the front. `t` and `values` are views of
+    the stored rows, oldest first.
+    """
+
+    def __init__(self, columns: int, capacity: int = BUFFER_ROWS) -> None:
+        self.capacity = int(capacity)
+        self._t = np.empty(2 * self.capacity)
+        self._values = np.empty((2 * self.capacity, columns))
+        self.size = 0
+        self.appended = 0           # rows ever appended since the last clear
+
+    @classmethod
+    def from_arrays(cls, t: np.ndarray, values: np.ndarray) -> SampleBuffer:
+        """A read-only buffer over existing arrays (a replay's whole session: no copy)."""
+        buffer = cls.__new__(cls)
+        buffer.capacity = len(t)
+        buffer._t = t
+        buffer._values = values
+        buffer.size = len(t)
+        buffer.appended = len(t)
+        return buffer
+
+    @property
+    def first_index(self) -> int:
+        """Running number of the oldest stored row (counts every row appended since clear)."""
+        return self.appended - self.size
+
+    @property
+    def t(self) -> np.ndarray:
+        return self._t[:self.size]
+
+    @property
+    def values(self) -> np.ndarray:
+        return self._values[:self.size]
+
+    def clear(self) -> None:
+        self.size = 0
+        self.appended = 0
+
+    def append(self, t: np.ndarray, values: np.ndarray) -> None:
+        count = len(t)
+        if count == 0:
+            return
+        self.appended += count
+        if count > self.capacity:
+            t, values, count = t[-self.capacity:], values[-self.capacity:], self.capacity
+        if self.size + count > len(self._t):
+            keep = self.capacity - count
+            self._t[:keep] = self._t[self.size - keep:self.size]
+            self._values[:keep] = self._values[self.size - keep:self.size]
+            self.size = keep
+        self._t[self.size:self.size + count] = t
+        self._values[self.size:self.size + count] = values
+        self.size += count
+
+    def last_time(self) -> float:
+        return float(self._t[self.size - 1]) if self.size else -math.inf
+
+    def first_time(self) -> float:
+        return float(self._t[0]) if self.size else math.inf
+
+    def window(self, t_start: float, t_end: float) -> slice:
+        """Rows with t_start <= t <= t_end (times are increasing), plus one either side
+        so lines run to the edge of the view."""
+        t = self.t
+        start = max(int(np.searchsorted(t, t_start, "left")) - 1, 0)
+        end = min(int(np.searchsorted(t, t_end, "right")) + 1, self.size)
+        return slice(start, end)
+
+
+def same_turn(angles_deg: np.ndarray, reference_deg: np.ndarray) -> np.ndarray:
+    """`angles_deg` moved by whole turns to within ±180° of `reference_deg`, element-wise;
+    NaN stays as it is."""
+    angles = np.asarray(angles_deg, dtype=np.float64)
+    reference = np.asarray(reference_deg, dtype=np.float64)
+    difference = angles - reference
+    # Python's % is a floor modulo: the result lies in [-180, 180).
+    moved = reference + (difference + 180.0) % 360.0 - 180.0
+    return np.where(np.isfinite(difference), moved, angles)
+
+
+def break_at_wraps(t: np.ndarray, angles_deg: np.ndarray,
+                   columns: tuple[int, ...] = WRAPPING_COLUMNS) -> tuple[np.ndarray, np.ndarray]:
+    """Wrapped angles with a NaN row inserted wherever one of `columns` jumps by more than
+    180° between two samples, so a line drawn through them breaks at the wrap instead of
+    crossing the plot (the NaN survives peak downsampling: the bin holding it is a gap)."""
+    if len(t) < 2:
+        return t, angles_deg
+    jumps = np.zeros(len(t) - 1, bool)
+    for column in columns:
+        with np.errstate(invalid="ignore"):
+            jumps |= np.abs(np.diff(angles_deg[:, column])) > 180.0
+    where = np.flatnonzero(jumps) + 1
+    if not len(where):
+        return t, angles_deg
+    t_out = np.insert(t, where, 0.5 * (t[where - 1] + t[where]))
+    values = np.insert(angles_deg, where, np.nan, axis=0)
+    return t_out, values
+
+
+def unwrap_deg(angles_deg: np.ndarray, columns: tuple[int, ...] = WRAPPING_COLUMNS) -> np.ndarray:
+    """The wrapping columns unwrapped along time (NaN rows skipped and kept NaN)."""
+    out = np.array(angles_deg, dtype=np.float64, copy=True)
+    for column in columns:
+        values = out[:, column]
+        finite = np.isfinite(values)
+        if finite.sum() > 1:
+            values[finite] = np.degrees(np.unwrap(np.radians(values[finite])))
+    return out
+
+
+def unwrap_in_turn(reference_t: np.ndarray, reference_deg: np.ndarray, t: np.ndarray,
+                   angles_deg: np.ndarray,
+                   columns: tuple[int, ...] = WRAPPING_COLUMNS) -> np.ndarray:
+    """`angles_deg` (at times t) moved by whole turns into the turn of the unwrapped
+    `reference_deg` (at reference_t) at the same time, column by column."""
+    out = np.array(angles_deg, dtype=np.float64, copy=True)
+    if not len(reference_t) or not len(t):
+        return out
+    for column in columns:
+        ref = reference_deg[:, column]
+        finite = np.isfinite(ref)
+        if not finite.any():
+            continue
+        near = np.interp(t, reference_t[finite], ref[finite])
+        out[:, column] = same_turn(out[:, column], near)
+    return out
+
+
+class OffSpans:
+    """Stretches of time [start, end] (s), in order, merged when one starts within `join_s`
+    of the previous one's end: where a sensor was switched off."""
+
+    def __init__(self, join_s: float) -> None:
+        self.join_s = join_s
+        self.spans: list[list[float]] = []
+
+    def add(self, start: float, end: float) -> None:
+        if self.spans and start <= self.spans[-1][1] + self.join_s:
+            self.spans[-1][1] = max(self.spans[-1][1], end)
+        else:
+            self.spans.append([start, end])
+
+    def clear(self) -> None:
+        self.spans.clear()
+
+    def mask(self, t: np.ndarray) -> np.ndarray:
+        """Which of the times `t` fall in one of the stretches."""
+        if not self.spans or not len(t):
+            return np.zeros(len(t), bool)
+        starts = np.array([a for a, _ in self.spans])
+        ends = np.array([b for _, b in self.spans])
+        index = np.searchsorted(starts, t, side="right") - 1
+        inside = index >= 0
+        inside[inside] = t[inside] <= ends[index[inside]]
+        return inside
+
+
+def rejected_spans(t: np.ndarray, rejected: np.ndarray) -> np.ndarray:
+    """Runs of rejected samples as (n, 2) [start, end] times; a run is widened by half a
+    sample period on each side so that a single rejected sample is still a visible tick."""
+    mask = np.asarray(rejected, bool)
+    if len(t) == 0 or not mask.any():
+        return np.empty((0, 2))
+    edges = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
+    starts = np.flatnonzero(edges == 1)
+    ends = np.flatnonzero(edges == -1) - 1
+    half = 0.5 * (float(np.median(np.diff(t))) if len(t) > 1 else 0.01)
+    return np.column_stack([t[starts] - half, t[ends] + half])
+
+
+def peak_downsample(t: np.ndarray, values: np.ndarray, first_index: int, max_points: int
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """At most about `max_points` points per column that keep every peak: the rows are cut
+    into bins of `factor` samples and each bin becomes two points, its minimum and maximum
+    (at the bin's first and last time). Bins are aligned to the running sample number
+    (`first_index` is that of t[0]) so a scrolling window keeps the same bins frame after
+    frame instead of flickering. Rows outside whole bins at either end are kept as they are.
+
+    Args:
+        t: (n,) times, increasing. values: (n, c). first_index: running number of row 0.
+        max_points: budget, e.g. the plot's width in pixels.
+    Returns:
+        (t, values) unchanged when n <= max_points, else the reduced (m,), (m, c).
+    """
+    count = len(t)
+    if count <= max_points or max_points < 4:
+        return t, values
+    factor = int(math.ceil(2.0 * count / max_points))
+    start = (-first_index) % factor
+    bins = (count - start) // factor
+    if bins < 2:
+        return t, values
+    end = start + bins * factor
+    binned = values[start:end].reshape(bins, factor, values.shape[1])
+    peaks = np.empty((bins, 2, values.shape[1]))
+    low, high = peaks[:, 0], peaks[:, 1]
+    low[...] = binned[:, 0]
+    high[...] = binned[:, 0]
+    # Element-wise over the bins' k-th samples: three times faster than min(axis=1) on the
+    # strided (bins, factor, columns) view. NaN propagates (a gap stays a gap).
+    for k in range(1, factor):
+        np.minimum(low, binned[:, k], out=low)
+        np.maximum(high, binned[:, k], out=high)
+    times = np.empty((bins, 2))
+    times[:, 0] = t[start:end:factor]
+    times[:, 1] = t[start + factor - 1:end:factor]
+    return (np.concatenate([t[:start], times.reshape(-1), t[end:]]),
+            np.concatenate([values[:start], peaks.reshape(-1, values.shape[1]), values[end:]]))
+
+
+def time_text(seconds: float, span_s: float = 0.0, decimals: int = 1) -> str:
+    """Seconds since the session's start as a label: "12.5" below two minutes of span,
+    "m:ss" (or "h:mm:ss") for longer views and sessions; "–" for no time."""
+    if seconds is None or not math.isfinite(seconds):
+        return "–"
+    if span_s < 120.0 and abs(seconds) < 120.0:
+        return f"{seconds:.{decimals}f}"
+    sign = "-" if seconds < 0 else ""
+    seconds = abs(seconds)
+    minutes, rest = divmod(seconds, 60.0)
+    hours, minutes = divmod(int(minutes), 60)
+    fraction = f"{rest:0{3 + decimals if decimals else 2}.{decimals}f}" if span_s < 600.0 \
+        else f"{int(rest):02d}"
+    return f"{sign}{hours}:{minutes:02d}:{fraction}" if hours else f"{sign}{minutes}:{fraction}"
+
+
+# ---- what is drawn: tabs, plots, curves, legends, the readout ------------------------------
+
+DEFAULT_WINDOW_S = 10.0
+MAX_WINDOW_S = 600.0
+AXIS_COLORS = ((220, 50, 50), (40, 160, 60), (50, 100, 230))    # x, y, z
+NORM_COLOR = (90, 90, 90)
+REJECTED_COLOR = (225, 40, 40)
+OFF_COLOR = (130, 132, 140)      # a sensor switched off: its samples are not used
+OFF_JOIN_S = 0.5                 # "off" samples closer than this are one stretch
+GATE_COLOR = (200, 120, 0)
+MARKER_COLOR = (230, 120, 0)
+FIRST_PLOTS = ("acc", "yaw", "error")    # the top plot of each tab labels the markers
+ERROR_COLORS = ((130, 40, 170), (230, 120, 0), (0, 150, 150))   # total, heading, inclination
+EULER_NAMES = ("yaw", "pitch", "roll")
+# yaw is about z, pitch about y, roll about x: each in its axis' colour
+EULER_COLORS = (AXIS_COLORS[2], AXIS_COLORS[1], AXIS_COLORS[0])
+EULER_TOOLTIP = ("Euler angles z-y-x (the course's q2euler intent, its errata fixed): "
+                 "R = Rz(yaw) Ry(pitch) Rx(roll), sensor -> East-North-Up; yaw about up "
+                 "(0 = the phone's y axis to the north, counter-clockwise positive), pitch about "
+                 "the turned y axis (±90°), roll about the phone's x axis.")
+# The toolbar's note while the plots do not follow (paused, or zoomed/dragged by hand)
+FOLLOW_NOTE_STYLE = ("QLabel { background: #ffe8a8; color: #5a3c00; border: 1px solid #e0b040; "
+                     "border-radius: 3px; padding: 1px 6px; }")
+LEFT_AXIS_WIDTH = 64        # px, the same for every plot so their time axes line up
+BAND_FRACTION = 0.035       # the rejected band: this much of the plot's height, at the bottom
+
+
+@dataclass
+class CurveSpec:
+    stream: str
+    column: int
+    plot: str
+    label: str           # the cursor readout's row/column name
+    tags: frozenset[str]  # the legend toggles that show/hide it
+    color: tuple[int, int, int]
+    dashed: bool = False
+    dotted: bool = False
+
+
+@dataclass
+class PlotSpec:
+    key: str
+    group: str
+    title: str
+    units: str
+    tooltip: str = ""
+
+
+GROUPS = (("sensors", "Sensors"), ("orientation", "Orientation"), ("error", "Error vs PHONE"))
+PLOTS = (
+    PlotSpec("acc", "sensors", "acc", "m/s²", "specific force, sensor frame"),
+    PlotSpec("gyr", "sensors", "gyr", "rad/s", "angular rate, sensor frame"),
+    PlotSpec("mag", "sensors", "mag", "µT", "magnetic field, sensor frame"),
+    PlotSpec("yaw", "orientation", "yaw", "°", EULER_TOOLTIP),
+    PlotSpec("pitch", "orientation", "pitch", "°", EULER_TOOLTIP),
+    PlotSpec("roll", "orientation", "roll", "°", EULER_TOOLTIP),
+    PlotSpec("error", "error", "OWN vs PHONE", "°",
+              "e = q_OWN ⊗ conj(q_PHONE) at PHONE's time stamps (OWN slerped to them): total "
+              "angle 2·acos|e_w|, heading 2·atan|e_z/e_w| (about up), inclination (tilt)"),
+)
+STREAM_COLUMNS = {"acc": 5, "gyr": 4, "mag": 5, "own": 3, "phone": 3, "error": 3, "user": 3,
+                  "user_error": 3}
+USER_STREAMS = ("user", "user_error")   # YOURS: replaced by a re-run's history, never clear others
+
+
+def curve_specs() -> list[CurveSpec]:
+    specs = []
+    for key in ("acc", "gyr", "mag"):
+        for column, name in enumerate(("x", "y", "z")):
+            specs.append(CurveSpec(key, column, key, f"{key} {name}", frozenset({name}),
+                                    AXIS_COLORS[column]))
+        specs.append(CurveSpec(key, 3, key, f"{key} norm", frozenset({"norm"}), NORM_COLOR))
+    for column, name in enumerate(EULER_NAMES):
+        specs.append(CurveSpec("own", column, name, f"OWN {name}", frozenset({"OWN"}),
+                                EULER_COLORS[column]))
+        specs.append(CurveSpec("phone", column, name, f"PHONE {name}", frozenset({"PHONE"}),
+                                EULER_COLORS[column], dashed=True))
+        specs.append(CurveSpec("user", column, name, f"YOURS {name}", frozenset({"YOURS"}),
+                                EULER_COLORS[column], dotted=True))
+    for column, name in enumerate(("total", "heading", "inclination")):
+        specs.append(CurveSpec("error", column, "error", name, frozenset({name, "OWN"}),
+                                ERROR_COLORS[column]))
+        specs.append(CurveSpec("user_error", column, "error", f"YOURS {name}",
+                                frozenset({name, "YOURS"}), ERROR_COLORS[column], dotted=True))
+    return specs
+
+
+LEGENDS = {
+    "sensors": (("x", AXIS_COLORS[0], "line"), ("y", AXIS_COLORS[1], "line"),
+                ("z", AXIS_COLORS[2], "line"), ("norm", NORM_COLOR, "line"),
+                ("rejected", REJECTED_COLOR, "band"), ("off", OFF_COLOR, "dashed band"),
+                ("gates", GATE_COLOR, "dash")),
+    "orientation": (("OWN", (60, 60, 60), "line"), ("PHONE", (60, 60, 60), "dash"),
+                    ("YOURS", (60, 60, 60), "dot")),
+    "error": (("total", ERROR_COLORS[0], "line"), ("heading", ERROR_COLORS[1], "line"),
+              ("inclination", ERROR_COLORS[2], "line"), ("OWN", (60, 60, 60), "line"),
+              ("YOURS", (60, 60, 60), "dot")),
+}
+LEGEND_TIPS = {
+    "rejected": "samples the filter rejected (a gate fired): a red band along the bottom",
+    "off": "the sensor was switched off: the filter did not use these samples (a grey dashed "
+           "band; no gate was asked)",
+}
+USER_TOGGLES = (("orientation", "YOURS"), ("error", "YOURS"), ("error", "OWN"))
+
+
+READOUT_ROWS = {
+    "sensors": ((("acc", "m/s²"), ("gyr", "rad/s"), ("mag", "µT")), ("x", "y", "z", "norm")),
+    "orientation": ((("OWN", "°"), ("PHONE", "°"), ("YOURS", "°")), EULER_NAMES),
+    "error": (((None, "°"), ("YOURS", "°")), ("total", "heading", "inclination")),
+}
+
+
+def readout_table(values: dict[str, float], t: float, span: float, group: str) -> str:
+    """The cursor's readout: a small HTML table of the tab's values with units."""
+    rows, columns = READOUT_ROWS[group]
+    head = "".join(f"<th align='right'>&nbsp;{c}&nbsp;</th>" for c in columns)
+    lines = [f"<table cellspacing='0' cellpadding='1'><tr><th align='left'>t = "
+             f"{time_text(t, span, 3)} s</th>{head}<th></th></tr>"]
+    for name, unit in rows:
+        labels = [column if name is None else f"{name} {column}" for column in columns]
+        if name == "YOURS" and all(label not in values for label in labels):
+            continue            # no YOURS loaded (or all its curves hidden)
+        cells = []
+        for label in labels:
+            value = values.get(label)
+            cells.append("–" if value is None or not math.isfinite(value) else f"{value:.3f}")
+        title = name or "OWN vs PHONE"
+        if group == "error" and name == "YOURS":
+            title = "YOURS vs PHONE"
+        lines.append(f"<tr><td>{title}</td>" + "".join(f"<td align='right'>&nbsp;{c}&nbsp;</td>"
+                                                        for c in cells)
+                     + f"<td>{unit}</td></tr>")
+    return "".join(lines) + "</table>"
+
+
+# ---- graphics items ------------------------------------------------------------------------
+
+class Curve(pg.PlotCurveItem):
+    """A PlotCurveItem whose bounds come with the data (computed in numpy by the panel).
+
+    pyqtgraph recomputes a curve's bounds, with pixel padding, every time the view moves,
+    i.e. on every frame while following; here they are set once per setData.
+    """
+
+    def __init__(self, **options) -> None:
+        self._rect = QtCore.QRectF()
+        super().__init__(**options)
+
+    def set_curve(self, x: np.ndarray, y: np.ndarray, finite: bool,
+                  y_bounds: tuple[float, float] | None, connect: str | None = None) -> None:
+        """New points; `finite`: no NaN in y (the fast path); y_bounds: (min, max) of y."""
+        if len(x) and y_bounds is not None:
+            low, high = y_bounds
+            x_pad = 0.01 * max(float(x[-1] - x[0]), 1e-9)
+            y_pad = 0.02 * max(high - low, 1e-9)
+            self._rect = QtCore.QRectF(float(x[0]) - x_pad, low - y_pad,
+                                       float(x[-1] - x[0]) + 2 * x_pad, high - low + 2 * y_pad)
+        else:
+            self._rect = QtCore.QRectF()
+        self.setData(x, y, connect=connect or ("all" if finite else "finite"),
+                     skipFiniteCheck=finite)
+
+    def dataBounds(self, ax: int, frac: float = 1.0, orthoRange=None):  # noqa: N802 (pg name)
+        if self._rect.isNull():
+            return (None, None)
+        if ax == 0:
+            return (self._rect.left(), self._rect.right())
+        return (self._rect.top(), self._rect.bottom())
+
+    def boundingRect(self) -> QtCore.QRectF:  # noqa: N802 (Qt name)
+        return self._rect
+
+
+class TimeAxis(pg.AxisItem):
+    """Seconds since the session's start ("m:ss" for long views); the phone's clock on hover."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.origin_ms: int | None = None
+        self.enableAutoSIPrefix(False)
+
+    def tickStrings(self, values, scale, spacing):  # noqa: N802 (pg name)
+        low, high = self.range
+        span = abs(high - low)
+        decimals = 0 if spacing >= 1.0 else (1 if spacing >= 0.1 else 2)
+        return [time_text(v, span, decimals) for v in values]
+
+    def set_origin(self, origin_ms: int | None) -> None:
+        if origin_ms == self.origin_ms:
+            return
+        self.origin_ms = origin_ms
+        self.setToolTip("" if origin_ms is None else
+                        f"time since the session's start; 0 is {origin_ms / 1000.0:.3f} s on "
+                        "the phone's clock")
+
+
+def cache_painting(item: QtWidgets.QGraphicsItem) -> None:
+    """Paint `item` and its children from pixmaps redrawn only when they call update():
+    axis titles are text, and laying out text is the slowest part of a frame."""
+    item.setCacheMode(QtWidgets.QGraphicsItem.CacheMode.DeviceCoordinateCache)
+    for child in item.childItems():
+        cache_painting(child)
+
+
+def legend_icon(color: tuple[int, int, int], style: str) -> QtGui.QIcon:
+    pixmap = QtGui.QPixmap(22, 12)
+    pixmap.fill(QtCore.Qt.GlobalColor.transparent)
+    painter = QtGui.QPainter(pixmap)
+    if style == "band":
+        painter.fillRect(QtCore.QRectF(1, 8, 20, 3), QtGui.QColor(*color))
+    elif style == "dashed band":
+        for x in (1, 9, 17):
+            painter.fillRect(QtCore.QRectF(x, 8, 5, 3), QtGui.QColor(*color))
+    else:
+        pen = QtGui.QPen(QtGui.QColor(*color), 2)
+        if style == "dash":
+            pen.setStyle(QtCore.Qt.PenStyle.DashLine)
+        elif style == "dot":
+            pen.setStyle(QtCore.Qt.PenStyle.DotLine)
+        painter.setPen(pen)
+        painter.drawLine(1, 6, 21, 6)
+    painter.end()
+    return QtGui.QIcon(pixmap)
+
+
+@dataclass
+class PlotGroup:
+    """One tab: its legend toggles and its plots in one graphics view."""
+
+    key: str
+    widget: QtWidgets.QWidget
+    graphics: pg.GraphicsLayoutWidget
+    legend: QtWidgets.QWidget
+    toggles: dict[str, QtWidgets.QToolButton] = field(default_factory=dict)
+    plots: list[str] = field(default_factory=list)
+
+
+class NoDataText(QtWidgets.QGraphicsSimpleTextItem):
+    """A plot's no-data message, centred in its view box (in the box's own pixels, so it stays
+    put whatever range the plot shows)."""
+
+    def __init__(self, view_box: pg.ViewBox) -> None:
+        super().__init__(view_box)
+        self.setBrush(QtGui.QBrush(QtGui.QColor(110, 112, 118)))
+        font = self.font()
+        if font.pointSizeF() > 0:
+            font.setPointSizeF(font.pointSizeF() * 1.15)
+            self.setFont(font)
+        self.setZValue(1000)
+        self.setVisible(False)
+        self._view_box = view_box
+        view_box.sigResized.connect(self._centre)
+
+    def set_text(self, text: str) -> None:
+        if text == self.text():
+            return
+        self.setText(text)
+        self.setVisible(bool(text))
+        self._centre()
+
+    def _centre(self, *args) -> None:
+        box = self._view_box.boundingRect()
+        own = self.boundingRect()
+        self.setPos(box.center().x() - own.width() / 2, box.center().y() - own.height() / 2)
+
+
+# ---- the panel -----------------------------------------------------------------------------
+
+class PlotPanel(QtWidgets.QWidget):
     """Toolbar (window length, Pause/Follow, Cursor, Unwrap, Clear), three tabs of plots and
     the cursor readout."""
 
@@ -105,6 +613,151 @@ class PlotPanel(PlotPanelBuild, QtWidgets.QWidget):
         for spec in curve_specs():
             self._add_curve(spec)
         self.set_user_present(False)
+
+    # ---- construction ----------------------------------------------------------------------
+
+    def _build_toolbar(self) -> QtWidgets.QHBoxLayout:
+        toolbar = QtWidgets.QHBoxLayout()
+        toolbar.setContentsMargins(2, 0, 2, 0)
+        toolbar.addWidget(QtWidgets.QLabel("Window"))
+        self.window_spin = QtWidgets.QDoubleSpinBox()
+        self.window_spin.setRange(1.0, MAX_WINDOW_S)
+        self.window_spin.setDecimals(0)
+        self.window_spin.setSingleStep(5.0)
+        self.window_spin.setSuffix(" s")
+        self.window_spin.setValue(DEFAULT_WINDOW_S)
+        self.window_spin.setToolTip("Length of the rolling window while following")
+        self.window_spin.valueChanged.connect(self._mark_dirty)
+        self.pause_button = QtWidgets.QPushButton("Pause")
+        self.pause_button.setCheckable(True)
+        self.pause_button.setToolTip("Freeze the view to inspect it; samples keep being stored "
+                                     "(Space when live)")
+        self.pause_button.toggled.connect(lambda checked: self.set_paused(checked))
+        self.follow_button = QtWidgets.QPushButton("Follow")
+        self.follow_button.setObjectName("follow_button")
+        self.follow_button.setToolTip("Show the newest samples again (a replay: its position; "
+                                      "a seek, Home or Play follows it too)")
+        self.follow_button.clicked.connect(self.follow)
+        self.follow_button.setEnabled(False)        # following already
+        # While not following: what the plots show instead, in a colour that stands out
+        self.follow_note = ElidedLabel("", minimum_text="not following…")
+        self.follow_note.setObjectName("follow_note")
+        self.follow_note.setStyleSheet(FOLLOW_NOTE_STYLE)
+        self.follow_note.setVisible(False)
+        self.cursor_checkbox = QtWidgets.QCheckBox("Cursor")
+        self.cursor_checkbox.setToolTip("A draggable line reading every visible curve")
+        self.cursor_checkbox.toggled.connect(self.set_cursor_visible)
+        self.unwrap_checkbox = QtWidgets.QCheckBox("Unwrap angles")
+        self.unwrap_checkbox.setToolTip("Euler angles continuous over whole turns (OWN and PHONE "
+                                        "in the same turn) instead of wrapped to ±180°")
+        self.unwrap_checkbox.toggled.connect(self.set_unwrapped)
+        self.clear_button = QtWidgets.QPushButton("Clear")
+        self.clear_button.setToolTip("Forget the plotted samples (Ctrl+L)")
+        self.clear_button.clicked.connect(self.clear)
+        for widget in (self.window_spin, self.pause_button, self.follow_button,
+                       self.cursor_checkbox, self.unwrap_checkbox, self.clear_button):
+            toolbar.addWidget(widget)
+        toolbar.addWidget(self.follow_note)
+        toolbar.addStretch(1)
+        return toolbar
+
+    def _build_group(self, key: str) -> PlotGroup:
+        widget = QtWidgets.QWidget()
+        widget.setObjectName(f"plot_group_{key}")
+        box = QtWidgets.QVBoxLayout(widget)
+        box.setContentsMargins(0, 0, 0, 0)
+        box.setSpacing(0)
+        legend = QtWidgets.QWidget()
+        legend.setObjectName(f"legend_{key}")
+        row = QtWidgets.QHBoxLayout(legend)
+        row.setContentsMargins(LEFT_AXIS_WIDTH, 0, 0, 0)
+        row.setSpacing(4)
+        graphics = pg.GraphicsLayoutWidget()
+        graphics.setBackground((250, 250, 252))
+        # Every curve moves on every frame: keeping Qt's spatial index (a BSP tree) of the
+        # items up to date costs more than it saves.
+        graphics.scene().setItemIndexMethod(QtWidgets.QGraphicsScene.ItemIndexMethod.NoIndex)
+        group = PlotGroup(key, widget, graphics, legend)
+        for name, color, style in LEGENDS[key]:
+            button = QtWidgets.QToolButton()
+            button.setText(name)
+            button.setIcon(legend_icon(color, style))
+            button.setToolButtonStyle(QtCore.Qt.ToolButtonStyle.ToolButtonTextBesideIcon)
+            button.setCheckable(True)
+            button.setChecked(True)
+            button.setAutoRaise(True)
+            button.setToolTip(f"Show or hide {LEGEND_TIPS.get(name, name)}")
+            button.toggled.connect(lambda checked, g=key, n=name: self.set_shown(g, n, checked))
+            row.addWidget(button)
+            group.toggles[name] = button
+        row.addStretch(1)
+        box.addWidget(legend)
+        box.addWidget(graphics, 1)
+        specs = [spec for spec in PLOTS if spec.group == key]
+        for index, spec in enumerate(specs):
+            self._new_plot(group, spec, last=index == len(specs) - 1)
+        return group
+
+    def _new_plot(self, group: PlotGroup, spec: PlotSpec, last: bool) -> pg.PlotItem:
+        axis = TimeAxis("bottom")
+        plot = group.graphics.addPlot(row=len(group.plots), col=0, axisItems={"bottom": axis})
+        plot.setLabel("left", spec.title, units=spec.units)
+        left = plot.getAxis("left")
+        left.enableAutoSIPrefix(False)
+        left.setWidth(LEFT_AXIS_WIDTH)
+        left.setToolTip(spec.tooltip)
+        for name in ("left", "bottom"):
+            # Fewer tick levels: the time axis is regenerated on every frame while following.
+            plot.getAxis(name).setStyle(maxTickLevel=1, maxTextLevel=1)
+        # The y axis changes only when the y range does: paint it from a cached pixmap.
+        cache_painting(left)
+        # Clipping and peak downsampling are done here, in numpy, once per stream and frame;
+        # y follows the visible samples (computed in refresh()).
+        plot.setClipToView(False)
+        plot.setDownsampling(ds=1, auto=False, mode="peak")
+        plot.disableAutoRange()
+        plot.getViewBox().setMouseEnabled(x=True, y=False)
+        plot.setMenuEnabled(True)
+        if last:
+            plot.setLabel("bottom", "time since start", units="s")
+        else:
+            # Only the bottom plot of a tab shows time: the others share it.
+            plot.hideAxis("bottom")
+        cursor = pg.InfiniteLine(angle=90, movable=True, pen=pg.mkPen((120, 60, 160), width=1.5))
+        cursor.setVisible(False)
+        cursor.sigPositionChanged.connect(self._on_cursor_moved)
+        plot.addItem(cursor, ignoreBounds=True)
+        self.cursors[spec.key] = cursor
+        view_box = plot.getViewBox()
+        view_box.sigRangeChangedManually.connect(self._on_manual_range)
+        view_box.sigXRangeChanged.connect(self._on_x_range_changed)
+        if spec.key in ("acc", "mag"):
+            band = Curve(pen=pg.mkPen(REJECTED_COLOR, width=4), antialias=False)
+            plot.addItem(band, ignoreBounds=True)
+            self.bands[spec.key] = band
+            off = Curve(pen=pg.mkPen(OFF_COLOR, width=4, style=QtCore.Qt.PenStyle.DashLine),
+                        antialias=False)
+            plot.addItem(off, ignoreBounds=True)
+            self.off_bands[spec.key] = off
+            pen = pg.mkPen(GATE_COLOR, width=1, style=QtCore.Qt.PenStyle.DashLine)
+            lines = (pg.InfiniteLine(angle=0, pen=pen), pg.InfiniteLine(angle=0, pen=pen))
+            for line in lines:
+                line.setVisible(False)
+                plot.addItem(line, ignoreBounds=True)
+            self.gate_lines[spec.key] = lines
+        group.plots.append(spec.key)
+        self.plots[spec.key] = plot
+        self.no_data_items[spec.key] = NoDataText(view_box)
+        return plot
+
+    def _add_curve(self, spec: CurveSpec) -> None:
+        # 1-px pens without antialiasing: Qt's fast line path (dashes cost more: PHONE and
+        # YOURS only).
+        style = (QtCore.Qt.PenStyle.DashLine if spec.dashed else
+                 QtCore.Qt.PenStyle.DotLine if spec.dotted else QtCore.Qt.PenStyle.SolidLine)
+        curve = Curve(pen=pg.mkPen(spec.color, width=1, style=style), antialias=False)
+        self.plots[spec.plot].addItem(curve)
+        self.curves.append((spec, curve))
 
     # ---- data in ---------------------------------------------------------------------------
 

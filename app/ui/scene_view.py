@@ -165,7 +165,7 @@ class SceneView(GLViewMixin, QtWidgets.QWidget):
 
     def release(self) -> None:
         """Free this view's GL objects (framebuffer, vertex buffer) in the shared context."""
-        if self._framebuffer is None and (self.scene is None or self.scene._buffer is None):
+        if self._framebuffer is None and (self.scene is None or not self.scene.has_buffer()):
             return
         try:
             target = RenderContext.get()
@@ -175,9 +175,8 @@ class SceneView(GLViewMixin, QtWidgets.QWidget):
             return
         try:
             self._framebuffer = None          # deleted while its context is current
-            if self.scene is not None and self.scene._buffer is not None:
-                GL.glDeleteBuffers(1, [self.scene._buffer])
-                self.scene._buffer = None
+            if self.scene is not None:
+                self.scene.release_buffer(GL)
         finally:
             target.done_current()
         self._image = None

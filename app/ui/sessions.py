@@ -212,28 +212,28 @@ class SessionControls(QtCore.QObject):
 
     def build_file_menu(self, menu: QtWidgets.QMenu) -> None:
         window = self.window
-        self.open_action = window._action(menu, "&Open session or log…", SHORTCUTS["open"],
-                                          self.choose_and_open)
+        self.open_action = window.add_action(menu, "&Open session or log…", SHORTCUTS["open"],
+                                             self.choose_and_open)
         self.recent_menu = menu.addMenu("Open &recent")
         self.recent_menu.aboutToShow.connect(self._fill_recent)
-        window._action(menu, "Open the &sessions folder…", None,
-                       lambda: self.choose_and_open(str(sessions_dir())))
+        window.add_action(menu, "Open the &sessions folder…", None,
+                          lambda: self.choose_and_open(str(sessions_dir())))
         menu.addSeparator()
-        self.record_action = window._action(menu, "Start / stop &recording", SHORTCUTS["record"],
-                                            window.transport.toggle_recording)
-        self.marker_action = window._action(menu, "Add a &marker", SHORTCUTS["marker"],
-                                            self.add_marker)
-        self.label_action = window._action(menu, "&Label this session…", None,
-                                           lambda: self.label_session())
+        self.record_action = window.add_action(menu, "Start / stop &recording", SHORTCUTS["record"],
+                                               window.transport.toggle_recording)
+        self.marker_action = window.add_action(menu, "Add a &marker", SHORTCUTS["marker"],
+                                               self.add_marker)
+        self.label_action = window.add_action(menu, "&Label this session…", None,
+                                              lambda: self.label_session())
         menu.addSeparator()
         export = menu.addMenu("&Export")
         self.export_actions = {
-            "csv": window._action(export, "CSV of measurements and estimates…", None,
-                                  lambda: self.export_with_dialog("csv")),
-            "log": window._action(export, "Phone log (the app's text format)…", None,
-                                  lambda: self.export_with_dialog("log")),
-            "mat": window._action(export, "MATLAB .mat (meas, xhat)…", None,
-                                  lambda: self.export_with_dialog("mat"))}
+            "csv": window.add_action(export, "CSV of measurements and estimates…", None,
+                                     lambda: self.export_with_dialog("csv")),
+            "log": window.add_action(export, "Phone log (the app's text format)…", None,
+                                     lambda: self.export_with_dialog("log")),
+            "mat": window.add_action(export, "MATLAB .mat (meas, xhat)…", None,
+                                     lambda: self.export_with_dialog("mat"))}
         if not scipy_available():
             action = self.export_actions["mat"]
             action.setText("MATLAB .mat (needs scipy: pip install scipy)")
@@ -251,7 +251,7 @@ class SessionControls(QtCore.QObject):
             else:
                 def slot(checked=False, t=target, v=value):
                     t(v)
-            self.replay_actions.append(self.window._action(menu, text, key, slot))
+            self.replay_actions.append(self.window.add_action(menu, text, key, slot))
 
     # ---- open --------------------------------------------------------------------------------
 
@@ -270,7 +270,7 @@ class SessionControls(QtCore.QObject):
         try:
             engine = self.engine_factory(str(path))
         except ConfigError as error:
-            self._complain("Cannot open", str(error))
+            self.complain("Cannot open", str(error))
             return False
         window.swap_engine(engine)
         self.add_recent(path)
@@ -302,9 +302,9 @@ class SessionControls(QtCore.QObject):
         Open recent, the window's title and export names."""
         folder = self.label_target()
         if folder is None:
-            self._complain("Label a session", "Open a recorded session (or stop the recording) "
-                                              "to label it: a phone's own log has no "
-                                              "session.json to keep a label in.")
+            self.complain("Label a session", "Open a recorded session (or stop the recording) "
+                                             "to label it: a phone's own log has no "
+                                             "session.json to keep a label in.")
             return False
         if label is None:
             label, ok = QtWidgets.QInputDialog.getText(
@@ -315,8 +315,8 @@ class SessionControls(QtCore.QObject):
         try:
             written = write_label(folder / "session.json", label)
         except (OSError, ValueError) as error:
-            self._complain("Label a session", f"cannot write {folder / 'session.json'}: "
-                                              f"{getattr(error, 'strerror', None) or error}")
+            self.complain("Label a session", f"cannot write {folder / 'session.json'}: "
+                                             f"{getattr(error, 'strerror', None) or error}")
             return False
         self.add_recent(folder)
         engine_source = getattr(getattr(self.window.engine, "source", None), "path", None)
@@ -388,14 +388,16 @@ class SessionControls(QtCore.QObject):
         key = f"{folder}|{error}|{recording.get('at', '')}"
         if error and key not in self._errors_shown:
             self._errors_shown.add(key)
-            self._complain("Recording stopped",
-                           f"{error}\n\nThe stream and the estimates go on; what was recorded "
-                           f"until then is in {folder}.")
+            self.complain("Recording stopped",
+                          f"{error}\n\nThe stream and the estimates go on; what was recorded "
+                          f"until then is in {folder}.")
         elif not recording.get("active") and folder and folder not in self._saved_shown:
             self._saved_shown.add(folder)
             self.add_recent(folder)
 
-    def _complain(self, title: str, text: str) -> None:
+    def complain(self, title: str, text: str) -> None:
+        """Say what went wrong: its first line in the status bar, the whole in a message box
+        that does not block the window."""
         self.window.statusBar().showMessage(text.splitlines()[0], 15000)
         box = QtWidgets.QMessageBox(QtWidgets.QMessageBox.Icon.Warning, title, text,
                                     QtWidgets.QMessageBox.StandardButton.Ok, self.window)
@@ -423,7 +425,7 @@ class SessionControls(QtCore.QObject):
     def export_with_dialog(self, fmt: str) -> None:
         source = self.export_source()
         if source is None:
-            self._complain("Nothing to export", "Open a session or record one first.")
+            self.complain("Nothing to export", "Open a session or record one first.")
             return
         snapshot = self.window.last_snapshot
         markers = list(snapshot.markers) if snapshot is not None else []
@@ -458,4 +460,4 @@ class SessionControls(QtCore.QObject):
         if ok:
             self.window.statusBar().showMessage(f"exported {message}", 10000)
         else:
-            self._complain("Export", message)
+            self.complain("Export", message)

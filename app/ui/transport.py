@@ -22,7 +22,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.engine.commands import ReplayControl, StartRecording, StopRecording
 from app.ui.elided import ElidedLabel
-from app.ui.plot_data import time_text
+from app.ui.plots import time_text
 
 SEEK_STEPS = 10_000
 SPEEDS = ((0.1, "0.1×"), (0.25, "0.25×"), (0.5, "0.5×"), (1.0, "1×"), (2.0, "2×"), (5.0, "5×"),

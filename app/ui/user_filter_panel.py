@@ -26,7 +26,7 @@ from app.engine.commands import LoadUserFilter, UnloadUserFilter
 from app.engine.snapshot import UserFilterStatus
 from app.engine.userfilter.matlab_template import write_matlab_template
 from app.engine.userfilter.octave import (OctaveNotFound, chosen_octave, filter_folder,
-                                          find_octave, install_hint, is_matlab_filter,
+                                          find_octave, is_matlab_filter,
                                           use_octave)
 from app.engine.userfilter.template import write_template
 from app.ui.lights import Light

@@ -8,7 +8,7 @@ import gzip
 import numpy as np
 
 from app.stream.demo import DEMO_SESSION_PATH, demo_session_lines, write_demo_session, write_session
-from app.stream.protocol import TAG_PRIORITY, parse_line
+from app.stream.protocol import TAG_CODES, parse_line
 from ekf.simulate import simulate
 
 
@@ -36,7 +36,7 @@ def test_demo_is_time_ordered_phone_text_with_something_for_every_light():
     lines = demo_session_lines()
     samples = [parse_line(line) for line in lines]
     assert {s.tag for s in samples} == {"GYR", "ACC", "MAG", "ORI"}
-    keys = [(s.t_ms, TAG_PRIORITY[s.tag]) for s in samples]
+    keys = [(s.t_ms, TAG_CODES[s.tag]) for s in samples]
     assert keys == sorted(keys)
     assert samples[-1].t_ms - samples[0].t_ms > 89_000
     by_tag = {tag: np.array([s.values for s in samples if s.tag == tag])

@@ -19,11 +19,10 @@ from app.engine.offline.filtering import filter_log
 from app.engine.live.worker import Engine
 from app.stream.forwarder import LineForwarder
 from app.stream.logfile import read_log
+from app.stream.emulator import PhyphoxPhone, SensorLoggerPhone
 from app.stream.phyphox import PhyphoxSource
-from app.stream.phyphox_emulator import PhyphoxPhone
 from app.stream.protocol import parse_line
 from app.stream.sensor_logger import SensorLoggerSource
-from app.stream.sensor_logger_emulator import SensorLoggerPhone
 from app.stream.sources import LIVE_PHONE, REPLAY, LogFileSource, SimulatorSource, TcpSource
 
 ROOT = Path(__file__).resolve().parents[2]

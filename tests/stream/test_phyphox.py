@@ -14,10 +14,9 @@ import pytest
 from phone_logs import Collected, by_tag, log_samples, simulated_lines
 from waiting import wait_until
 
-from app.stream.phyphox import PhyphoxSource
-from app.stream.phyphox_api import (PhyphoxSensor, get_query, parse_address, read_config,
-                                    sensor_batch)
-from app.stream.phyphox_emulator import PhyphoxPhone
+from app.stream.phyphox import (PhyphoxSensor, PhyphoxSource, get_query, parse_address,
+                                read_config, sensor_batch)
+from app.stream.emulator import PhyphoxPhone
 from app.stream.phyphox_experiment import SENSORS, experiment_xml
 
 ACC_ONLY = """<phyphox version="1.14" locale="en">

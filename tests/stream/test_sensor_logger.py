@@ -18,9 +18,8 @@ from phone_logs import Collected, by_tag, log_samples, simulated_lines
 from waiting import wait_until
 
 from app.stream.phone_apps import ENU_FROM_NWU
-from app.stream.sensor_logger import PushServer, SensorLoggerSource
-from app.stream.sensor_logger_convert import SensorLoggerConverter
-from app.stream.sensor_logger_emulator import SensorLoggerPhone
+from app.stream.sensor_logger import PushServer, SensorLoggerConverter, SensorLoggerSource
+from app.stream.emulator import SensorLoggerPhone
 
 #: The push documented in PUSHING.md, with values filled in.
 DOC_PUSH = {"messageId": 0, "sessionId": "identifier", "deviceId": "identifier",

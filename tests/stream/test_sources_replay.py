@@ -7,7 +7,7 @@ import time
 
 from waiting import wait_until
 
-from app.stream.netinfo import lan_ipv4_addresses, parse_ip_addr_output
+from app.stream.tcp_server import lan_ipv4_addresses, parse_ip_addr_output
 from app.stream.recorder import Recorder
 from app.stream.lines import pacing_times
 from app.stream.sources import LineReplaySource, LogFileSource

@@ -1,4 +1,5 @@
-"""The tag table (app.stream.tags) drives the parsers, the orderer's layout and the numba cache."""
+"""The tag table (app.stream.protocol.TAGS) drives the parsers, the orderer's layout and the
+numba cache."""
 
 from __future__ import annotations
 
@@ -8,11 +9,12 @@ import numpy as np
 import pytest
 from numba import njit
 
-from app.stream import kernels, ordering_kernels
+from app.stream import ordering
 from app.stream.fastparse import FastLineParser
-from app.stream.protocol import DAMAGE_REASONS, LineParser, ParseError, parse_line
-from app.stream.tags import FILTER, SENSOR_CODES, TAGS, Tag
+from app.stream.protocol import (DAMAGE_REASONS, FILTER, SENSOR_CODES, TAGS, LineParser,
+                                 ParseError, Tag, parse_line)
 from ekf.estimator import SENSORS
+from ekf.fast.jit import check_cache
 
 
 def _line(tag: Tag, values: list[float]) -> str:
@@ -53,14 +55,14 @@ def test_the_filter_tags_feed_ekf_s_sensors_in_its_order():
 
 
 def test_the_orderer_state_has_one_slot_per_scalar_and_one_block_per_filter_tag():
-    S = ordering_kernels.S
+    S = ordering.S
     n = len(FILTER)
-    assert S.size == len(ordering_kernels.SCALARS) + n * len(ordering_kernels.PER_TAG)
-    per_tag = sorted(getattr(S, name) for name, _ in ordering_kernels.PER_TAG)
-    assert np.all(np.diff(per_tag) == n) and per_tag[0] == len(ordering_kernels.SCALARS)
+    assert S.size == len(ordering.SCALARS) + n * len(ordering.PER_TAG)
+    per_tag = sorted(getattr(S, name) for name, _ in ordering.PER_TAG)
+    assert np.all(np.diff(per_tag) == n) and per_tag[0] == len(ordering.SCALARS)
 
 
-def test_a_changed_table_flushes_the_cached_kernels_of_a_module(monkeypatch):
+def test_a_changed_table_flushes_the_cached_kernels_of_a_module():
     flushed = []
 
     class Cache:
@@ -73,9 +75,7 @@ def test_a_changed_table_flushes_the_cached_kernels_of_a_module(monkeypatch):
     kernel._cache = Cache()
     kernel.py_func.__module__ = key.py_func.__module__ = "fake_module"
     module_globals = {"__name__": "fake_module", "key": key, "kernel": kernel, "math": math}
-    monkeypatch.setattr(kernels, "TABLE_KEY", 1)
-    kernels.check_cache(key, module_globals)
+    check_cache(key, module_globals, 1)
     assert flushed == []                      # the key matches: nothing flushed
-    monkeypatch.setattr(kernels, "TABLE_KEY", 2)
-    kernels.check_cache(key, module_globals)
+    check_cache(key, module_globals, 2)
     assert flushed == [True]

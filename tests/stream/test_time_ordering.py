@@ -9,7 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.stream.ordering import ReferenceTimeOrderer, TimeOrderer
+from app.stream.ordering import TimeOrderer
+from app.stream.ordering_reference import ReferenceTimeOrderer
 from app.stream.protocol import LineParser, Sample
 
 
@@ -422,3 +423,30 @@ def test_array_face_equals_sample_face():
     oldest = orderer.oldest_pending_sequence
     assert orderer.pending > 0 and set(range(1, oldest)) <= set(released.seq.tolist())
     assert oldest not in set(released.seq.tolist())
+
+
+def _steps(functions) -> list[str]:
+    return [name.lstrip("_") for name, value in functions
+            if callable(value) and not name.startswith("__")]
+
+
+def test_the_compiled_orderer_and_its_specification_are_twins_with_the_same_steps():
+    """Every private method of the reference (a step of the algorithm) is a compiled kernel of
+    app.stream.ordering without the underscore, or, where the compiled twin runs that step in
+    Python, a TimeOrderer method of the same name; in the same order on both sides."""
+    import app.stream.ordering as ordering
+    from numba.core.dispatcher import Dispatcher
+
+    reference = _steps((name, value) for name, value in vars(ReferenceTimeOrderer).items()
+                       if name.startswith("_"))
+    kernels = [name for name, value in vars(ordering).items()
+               if isinstance(value, Dispatcher) and value.py_func.__module__ == ordering.__name__
+               and not name.startswith("_") and name != "effective_window"]
+    in_python = [name for name in _steps((name, value) for name, value
+                                         in vars(TimeOrderer).items() if name.startswith("_"))
+                 if name in reference]
+    assert [name for name in reference if name not in in_python] == kernels
+    assert in_python == [name for name in reference if name in in_python]
+    assert set(in_python) == {"update_stats", "start_segment_clock", "learn_offset"}
+    public = {name for name in vars(ReferenceTimeOrderer) if not name.startswith("_")}
+    assert public <= set(vars(TimeOrderer))

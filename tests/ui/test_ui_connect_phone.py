@@ -10,8 +10,7 @@ from PySide6 import QtCore, QtGui
 
 from app.engine.snapshot import StreamHealth
 from app.stream.phyphox_experiment import qr_payload
-from app.ui.connect_phone import ConnectPhoneDialog, PhoneAppsBox
-from app.ui.connection import ConnectionPanel
+from app.ui.connection import ConnectionPanel, ConnectPhoneDialog, PhoneAppsBox
 
 zxingcpp = pytest.importorskip("zxingcpp")
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from PySide6 import QtCore
 
-from app.ui.plot_data import (SampleBuffer, break_at_wraps, peak_downsample, rejected_spans,
-                              same_turn, time_text, unwrap_deg, unwrap_in_turn)
-from app.ui.plots import PlotPanel, readout_table
+from app.ui.plots import (PlotPanel, SampleBuffer, break_at_wraps, peak_downsample,
+                          readout_table, rejected_spans, same_turn, time_text, unwrap_deg,
+                          unwrap_in_turn)
 from ui_helpers import make_chunk, status_of
 
 

@@ -10,8 +10,9 @@ import ekf
 from ekf.simulate import simulate
 from app.engine.commands import SetSettings
 from app.engine.tuning.profiles import ProfileStore
-from app.engine.offline.refilter import PreparedLog, Refilterer
+from app.engine.offline.refilter import Refilterer
 from app.stream.demo import write_session
+from app.stream.logfile import LogData
 from app.engine.config import open_log
 from app.ui.tuning import ABCompareView, TuningPanel
 
@@ -20,7 +21,7 @@ from app.ui.tuning import ABCompareView, TuningPanel
 def prepared(tmp_path_factory):
     path = tmp_path_factory.mktemp("tune") / "sim.txt"
     write_session(simulate(duration_s=40.0, seed=7), path)
-    return PreparedLog.from_log(open_log(path))
+    return open_log(path)
 
 
 @pytest.fixture
@@ -80,8 +81,8 @@ def test_a_session_without_a_gyroscope_offers_none_of_its_settings(qtbot, prepar
     """Issue 51: auto-tune searched gyr_noise_cov on a log without a gyroscope."""
     from PySide6 import QtCore
     keep = prepared.tag != 0                                    # GYR's code
-    no_gyro = PreparedLog(prepared.t_ms[keep], prepared.tag[keep], prepared.values[keep],
-                          prepared.ori_times, prepared.path)
+    no_gyro = LogData(prepared.path, prepared.t_ms[keep], prepared.tag[keep],
+                      prepared.values[keep])
     panel = TuningPanel(no_gyro, lambda command: None, store=ProfileStore(tmp_path / "p"))
     qtbot.addWidget(panel)
     names = [panel.parameters.verticalHeaderItem(r).text()

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.ui.uncertainty import (attitude_covariance, axis_tip_ellipses, ellipse_points,
-                                quat_to_matrix, s_bar)
+from app.ui.scene import (attitude_covariance, axis_tip_ellipses, ellipse_points,
+                          quat_to_matrix, s_bar)
 
 
 def _multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:

@@ -24,7 +24,7 @@ import numpy as np
 
 from app.engine.config import ConfigError, forward_target
 from app.engine.errors import FailureLog
-from app.engine.live.publisher import Output, Publisher
+from app.engine.live.publisher import EngineOutput, Publisher
 from app.engine.processing.configuration import Configuration
 from app.engine.processing.health import HealthTracker
 from app.engine.processing.pipeline import Pipeline
@@ -59,7 +59,7 @@ class EngineParts:
     user: UserFilterHost
     health: HealthTracker
     publisher: Publisher
-    output: Output
+    output: EngineOutput
     connection: Connection
     forward: Forward
     failures: FailureLog

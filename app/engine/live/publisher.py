@@ -1,6 +1,6 @@
 """Where the engine's output goes: its rows to their consumers, its snapshots to the GUI.
 
-:class:`Output` hands each estimate row to the engine's rows_log (when kept) and to a
+:class:`EngineOutput` hands each estimate row to the engine's rows_log (when kept) and to a
 recording's estimates.csv, and the plot samples to the next poll. :class:`Publisher` holds the
 latest :class:`~app.engine.snapshot.Snapshot`, the plot samples since the previous poll
 (bounded, :class:`~app.engine.snapshot.PlotBuffer`) and a sequence number that says whether
@@ -118,7 +118,7 @@ class Publisher:
             self._seq += 1
 
 
-class Output:
+class EngineOutput:
     """The pipeline's output to its consumers: rows to rows_log (record_rows: keep them all,
     unbounded) and the recording lane (which leaves out the rows a seek re-runs up to its
     target: they were not shown); plot samples to the publisher."""

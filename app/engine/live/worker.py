@@ -65,7 +65,7 @@ from app.engine.commands import (AddMarker, AlignHeading, LoadUserFilter, Replay
                                  UnloadUserFilter)
 from app.engine.errors import EngineFailure, FailureLog
 from app.engine.live.parts import Connection, EngineParts, Forward, engine_snapshot
-from app.engine.live.publisher import Output, Publisher
+from app.engine.live.publisher import EngineOutput, Publisher
 from app.engine.offline.filtering import EstimatesWriter
 from app.engine.processing.configuration import Change, Config, Configuration
 from app.engine.processing.health import HealthTracker
@@ -145,7 +145,7 @@ class Engine:
         self.stopped_by_failure = False
         self.markers = Markers()
         self.recording_lane = RecordingLane(self.pipeline, self._health)
-        self.output = Output(self.pipeline, self.publisher, self.recording_lane, record_rows)
+        self.output = EngineOutput(self.pipeline, self.publisher, self.recording_lane, record_rows)
         self.rows_log: list[Rows] = self.output.rows_log      # record_rows: every row
         self._user = UserFilterHost(runner, source, record=self.recording_lane.event,
                                     position=lambda: self.pipeline.fed,

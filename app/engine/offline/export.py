@@ -50,7 +50,7 @@ from app.engine.processing.pipeline import Pipeline
 from app.engine.processing.runner import SENSORS, EstimatorRunner, Rows
 from app.engine.sessions.session import Marker, SessionInfo, read_session, session_json_for
 from app.stream.lines import CHUNK_BYTES, LogError, Pacer, line_blocks, line_starts
-from app.stream.tags import WIDTHS
+from app.stream.protocol import WIDTHS
 
 FORMATS = ("csv", "log", "mat")
 SEPARATORS = {"comma": ",", "semicolon": ";", "tab": "\t", ",": ",", ";": ";", "\t": "\t"}

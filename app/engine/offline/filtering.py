@@ -21,6 +21,7 @@ distinct time that has a GYR, ACC or MAG sample.
 """
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,9 +32,11 @@ import numpy as np
 import ekf
 from ekf import magcal
 from ekf.metrics import ErrorSummary, interpolate_quat, intervals_mask, rmse
+from app.engine.processing.configuration import Setup
+from app.engine.processing.pipeline import Pipeline
 from app.engine.processing.runner import SENSORS, TAG_NAMES, EstimatorRunner, Rows
 from app.stream.logfile import LogData, LogStats
-from app.stream.tags import REFERENCE_CODE, SENSOR_CODES
+from app.stream.protocol import REFERENCE_CODE, SENSOR_CODES
 
 
 
@@ -47,26 +50,39 @@ class OrderedLog(Protocol):
 
 
 def run_log(log: OrderedLog, estimator: str | ekf.Estimator = "ekf",
-            settings: ekf.EKFSettings | None = None,
-            sensors: Iterable[str] = SENSORS) -> Iterator[tuple[Rows, bool]]:
+            settings: ekf.EKFSettings | None = None, sensors: Iterable[str] = SENSORS,
+            setup: Setup | None = None) -> Iterator[tuple[Rows, bool]]:
     """Run one estimator (a name, a user's FILE.py, or an estimator object, which is then
     advanced) over a log's ordered samples, chunk by chunk: (the rows committed, whether a new
     session starts after them) as they come, one row per distinct phone time, exactly as the
     live engine produces them (the runner's result does not depend on the chunking); the
-    estimators start afresh where the log's clock restarts."""
-    runner = EstimatorRunner(estimator, settings, sensors)
+    estimators start afresh where the log's clock restarts.
+
+    setup: run this configuration over time instead (Tune's re-run of what a replay shows): its
+    configuration at the start (a recording's start state too), its changes applied at their
+    sample positions by the engine's :class:`~app.engine.processing.pipeline.Pipeline`; the
+    comparisons are not run (they change no row)."""
+    if setup is None:
+        runner = EstimatorRunner(estimator, settings, sensors)
+        feed = runner.feed_arrays
+    else:
+        setup = dataclasses.replace(setup, comparisons=False, timeline=tuple(
+            c for c in setup.timeline if c.kind != "comparisons"))
+        runner = EstimatorRunner(collect_plot=False)
+        pipeline = Pipeline(runner)
+        pipeline.begin(pipeline.initial_checkpoint(setup), setup.timeline)
+        feed = pipeline.feed_samples
     for chunk in log.chunks():
         previous = 0
         for start in chunk.session_starts:
             if start > previous:
-                runner.feed_arrays(chunk.t_ms[previous:start], chunk.tag[previous:start],
-                                   chunk.values[previous:start])
+                feed(chunk.t_ms[previous:start], chunk.tag[previous:start],
+                     chunk.values[previous:start])
             runner.new_session()
             yield _taken(runner), True
             previous = start
         if previous < len(chunk):
-            runner.feed_arrays(chunk.t_ms[previous:], chunk.tag[previous:],
-                               chunk.values[previous:])
+            feed(chunk.t_ms[previous:], chunk.tag[previous:], chunk.values[previous:])
         rows = _taken(runner)
         if len(rows):
             yield rows, False
@@ -83,10 +99,11 @@ def _taken(runner: EstimatorRunner) -> Rows:
 
 
 def run_offline(log: OrderedLog, estimator: str | ekf.Estimator = "ekf",
-                settings: ekf.EKFSettings | None = None,
-                sensors: Iterable[str] = SENSORS) -> Rows:
+                settings: ekf.EKFSettings | None = None, sensors: Iterable[str] = SENSORS,
+                setup: Setup | None = None) -> Rows:
     """:func:`run_log`'s rows of a whole log in one Rows (every distinct time)."""
-    return Rows.concatenate([rows for rows, _ in run_log(log, estimator, settings, sensors)])
+    return Rows.concatenate([rows for rows, _ in run_log(log, estimator, settings, sensors,
+                                                         setup)])
 
 
 # ---- one pass to know a log --------------------------------------------------------------------

@@ -1,15 +1,16 @@
 """Instant re-filter: a whole session run again with other settings, in the background, for an
 A/B comparison with a kept "ghost" run.
 
-The log is turned into ordered sample arrays once (:class:`PreparedLog`); each re-run feeds them
-to a fresh :class:`~app.engine.processing.runner.EstimatorRunner` in one call, i.e. through the
-compiled batch path (the estimators' ``run_batch``, one nogil loop), so the rows are those of
+The log is read into ordered sample arrays once (a :class:`~app.stream.logfile.LogData`, the
+form `filter` takes too); each re-run is :func:`~app.engine.offline.filtering.run_offline` over
+them: a fresh :class:`~app.engine.processing.runner.EstimatorRunner` fed through the compiled
+batch path (the estimators' ``run_batch``, one nogil loop per chunk), so the rows are those of
 `filter` and of a live replay, bit for bit, and a 10-minute 100 Hz session takes a few tens of
 milliseconds (benchmarks/tuning.py). A re-run of a
-:class:`~app.engine.processing.configuration.Setup` (the window's configuration over time,
-:func:`run_setup`) applies its changes at their sample positions as a replay does, in a few calls,
-so Tune's figures are the replay's. Errors against ORI are
-:func:`app.engine.offline.filtering.reference_errors`' (the `evaluate` figures).
+:class:`~app.engine.processing.configuration.Setup` (the window's configuration over time)
+applies its changes at their sample positions as a replay does, so Tune's figures are the
+replay's. Errors against ORI are :func:`app.engine.offline.filtering.reference_errors`' (the
+`evaluate` figures).
 
 :class:`Refilterer` runs requests in a thread (latest request wins: a settings change while a
 run is under way replaces the waiting one) and hands each result to a callback, from that
@@ -18,7 +19,6 @@ thread; a widget forwards it to the GUI thread (a queued signal). Qt-free.
 
 from __future__ import annotations
 
-import dataclasses
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -30,54 +30,11 @@ import numpy as np
 
 import ekf
 from app.engine.processing.configuration import Setup
-from app.engine.offline.filtering import (ReferenceErrors, reference_errors, session_row_starts,
-                                          smooth_rows)
+from app.engine.offline.filtering import (ReferenceErrors, reference_errors, run_offline,
+                                          session_row_starts, smoothed_quats)
 from app.engine.processing.pipeline import Pipeline
 from app.engine.processing.runner import SENSORS, EstimatorRunner, Rows
 from app.stream.logfile import LogData
-
-ORI_CODE = 3
-
-
-@dataclass
-class PreparedLog:
-    """A log's ordered filter-tag samples as arrays (t_ms int64, tag codes GYR 0, ACC 1, MAG 2,
-    ORI 3, values (n, 4)), and its distinct ORI times."""
-
-    t_ms: np.ndarray
-    tag: np.ndarray
-    values: np.ndarray
-    ori_times: np.ndarray
-    path: str = ""
-    session_starts: tuple[int, ...] = ()
-
-    @classmethod
-    def from_log(cls, log: LogData) -> "PreparedLog":
-        return cls(log.t_ms, log.tag, log.values, np.unique(log.t_ms[log.tag == ORI_CODE]),
-                   log.path, tuple(int(k) for k in log.session_starts))
-
-    @property
-    def duration_s(self) -> float:
-        return float(self.t_ms[-1] - self.t_ms[0]) / 1000.0 if len(self.t_ms) else 0.0
-
-    @property
-    def start_ms(self) -> int:
-        return int(self.t_ms[0]) if len(self.t_ms) else 0
-
-    def until(self, t_end_ms: float | None) -> "PreparedLog":
-        """The samples up to and including t_end_ms (None: all): a run scored up to there needs
-        nothing later."""
-        if t_end_ms is None:
-            return self
-        n = int(np.searchsorted(self.t_ms, t_end_ms, side="right"))
-        return PreparedLog(self.t_ms[:n], self.tag[:n], self.values[:n],
-                           self.ori_times[self.ori_times <= t_end_ms], self.path,
-                           tuple(k for k in self.session_starts if k < n))
-
-
-def prepare(log: LogData | PreparedLog) -> PreparedLog:
-    return log if isinstance(log, PreparedLog) else PreparedLog.from_log(log)
-
 
 @dataclass
 class RefilterResult:
@@ -96,89 +53,34 @@ class RefilterResult:
         return None if self.errors is None else self.errors.summary
 
 
-def run_rows(prepared: PreparedLog, settings: ekf.EKFSettings | None, estimator: str = "ekf",
-             sensors: Iterable[str] = SENSORS) -> Rows:
-    """The rows of a whole run (one runner, one call through the batch path per stream; the
-    estimators start afresh where the log's clock restarts, as in run_offline)."""
-    runner = EstimatorRunner(estimator, settings, sensors)
-    return _run_sessions(prepared, runner, runner.feed_arrays)
-
-
-def run_setup(prepared: PreparedLog, setup: Setup) -> Rows:
-    """The rows of a whole run of `setup`: its configuration at the start (a recording's start
-    state too), its changes applied at their sample positions (the engine's
-    :class:`~app.engine.processing.pipeline.Pipeline`, fed the ordered samples), the estimators
-    afresh where the log's clock restarts; the comparisons are not run (they change no row)."""
-    setup = dataclasses.replace(setup, comparisons=False, timeline=tuple(
-        c for c in setup.timeline if c.kind != "comparisons"))
-    runner = EstimatorRunner(collect_plot=False)
-    pipeline = Pipeline(runner)
-    pipeline.begin(pipeline.initial_checkpoint(setup), setup.timeline)
-    return _run_sessions(prepared, runner, pipeline.feed_samples)
-
-
-def _run_sessions(prepared: PreparedLog, runner: EstimatorRunner,
-                  feed: Callable[[np.ndarray, np.ndarray, np.ndarray], Any]) -> Rows:
-    """Feed the log's samples session by session through `feed(t_ms, tag, values)`, the
-    estimators afresh where its clock restarts; the rows of the whole run."""
-    previous = 0
-    for start in list(prepared.session_starts) + [len(prepared.t_ms)]:
-        if start > previous:
-            feed(prepared.t_ms[previous:start], prepared.tag[previous:start],
-                 prepared.values[previous:start])
-        if start < len(prepared.t_ms):
-            runner.new_session()
-        previous = start
-    runner.finish()
-    return runner.take_rows()
-
-
-def refilter(log: LogData | PreparedLog, settings: ekf.EKFSettings | None,
-             estimator: str = "ekf", sensors: Iterable[str] = SENSORS,
-             intervals_ms: list | None = None, skip_s: float = 0.0,
-             label: str = "", smooth: bool = False, setup: Setup | None = None
-             ) -> RefilterResult:
+def refilter(log: LogData, settings: ekf.EKFSettings | None, estimator: str = "ekf",
+             sensors: Iterable[str] = SENSORS, intervals_ms: list | None = None,
+             skip_s: float = 0.0, label: str = "", smooth: bool = False,
+             setup: Setup | None = None) -> RefilterResult:
     """Run the whole log with `settings` and score it against ORI (see the module's docstring).
     smooth: the estimates of the offline smoother instead (the EKF forward and a backward RTS
     pass, as `filter --smooth`; one session only, the EKF only). setup: run this
     configuration over time instead of `settings`, `estimator` and `sensors`."""
-    prepared = prepare(log)
     started = time.perf_counter()
     if setup is not None:
         start = setup.start
         settings, estimator, sensors = start.settings, start.estimator, start.sensors
-        rows = run_setup(prepared, setup)
         if smooth and any(c.kind in ("sensor", "estimator", "settings") for c in setup.timeline):
             raise ValueError("the smoother runs one configuration over the whole session: this "
                              "one changes on the way (a recorded change or yours)")
-    else:
-        rows = run_rows(prepared, settings, estimator, sensors)
+    if smooth and estimator not in ("ekf", "course"):
+        raise ValueError(f"the smoother needs the EKF (ekf or course), not {estimator!r}")
+    if smooth and log.session_starts:
+        raise ValueError("the smoother runs over one session: this log's clock restarts")
+    rows = run_offline(log, estimator, settings, sensors, setup)
     if smooth:
-        smooth_prepared(prepared, rows, estimator, settings, sensors)
+        rows.quat[rows.has_sample] = smoothed_quats(log, estimator, settings, sensors).quat
     errors = None
-    if len(prepared.ori_times) and rows.has_sample.any():
-        errors = reference_errors(rows, prepared.ori_times, intervals_ms, skip_s,
-                                  session_row_starts(prepared.t_ms, prepared.session_starts))
+    if len(log.ori_times) and rows.has_sample.any():
+        errors = reference_errors(rows, log.ori_times, intervals_ms, skip_s,
+                                  session_row_starts(log.t_ms, log.session_starts))
     return RefilterResult(settings if settings is not None else ekf.PRESETS["default"],
                           estimator, rows, errors, time.perf_counter() - started, label)
-
-
-def smooth_prepared(prepared: PreparedLog, rows: Rows, estimator: str,
-                    settings: ekf.EKFSettings | None, sensors: Iterable[str]) -> None:
-    """Replace the estimates of `rows` (a whole run of `prepared`) by the smoother's."""
-    if estimator not in ("ekf", "course"):
-        raise ValueError(f"the smoother needs the EKF (ekf or course), not {estimator!r}")
-    if prepared.session_starts:
-        raise ValueError("the smoother runs over one session: this log's clock restarts")
-    times = rows.t_ms[rows.has_sample]
-    columns = []
-    for code in (0, 1, 2):                          # GYR, ACC, MAG at each distinct time
-        chosen = prepared.tag == code
-        column = np.full((len(times), 3), np.nan)
-        # the last of equal-time samples wins, as in the runner's rows
-        column[np.searchsorted(times, prepared.t_ms[chosen])] = prepared.values[chosen, :3]
-        columns.append(column)
-    rows.quat[rows.has_sample] = smooth_rows(times, *columns, estimator, settings, sensors)
 
 
 def ab_rows(current: RefilterResult | None,
@@ -214,18 +116,18 @@ def angle_between_runs_deg(current: RefilterResult, ghost: RefilterResult) -> np
 class Refilterer:
     """Background re-runs of one log for A/B comparison.
 
-    log: LogData or PreparedLog; estimator, sensors, intervals_ms, skip_s: as for
+    log: the LogData to re-run; estimator, sensors, intervals_ms, skip_s: as for
     :func:`refilter`; on_result(result) is called from the worker thread after each run,
     on_error(exception) when a run fails. :meth:`submit` queues a run with new settings (a
     waiting request is replaced: the latest wins); :meth:`keep_ghost` keeps the current run as
     the ghost. Call :meth:`close` when done."""
 
-    def __init__(self, log: LogData | PreparedLog, estimator: str = "ekf",
+    def __init__(self, log: LogData, estimator: str = "ekf",
                  sensors: Iterable[str] = SENSORS, intervals_ms: list | None = None,
                  skip_s: float = 0.0,
                  on_result: Callable[[RefilterResult], Any] | None = None,
                  on_error: Callable[[BaseException], Any] | None = None) -> None:
-        self.prepared = prepare(log)
+        self.log = log
         self.estimator = estimator
         self.sensors = tuple(sensors)
         self.intervals_ms = intervals_ms
@@ -295,7 +197,7 @@ class Refilterer:
                 settings, self._has_pending, self._busy = self._pending, False, True
             setup = settings if isinstance(settings, Setup) else None
             try:
-                result = refilter(self.prepared, None if setup else settings, self.estimator,
+                result = refilter(self.log, None if setup else settings, self.estimator,
                                   self.sensors, self.intervals_ms, self.skip_s,
                                   label="current", smooth=self.smooth, setup=setup)
             except Exception as error:   # reported, never lost: the caller shows it
@@ -316,10 +218,10 @@ class Refilterer:
             self._cond.notify_all()
 
 
-def prepare_path(path: str | Path) -> PreparedLog:
-    """A log file or session folder, read and prepared (ConfigError when unusable). A recording
-    that started mid-stream is prepared as its replay orders it: from the samples the time
-    orderer held then (its session.json's start state), so positions are a replay's."""
+def read_replayed(path: str | Path) -> LogData:
+    """A log file or session folder, read whole (ConfigError when unusable). A recording that
+    started mid-stream is read as its replay orders it: from the samples the time orderer held
+    then (its session.json's start state), so positions are a replay's."""
     from app.engine.config import open_log, open_replay
     from app.engine.sessions.session import read_session, session_json_for
 
@@ -327,11 +229,11 @@ def prepare_path(path: str | Path) -> PreparedLog:
     found = session_json_for(log.path)
     start = read_session(found).start_state if found is not None else None
     if start is None:
-        return PreparedLog.from_log(log)
-    return prepare_from_state(open_replay(path), start)
+        return log
+    return ordered_from_state(open_replay(path), start)
 
 
-def prepare_from_state(source: Any, start_state: dict) -> PreparedLog:
+def ordered_from_state(source: Any, start_state: dict) -> LogData:
     """The ordered samples of a replay source (a LineReplaySource) as the engine's pipeline
     orders them from a recording's start state."""
     pieces: list[tuple[np.ndarray, ...]] = []
@@ -352,6 +254,5 @@ def prepare_from_state(source: Any, start_state: dict) -> PreparedLog:
     if not pieces:
         pieces.append((np.empty(0, np.int64), np.empty(0, np.int64), np.empty((0, 4))))
     t_ms, tag, values = (np.concatenate(column) for column in zip(*pieces))
-    ori = np.unique(t_ms[tag == ORI_CODE])
-    return PreparedLog(np.asarray(t_ms, np.int64), np.asarray(tag, np.int64), values, ori,
-                       str(getattr(source, "path", "")), tuple(k for k in starts if k > 0))
+    return LogData(str(getattr(source, "path", "")), np.asarray(t_ms, np.int64),
+                   np.asarray(tag, np.int64), values, tuple(k for k in starts if k > 0))

@@ -9,7 +9,7 @@ by chunk: each estimator runs over a chunk in one compiled call) and the result 
 on the chunking, so a file and its live replay give bit-identical estimates.
 
 A row is what one estimator step is fed: the sensor samples of one phone time in code order
-(gyr, acc, mag; :mod:`app.stream.tags`). :class:`ChunkLayout` cuts a chunk of ordered samples
+(gyr, acc, mag; :mod:`app.stream.protocol`). :class:`ChunkLayout` cuts a chunk of ordered samples
 into rows and distinct-time groups, :func:`run_rows` / :func:`step_rows` run an estimator over
 the rows and :class:`Rows` holds the estimates per distinct time that the runner gives.
 
@@ -27,15 +27,13 @@ import numpy as np
 
 import ekf
 from ekf import SENSORS, magcal
+from ekf.fast.jit import check_cache
 from app.engine.processing.compare import ErrorRows, ErrorSums, SameInstant
 from app.engine.processing.innovations import YOURS, InnovationBuffer, InnovationProbe
-from app.engine.userfilter.filter import make_estimator
+from app.engine.userfilter.filter import estimator_for
 from app.engine.userfilter.lane import UserLane
-from app.stream.fastparse import samples_to_arrays
-from app.stream.kernels import check_cache, jit
-from app.stream.protocol import Sample
-from app.stream.repeats import Last, repeats
-from app.stream.tags import FILTER_TAGS, REFERENCE_CODE, SENSOR_CODES, TABLE_KEY, WIDTHS
+from app.stream.ordering import Last, repeats
+from app.stream.protocol import FILTER_TAGS, REFERENCE_CODE, SENSOR_CODES, TABLE_KEY, WIDTHS, jit
 
 
 @dataclass
@@ -78,9 +76,8 @@ class EstimatorRunner:
 
     Samples must come in time order (at equal times GYR, ACC, MAG, as TimeOrderer releases
     them). :meth:`feed_arrays` takes a chunk as arrays and runs each estimator over it in one
-    compiled call; :meth:`feed_many` takes Samples through the same path. The
-    result does not depend on the chunking: it is what feeding the samples one by one with
-    update_gyr/acc/mag gives, bit for bit, with one row per distinct time committed when a
+    compiled call. The result does not depend on the chunking: it is what feeding the samples one by
+    one with update_gyr/acc/mag gives, bit for bit, with one row per distinct time committed when a
     later time arrives (or at :meth:`finish`) from the estimators' state at that moment.
 
     Against the phone's own estimate (ORI) every estimator is compared at the phone's time
@@ -103,7 +100,7 @@ class EstimatorRunner:
         self.settings = settings if settings is not None else ekf.PRESETS["default"]
         self._mag_correction = magcal.settings_correction(self.settings)
         self._sensors = tuple(s for s in SENSORS if s in tuple(sensors))
-        self.main: ekf.Estimator = make_estimator(estimator, self.settings, self._sensors)
+        self.main: ekf.Estimator = estimator_for(estimator, self.settings, self._sensors)
         self.estimator_name = estimator if isinstance(estimator, str) else self.main.name
         self.user: UserLane | None = None
         self.innovations = InnovationBuffer()
@@ -151,7 +148,7 @@ class EstimatorRunner:
     def set_estimator(self, name: str) -> None:
         """Switch the main estimator (it starts afresh, with the current sensor switches)."""
         enabled = self.main.enabled
-        self.main = make_estimator(name, self.settings,
+        self.main = estimator_for(name, self.settings,
                                    tuple(s for s in SENSORS if enabled[s]) or SENSORS)
         self.main.set_enabled(**enabled)
         self.estimator_name = name
@@ -287,11 +284,6 @@ class EstimatorRunner:
         self._reset_plot()
 
     # -- samples ------------------------------------------------------------------------------
-
-    def feed_many(self, samples: Iterable[Sample]) -> None:
-        """Samples in order (non-filter tags are ignored)."""
-        arrays = samples_to_arrays(list(samples))
-        self.feed_arrays(arrays.t_ms, arrays.tag, arrays.values)
 
     def feed_arrays(self, t_ms: np.ndarray, tag: np.ndarray, values: np.ndarray) -> None:
         """Ordered filter-tag samples: t_ms (n,) int phone ms, tag (n,) codes GYR 0, ACC 1,
@@ -744,4 +736,4 @@ def _table_key():
     return TABLE_KEY
 
 
-check_cache(_table_key, globals())
+check_cache(_table_key, globals(), TABLE_KEY)

@@ -30,7 +30,8 @@ from ekf.metrics import ErrorSummary
 from ekf.settings import search_ranges
 from app.engine.processing.configuration import Setup
 from app.engine.errors import ConfigError
-from app.engine.offline.refilter import PreparedLog, refilter
+from app.engine.offline.refilter import refilter
+from app.stream.logfile import LogData
 from app.engine.processing.runner import SENSORS
 
 # (low, high) searched for a setting, log scale, from its declaration (ekf.settings'
@@ -54,7 +55,7 @@ def setting_sensor(name: str) -> str | None:
     return None
 
 
-def sensors_in(log: PreparedLog) -> frozenset[str]:
+def sensors_in(log: LogData) -> frozenset[str]:
     """The filter sensors the log holds samples of."""
     codes = np.unique(log.tag)
     return frozenset(name for code, name in enumerate(SENSORS) if code in codes)
@@ -176,7 +177,7 @@ class Target:
     configuration over time the log is replayed with (setup; a candidate overrides its
     settings, as a settings edit does; None: the estimator and sensors given to evaluate)."""
 
-    log: PreparedLog
+    log: LogData
     intervals_ms: list | None = None
     skip_s: float = 0.0
     label: str = ""

@@ -32,7 +32,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from app.engine.errors import UserProblem
+from app.engine.errors import ConfigError, UserProblem
 from app.engine.userfilter.octave import is_matlab_filter
 from app.engine.userfilter.protocol import INNOVATION_SENSORS
 from app.engine.userfilter.watchdog import UserCodeTimeout, guard
@@ -49,9 +49,10 @@ MAX_MESSAGE = 300
 _module_numbers = itertools.count(1)
 
 
-class UserFilterError(Exception):
+class UserFilterError(ConfigError):
     """The file cannot be used (missing, does not load, no class Filter...): ``problem`` says
-    why, with the file and line."""
+    why, with the file and line. A ConfigError: the command line says its one line and exits
+    with status 2, the window shows it."""
 
     def __init__(self, problem: UserProblem) -> None:
         super().__init__(problem.message)

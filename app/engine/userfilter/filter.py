@@ -50,7 +50,7 @@ from app.engine.userfilter.remote import BlockResult, RemoteFilter, filter_setti
 from app.engine.userfilter.watchdog import DEFAULT_LIMIT_S
 
 __all__ = ["UserFilterEstimator", "UserFilterError", "filter_settings", "is_filter_file",
-           "make_estimator"]
+           "estimator_for"]
 
 BLOCK_ROWS = 4096            # rows per block of a run over a log
 AHEAD = 2                    # blocks handed over before the first comes back
@@ -404,10 +404,11 @@ class UserFilterEstimator:
         self._heading, self._enabled = state["heading"], dict(state["enabled"])
 
 
-def make_estimator(name: str | ekf.Estimator, settings: EKFSettings | None = None,
-                   sensors: tuple[str, ...] | list[str] = SENSORS) -> ekf.Estimator:
-    """An estimator by name: a built-in (ekf.ESTIMATORS), a user's filter file (FILE.py; raises
-    UserFilterError when it cannot be loaded), or an estimator object as it is."""
+def estimator_for(name: str | ekf.Estimator, settings: EKFSettings | None = None,
+                  sensors: tuple[str, ...] | list[str] = SENSORS) -> ekf.Estimator:
+    """The estimator a name stands for: a built-in (ekf.ESTIMATORS, through ekf.make_estimator),
+    a user's filter (FILE.py or a MATLAB filter; raises UserFilterError, a ConfigError naming the
+    file and line, when it cannot be loaded), or an estimator object as it is."""
     if not isinstance(name, str):
         return name
     if name not in ekf.ESTIMATORS and is_filter_file(name):
