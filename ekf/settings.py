@@ -274,11 +274,16 @@ class EKFSettings:
     y_m = Q(q)^T m0 + e_m with m0 in ENU.
     """
 
-    # --- sensor calibration ---------------------------------------------------------------
+    # each field names its group (GROUPS); grouped_rows() lists them group by group
     g: float = _setting(
         9.81, group="calibration", unit="m/s²", doc="expected ‖a‖ at rest; g⁰ = (0, 0, g)",
         typical="9.78-9.83 (the local gravity; `calibrate` measures the phone's own)",
         low=1.0, high=100.0)
+    m0: tuple[float, float, float] | None = _setting(
+        None, group="start", unit="µT (ENU)", shape=(3,),
+        doc="Earth field (0, horizontal, vertical); none: from the first magnetometer reading, "
+            "tilt-compensated with the first accelerometer reading (the course's flat reading)",
+        typical="none; or from `calibrate`: a strength of 25-65 µT", optional=True)
     gyr_bias: tuple[float, float, float] = _setting(
         (0.0, 0.0, 0.0), group="calibration", unit="rad/s", shape=(3,),
         doc="subtracted from every gyroscope sample (from `calibrate`); also the initial bias "
@@ -295,28 +300,19 @@ class EKFSettings:
         doc="soft-iron matrix S of the hard-iron correction (identity: none)",
         typical="the identity, or within a few per cent of it (from `calibrate-mag`)",
         matrix="invertible")
-
-    # --- start ----------------------------------------------------------------------------
-    m0: tuple[float, float, float] | None = _setting(
-        None, group="start", unit="µT (ENU)", shape=(3,),
-        doc="Earth field (0, horizontal, vertical); none: from the first magnetometer reading, "
-            "tilt-compensated with the first accelerometer reading (the course's flat reading)",
-        typical="none; or from `calibrate`: a strength of 25-65 µT", optional=True)
-    initial_attitude_std: float = _setting(
-        0.05, group="start", unit="rad", doc="standard deviation of the initial attitude from "
-        "acc+mag", typical="0.01-0.1", above=True, search=(1e-3, 1.0))
-    mag_reference_s: float = _setting(
-        0.0, group="start", unit="s",
-        doc="the expected field (strength L_k and the reference m0 with its dip) is the mean of "
-            "the readings over this long from the first one, used meanwhile without the gates "
-            "(0: the first reading decides)", typical="0.5-2; 0 for the course's first reading")
-
-    # --- gyroscope and time update --------------------------------------------------------
     gyr_noise_cov: list[list[float]] = _setting(
         group="gyroscope", unit="(rad/s)²", shape=(3, 3), factory=lambda: _diag(1e-4),
         doc="R_w: covariance of the angular-rate noise v_k (eq. 5)", matrix="covariance",
         typical="1e-4·I to 1e-3·I (above the sensor's own noise from `calibrate`, to absorb "
                 "model error)", search=(1e-6, 1e-1))
+    acc_noise_cov: list[list[float]] = _setting(
+        group="accelerometer", unit="(m/s²)²", shape=(3, 3), factory=lambda: _diag(0.1),
+        doc="R_a: accelerometer noise, larger than the sensor's own to absorb small specific "
+            "forces", typical="0.1·I to 1·I", matrix="covariance", search=(0.1, 3.0, 0.1))
+    mag_noise_cov: list[list[float]] = _setting(
+        group="magnetometer", unit="µT²", shape=(3, 3), factory=lambda: _diag(2.0),
+        doc="R_m: magnetometer noise (heading-only: σ_ψ² = tr(R_m)/3 / ‖m_horizontal‖²)",
+        typical="0.5·I to 5·I", matrix="covariance", search=(0.1, 10.0, 0.1))
     gyr_scale_noise: float = _setting(
         0.0, group="gyroscope", unit="-",
         doc="relative uncertainty k of the gyroscope's scale: R_w grows by (k‖ω‖)² I, so fast "
@@ -329,73 +325,49 @@ class EKFSettings:
             "and drives the state up to it (no lag of one sample period); false (eq. 5): it "
             "drives the state from its time to the next sample",
         typical="true (no lag of a sample period)")
-    exact_discretisation: bool = _setting(
-        False, group="gyroscope", unit="-",
-        doc="true: F = exp(T/2 S(ω)) (exact for constant ω); false: F = I + T/2 S(ω) (task 3)",
-        typical="true (exact for a constant rate; false: the course's first-order step)")
     no_gyro_random_walk: float = _setting(
         1.0, group="gyroscope", unit="rad/√s",
         doc="orientation random walk when no gyroscope sample drives the time update: q stays, "
             "P grows (task 12, acc+mag only)", typical="0.1-3", search=(1e-2, 10.0))
-
-    # --- gyroscope bias -------------------------------------------------------------------
-    estimate_gyro_bias: bool = _setting(
-        False, group="bias", unit="-",
-        doc="true: model 4c, x = (q, b_ω) with the bias a random walk, plus a zero-rate update "
-            "at rest", typical="true for a phone (its bias drifts with temperature)")
-    gyro_bias_random_walk: float = _setting(
-        1e-4, group="bias", unit="rad/s/√s", doc="bias random walk (model 4c)",
-        typical="1e-6-1e-4", search=(1e-7, 1e-3))
-    initial_gyro_bias_std: float = _setting(
-        0.01, group="bias", unit="rad/s", doc="initial bias standard deviation (model 4c)",
-        typical="0.005-0.02 (a phone's bias is within it)")
-    rest_rate_noise_std: float = _setting(
-        0.01, group="bias", unit="rad/s",
-        doc="standard deviation of the zero-rate pseudo-measurement at rest (model 4c)",
-        typical="0.001-0.01", above=True, search=(1e-4, 0.1))
-
-    # --- rest detection -------------------------------------------------------------------
-    rest_gyr_threshold: float = _setting(
-        0.05, group="rest", unit="rad/s", doc="‖ω − b‖ below this counts as still",
-        typical="0.02-0.1 (a few times the gyroscope's noise)")
-    rest_acc_threshold: float = _setting(
-        0.3, group="rest", unit="m/s²", doc="‖a − lowpass(a)‖ below this counts as still",
-        typical="0.1-0.5")
-    rest_min_duration: float = _setting(
-        0.5, group="rest", unit="s", doc="still this long: at rest (standstill)",
-        typical="0.3-2", inf=True)
-
-    # --- accelerometer update -------------------------------------------------------------
-    acc_noise_cov: list[list[float]] = _setting(
-        group="accelerometer", unit="(m/s²)²", shape=(3, 3), factory=lambda: _diag(0.1),
-        doc="R_a: accelerometer noise, larger than the sensor's own to absorb small specific "
-            "forces", typical="0.1·I to 1·I", matrix="covariance", search=(0.1, 3.0, 0.1))
+    initial_attitude_std: float = _setting(
+        0.05, group="start", unit="rad", doc="standard deviation of the initial attitude from "
+        "acc+mag", typical="0.01-0.1", above=True, search=(1e-3, 1.0))
     acc_gate: float = _setting(
         1.0, group="accelerometer", unit="m/s²",
         doc="reject an accelerometer reading when |‖y_a‖ − g| > gate (task 8); under the "
             "low-pass (`acc_lowpass_s`) the reading is only flagged; 0: every reading out; "
             "inf: off", typical="1-3 (a tenth to a third of g)", inf=True, search=(0.2, 10.0))
-    acc_nis_gate: float = _setting(
-        math.inf, group="accelerometer", unit="-",
-        doc="also reject an accelerometer reading whose normalised innovation squared exceeds "
-            "this (χ², 3 dof); inf: off", typical="inf; 11-16 (χ², 3 dof, 1 % to 0.1 %)",
-        above=True, inf=True)
+    mag_gate: float = _setting(
+        5.0, group="mag_field", unit="µT",
+        doc="reject a magnetometer reading when |‖y_m‖ − L_k| > gate (task 11); 0: every "
+            "reading out; inf: off", typical="4-10 (a tenth of the Earth's field)", inf=True,
+        search=(4.0, 16.0, 1.0))
+    mag_alpha: float = _setting(
+        0.01, group="mag_field", unit="-",
+        doc="AR(1) coefficient of the field strength L_k = (1 − α) L_{k−1} + α ‖y_m‖",
+        typical="0.005-0.05 (L_k remembers 1/α readings)", high=1.0, search=(1e-3, 0.3))
+    mag_strength_update: str = _setting(
+        "always", group="mag_relearn", unit="-", choices=("always", "accepted"),
+        doc="'always': every reading moves L_k (the course); 'accepted': only readings that pass "
+            "the gates, and a changed field is re-learned (`mag_relearn_s`)",
+        typical="'accepted' (a disturbance then cannot teach L_k its strength)")
+    mag_relearn_s: float = _setting(
+        10.0, group="mag_relearn", unit="s",
+        doc="rejected (or still settling) readings that agree with each other this long "
+            "(strength and dip within the gates of their running mean) are the new normal: L_k "
+            "and m0 are re-learned from the current reading; a magnet that moves with the phone "
+            "never agrees for long", typical="10-30", inf=True, search=(1.0, 120.0))
+    mag_dip_gate_deg: float = _setting(
+        math.inf, group="mag_field", unit="deg",
+        doc="also reject a magnetometer reading whose angle to up differs from the reference "
+            "dip by more than this; inf: off", typical="10-30", above=True, inf=True,
+        search=(10.0, 40.0, 1.0))
     acc_range: float = _setting(
         math.inf, group="accelerometer", unit="m/s²",
         doc="an accelerometer reading with an axis at the sensor's range is clipped and never "
             "enters an update: |axis| >= this; 0: detect the range from the data (an axis "
             "within 1 % of the largest |axis| seen so far, once that exceeds 1.5 g); inf: off",
         typical="0 (detected from the data); or the sensor's range, e.g. 78.5 (±8 g)", inf=True)
-    acc_tilt_only_after_s: float = _setting(
-        math.inf, group="accelerometer", unit="s",
-        doc="once no magnetometer update has run for this long (none, switched off, or out for "
-            "a disturbance), the accelerometer update corrects only what gravity observes: its "
-            "gain on the heading and on the bias about up is projected out (Joseph form keeps P "
-            "consistent). Through correlations in P, accelerations would otherwise turn the "
-            "heading and teach the bias about up a rate it cannot see (inf: off)",
-        typical="1-5", inf=True)
-
-    # --- accelerometer low-pass -----------------------------------------------------------
     acc_lowpass_s: float = _setting(
         0.0, group="acc_lowpass", unit="s",
         doc="time constant of a low-pass of the accelerometer that the gyroscope carries along "
@@ -412,29 +384,44 @@ class EKFSettings:
         # counting the two axes the norm does not see); below it a fold tuned without running
         # lets running tilt the estimate (held out 9-13 deg)
         search=(30.0, 300.0, 1.0))
-
-    # --- magnetometer update --------------------------------------------------------------
-    mag_noise_cov: list[list[float]] = _setting(
-        group="magnetometer", unit="µT²", shape=(3, 3), factory=lambda: _diag(2.0),
-        doc="R_m: magnetometer noise (heading-only: σ_ψ² = tr(R_m)/3 / ‖m_horizontal‖²)",
-        typical="0.5·I to 5·I", matrix="covariance", search=(0.1, 10.0, 0.1))
-    mag_heading_only: bool = _setting(
-        False, group="magnetometer", unit="-",
-        doc="true: the magnetometer may only turn the estimate about world up (footnote 2), so "
-            "a disturbed field cannot tilt it", typical="true")
-    mag_return_s: float = _setting(
-        0.0, group="magnetometer", unit="s",
-        doc="the heading follows the magnetometer no faster than this time constant: each "
-            "heading update corrects at most dt/(dt + this) of the innovation (dt since the "
-            "previous update), so the estimate comes back from a disturbance without a jump "
-            "(0: off)", typical="3-10", search=(2.0, 20.0, 1.0))
-    mag_bias_innovation_limit: float = _setting(
-        math.inf, group="magnetometer", unit="σ",
-        doc="a heading update teaches the gyroscope bias from at most this many standard "
-            "deviations of its innovation (its bias gain is scaled by limit·√S/|ψ| beyond): a "
-            "heading far off says the field or the heading is wrong (a disturbance that passed "
-            "the gates, a start beside a magnet), not the bias; inf: off",
-        typical="1.345 (Huber's) to 3", inf=True)
+    acc_tilt_only_after_s: float = _setting(
+        math.inf, group="accelerometer", unit="s",
+        doc="once no magnetometer update has run for this long (none, switched off, or out for "
+            "a disturbance), the accelerometer update corrects only what gravity observes: its "
+            "gain on the heading and on the bias about up is projected out (Joseph form keeps P "
+            "consistent). Through correlations in P, accelerations would otherwise turn the "
+            "heading and teach the bias about up a rate it cannot see (inf: off)",
+        typical="1-5", inf=True)
+    mag_dip_from_estimate: bool = _setting(
+        False, group="mag_field", unit="-",
+        doc="true: the dip gate measures the field's angle to the estimated up (good while "
+            "moving); false: to the accelerometer reading",
+        typical="true (the reading's up moves with every acceleration)",
+        requires=When("mag_dip_gate_deg", math.inf))
+    mag_settle_s: float = _setting(
+        0.0, group="mag_field", unit="s",
+        doc="after a rejection, readings must pass the gates this long before the magnetometer "
+            "is used again (a magnet on the phone stays out)", typical="0.2-1", inf=True,
+        search=(0.05, 5.0))
+    mag_hard_iron_tau_s: float = _setting(
+        0.0, group="hard_iron", unit="s",
+        doc="estimate the magnetometer's offset in the sensor frame (hard iron: a magnet on the "
+            "phone) online and subtract it from every reading: pairs of readings the phone turned "
+            "20° between must differ by that turn (y_j − b = Q_jᵀ Q_i (y_i − b)), a weighted "
+            "least-squares fit remembering this long; 0: off", typical="60-300",
+        search=(20.0, 300.0, 10.0))
+    mag_hard_iron_prior: float = _setting(
+        1.0, group="hard_iron", unit="-",
+        doc="weight of the prior b_m = 0 in the online fit, in pairs of a full turn's worth: "
+            "small offsets (a field that is not quite uniform) stay near zero, a magnet's "
+            "hundreds of µT do not", typical="0.3-2", above=True, search=(0.3, 10.0, 0.1))
+    mag_delay_s: float = _setting(
+        0.0, group="hard_iron", unit="s",
+        doc="the magnetometer's readings are this much older than their time stamps (its own "
+            "filtering and delivery): the online fit turns each reading on to its stamp by the "
+            "gyroscope, y ← b + R(−(ω − b_ω)·this)(y − b), so that a pair's turn is the turn "
+            "between its readings (the heading update is not turned); 0: off",
+        typical="0.01-0.05 on phones")
     mag_noise_adapt: float = _setting(
         0.0, group="magnetometer", unit="-",
         doc="R_m grows where the field is uneven: R_m (1 + this · d²/L_k²), d² the low-pass "
@@ -448,38 +435,11 @@ class EKFSettings:
             "anyway, and its size says nothing about how the passing readings bend (a 100 µT "
             "spike would keep R_m large for tens of seconds after it); inf: off",
         typical="2-6", requires=When("mag_noise_adapt", 0.0), above=True, inf=True)
-    mag_nis_gate: float = _setting(
-        math.inf, group="magnetometer", unit="-",
-        doc="also reject a magnetometer reading whose normalised innovation squared exceeds "
-            "this (χ², 1 dof heading-only, 3 dof full); inf: off",
-        typical="inf; 7-11 heading-only, 11-16 full (χ², 1 % to 0.1 %)", above=True, inf=True)
-
-    # --- expected field and magnetometer gates --------------------------------------------
-    mag_alpha: float = _setting(
-        0.01, group="mag_field", unit="-",
-        doc="AR(1) coefficient of the field strength L_k = (1 − α) L_{k−1} + α ‖y_m‖",
-        typical="0.005-0.05 (L_k remembers 1/α readings)", high=1.0, search=(1e-3, 0.3))
-    mag_gate: float = _setting(
-        5.0, group="mag_field", unit="µT",
-        doc="reject a magnetometer reading when |‖y_m‖ − L_k| > gate (task 11); 0: every "
-            "reading out; inf: off", typical="4-10 (a tenth of the Earth's field)", inf=True,
-        search=(4.0, 16.0, 1.0))
-    mag_dip_gate_deg: float = _setting(
-        math.inf, group="mag_field", unit="deg",
-        doc="also reject a magnetometer reading whose angle to up differs from the reference "
-            "dip by more than this; inf: off", typical="10-30", above=True, inf=True,
-        search=(10.0, 40.0, 1.0))
-    mag_dip_from_estimate: bool = _setting(
-        False, group="mag_field", unit="-",
-        doc="true: the dip gate measures the field's angle to the estimated up (good while "
-            "moving); false: to the accelerometer reading",
-        typical="true (the reading's up moves with every acceleration)",
-        requires=When("mag_dip_gate_deg", math.inf))
-    mag_settle_s: float = _setting(
-        0.0, group="mag_field", unit="s",
-        doc="after a rejection, readings must pass the gates this long before the magnetometer "
-            "is used again (a magnet on the phone stays out)", typical="0.2-1", inf=True,
-        search=(0.05, 5.0))
+    mag_reference_s: float = _setting(
+        0.0, group="start", unit="s",
+        doc="the expected field (strength L_k and the reference m0 with its dip) is the mean of "
+            "the readings over this long from the first one, used meanwhile without the gates "
+            "(0: the first reading decides)", typical="0.5-2; 0 for the course's first reading")
     mag_max_reject_no_gyro_s: float = _setting(
         math.inf, group="mag_field", unit="s",
         doc="while no gyroscope drives the time update, a disturbance (rejected or settling "
@@ -492,19 +452,6 @@ class EKFSettings:
         10.0, group="mag_field", unit="-",
         doc="R_m is multiplied by this for readings used past `mag_max_reject_no_gyro_s`",
         typical="5-100", requires=When("mag_max_reject_no_gyro_s", math.inf), above=True)
-
-    # --- re-learning a changed field ------------------------------------------------------
-    mag_strength_update: str = _setting(
-        "always", group="mag_relearn", unit="-", choices=("always", "accepted"),
-        doc="'always': every reading moves L_k (the course); 'accepted': only readings that pass "
-            "the gates, and a changed field is re-learned (`mag_relearn_s`)",
-        typical="'accepted' (a disturbance then cannot teach L_k its strength)")
-    mag_relearn_s: float = _setting(
-        10.0, group="mag_relearn", unit="s",
-        doc="rejected (or still settling) readings that agree with each other this long "
-            "(strength and dip within the gates of their running mean) are the new normal: L_k "
-            "and m0 are re-learned from the current reading; a magnet that moves with the phone "
-            "never agrees for long", typical="10-30", inf=True, search=(1.0, 120.0))
     mag_relearn_world: bool = _setting(
         False, group="mag_relearn", unit="-",
         doc="true: re-learning compares the rejected readings in the world frame (Q(q) y_m: a "
@@ -525,35 +472,56 @@ class EKFSettings:
         doc="rejected readings count towards re-learning only while ‖ω − b‖ is at least this "
             "(VQF: 20°/s)", typical="0.2-0.5 (10-30°/s)",
         requires=When("mag_relearn_world", False))
-
-    # --- online hard-iron fit -------------------------------------------------------------
-    mag_hard_iron_tau_s: float = _setting(
-        0.0, group="hard_iron", unit="s",
-        doc="estimate the magnetometer's offset in the sensor frame (hard iron: a magnet on the "
-            "phone) online and subtract it from every reading: pairs of readings the phone turned "
-            "20° between must differ by that turn (y_j − b = Q_jᵀ Q_i (y_i − b)), a weighted "
-            "least-squares fit remembering this long; 0: off", typical="60-300",
-        search=(20.0, 300.0, 10.0))
-    mag_hard_iron_prior: float = _setting(
-        1.0, group="hard_iron", unit="-",
-        doc="weight of the prior b_m = 0 in the online fit, in pairs of a full turn's worth: "
-            "small offsets (a field that is not quite uniform) stay near zero, a magnet's "
-            "hundreds of µT do not", typical="0.3-2", above=True, search=(0.3, 10.0, 0.1))
-    mag_delay_s: float = _setting(
-        0.0, group="hard_iron", unit="s",
-        doc="the magnetometer's readings are this much older than their time stamps (its own "
-            "filtering and delivery): the online fit turns each reading on to its stamp by the "
-            "gyroscope, y ← b + R(−(ω − b_ω)·this)(y − b), so that a pair's turn is the turn "
-            "between its readings (the heading update is not turned); 0: off",
-        typical="0.01-0.05 on phones")
-    smooth_hard_iron: bool = _setting(
-        True, group="hard_iron", unit="-",
-        doc="the offline smoother's forward pass keeps the online hard-iron fit; false: it runs "
-            "without it (the backward pass smooths q and b only, so the fit's changes would be "
-            "spread over the whole recording)",
-        typical="false (as in the default preset)")
-
-    # --- timing ---------------------------------------------------------------------------
+    mag_return_s: float = _setting(
+        0.0, group="magnetometer", unit="s",
+        doc="the heading follows the magnetometer no faster than this time constant: each "
+            "heading update corrects at most dt/(dt + this) of the innovation (dt since the "
+            "previous update), so the estimate comes back from a disturbance without a jump "
+            "(0: off)", typical="3-10", search=(2.0, 20.0, 1.0))
+    mag_bias_innovation_limit: float = _setting(
+        math.inf, group="magnetometer", unit="σ",
+        doc="a heading update teaches the gyroscope bias from at most this many standard "
+            "deviations of its innovation (its bias gain is scaled by limit·√S/|ψ| beyond): a "
+            "heading far off says the field or the heading is wrong (a disturbance that passed "
+            "the gates, a start beside a magnet), not the bias; inf: off",
+        typical="1.345 (Huber's) to 3", inf=True)
+    update_period_s: float = _setting(
+        0.0, group="timing", unit="s",
+        doc="run the low-passed accelerometer, magnetometer and zero-rate updates at most this "
+            "often (they change slowly; 0: every sample, the course's filter)",
+        typical="0.02-0.1")
+    mag_nis_gate: float = _setting(
+        math.inf, group="magnetometer", unit="-",
+        doc="also reject a magnetometer reading whose normalised innovation squared exceeds "
+            "this (χ², 1 dof heading-only, 3 dof full); inf: off",
+        typical="inf; 7-11 heading-only, 11-16 full (χ², 1 % to 0.1 %)", above=True, inf=True)
+    acc_nis_gate: float = _setting(
+        math.inf, group="accelerometer", unit="-",
+        doc="also reject an accelerometer reading whose normalised innovation squared exceeds "
+            "this (χ², 3 dof); inf: off", typical="inf; 11-16 (χ², 3 dof, 1 % to 0.1 %)",
+        above=True, inf=True)
+    exact_discretisation: bool = _setting(
+        False, group="gyroscope", unit="-",
+        doc="true: F = exp(T/2 S(ω)) (exact for constant ω); false: F = I + T/2 S(ω) (task 3)",
+        typical="true (exact for a constant rate; false: the course's first-order step)")
+    mag_heading_only: bool = _setting(
+        False, group="magnetometer", unit="-",
+        doc="true: the magnetometer may only turn the estimate about world up (footnote 2), so "
+            "a disturbed field cannot tilt it", typical="true")
+    estimate_gyro_bias: bool = _setting(
+        False, group="bias", unit="-",
+        doc="true: model 4c, x = (q, b_ω) with the bias a random walk, plus a zero-rate update "
+            "at rest", typical="true for a phone (its bias drifts with temperature)")
+    gyro_bias_random_walk: float = _setting(
+        1e-4, group="bias", unit="rad/s/√s", doc="bias random walk (model 4c)",
+        typical="1e-6-1e-4", search=(1e-7, 1e-3))
+    initial_gyro_bias_std: float = _setting(
+        0.01, group="bias", unit="rad/s", doc="initial bias standard deviation (model 4c)",
+        typical="0.005-0.02 (a phone's bias is within it)")
+    rest_rate_noise_std: float = _setting(
+        0.01, group="bias", unit="rad/s",
+        doc="standard deviation of the zero-rate pseudo-measurement at rest (model 4c)",
+        typical="0.001-0.01", above=True, search=(1e-4, 0.1))
     max_dt: float = _setting(
         0.5, group="timing", unit="s",
         doc="a longer time step is a pause or a reconnect: it is not integrated",
@@ -562,11 +530,21 @@ class EKFSettings:
         0.1, group="timing", unit="s",
         doc="a gyroscope sample keeps driving the time update at most this long",
         typical="0.05-0.2 (a few gyroscope periods)", inf=True)
-    update_period_s: float = _setting(
-        0.0, group="timing", unit="s",
-        doc="run the low-passed accelerometer, magnetometer and zero-rate updates at most this "
-            "often (they change slowly; 0: every sample, the course's filter)",
-        typical="0.02-0.1")
+    rest_gyr_threshold: float = _setting(
+        0.05, group="rest", unit="rad/s", doc="‖ω − b‖ below this counts as still",
+        typical="0.02-0.1 (a few times the gyroscope's noise)")
+    rest_acc_threshold: float = _setting(
+        0.3, group="rest", unit="m/s²", doc="‖a − lowpass(a)‖ below this counts as still",
+        typical="0.1-0.5")
+    rest_min_duration: float = _setting(
+        0.5, group="rest", unit="s", doc="still this long: at rest (standstill)",
+        typical="0.3-2", inf=True)
+    smooth_hard_iron: bool = _setting(
+        True, group="hard_iron", unit="-",
+        doc="the offline smoother's forward pass keeps the online hard-iron fit; false: it runs "
+            "without it (the backward pass smooths q and b only, so the fit's changes would be "
+            "spread over the whole recording)",
+        typical="false (as in the default preset)")
 
     # ---------------------------------------------------------------------------------------
     def __post_init__(self) -> None:
@@ -734,8 +712,8 @@ def search_text(r: SearchRange | None) -> str:
 
 
 def settings_rows() -> list[SettingRow]:
-    """Every field of :class:`EKFSettings` in declaration order, group by group (values as
-    stored)."""
+    """Every field of :class:`EKFSettings` in declaration order (values as stored);
+    :func:`grouped_rows` gives them group by group."""
     return [SettingRow(f.name, getattr(PRESETS["default"], f.name),
                        getattr(PRESETS["course"], f.name), f.metadata["unit"], f.metadata["doc"],
                        allowed_text(f), search_text(f.metadata["search"]), f.metadata["group"],
