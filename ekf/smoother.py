@@ -517,7 +517,7 @@ def _less(m: np.ndarray, offset: np.ndarray | None) -> np.ndarray:
 def _record_cfg(est) -> np.ndarray:
     from ekf.fast.layout import C
 
-    cfg = est._cfg.copy()
+    cfg = est.packed_settings.copy()
     cfg[C.record_prediction] = 1.0
     return cfg
 
@@ -529,7 +529,7 @@ def _run_as_set(as_set, t, g, a, m, changes: dict, blocks: list,
     pass to subtract (None: none)."""
     starts = []
     for first, end in blocks:
-        starts.append(as_set._packed.copy())
+        starts.append(as_set.packed_state.copy())
         r = as_set.run_batch(t[first:end], g[first:end], a[first:end], m[first:end])
         flags[first:end, 0], flags[first:end, 1], flags[first:end, 2] = \
             r.acc_rejected, r.mag_rejected, r.at_rest
@@ -558,8 +558,8 @@ def _forward_passes(est, as_set, t, g, a, m, changes: dict, blocks: list, flags:
         own_flags = np.zeros(flags.shape, dtype=np.bool_)
     starts = []
     for first, end in blocks:
-        starts.append(est._packed.copy())
-        records.record(batch_loop_recording, est._packed, cfg, t[first:end], g[first:end],
+        starts.append(est.packed_state.copy())
+        records.record(batch_loop_recording, est.packed_state, cfg, t[first:end], g[first:end],
                        a[first:end], _less(m[first:end], offset), own_flags[first:end])
     return starts, set_starts, offset, own_flags
 

@@ -28,7 +28,7 @@ from app.stream.logfile import LogData
 def _write_json(path: str, payload: dict[str, Any], *inputs: str | None) -> None:
     """The settings file, written only when `--settings` would accept what it holds."""
     check_output(path, *inputs)
-    text = json.dumps(profiles._jsonable(payload), indent=2) + "\n"
+    text = json.dumps(profiles.jsonable(payload), indent=2) + "\n"
     try:
         ekf.EKFSettings.from_file_value(json.loads(text))
     except ValueError as error:

@@ -33,10 +33,7 @@ def warm_up_stream() -> None:
 
 def _cache_is_empty() -> bool:
     """No cache entry of the parser's kernel yet (a first start); False when unknown."""
-    try:
-        return not Path(fastparse._scan._cache._cache_file._index_path).exists()
-    except (AttributeError, OSError):
-        return False
+    return fastparse.kernel_cached() is False
 
 
 def _start_stream_helper() -> subprocess.Popen | None:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -593,6 +594,15 @@ def _table_key():
 
 
 check_cache(_table_key, globals(), TABLE_KEY)
+
+
+def kernel_cached() -> bool | None:
+    """Whether numba's on-disk cache holds the parser's kernel (None when that is unknown): a
+    first start after an install has none."""
+    try:
+        return Path(_scan._cache._cache_file._index_path).exists()
+    except (AttributeError, OSError):
+        return None
 
 
 def warm_up() -> None:

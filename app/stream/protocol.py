@@ -443,6 +443,18 @@ class LineParser:
         self._discarding = False
         self._ori4_seen = False
 
+    def cut_off(self) -> None:
+        """The stream ended inside a line (a disconnect): that line is counted (damaged, or too
+        long when it was already over the limit) and dropped, as :meth:`reset_line` does."""
+        if self._pending or self._discarding:
+            kind = "too_long" if self._discarding else "damaged"
+            self._count_bad(kind, "line cut off by the end of the connection", "cut off")
+        self.reset_line()
+
+    def count_damaged(self, message: str, reason: str | None = None) -> None:
+        """A damaged line this parser did not see (a replay's torn last line)."""
+        self._count_bad("damaged", message, reason)
+
     def line_state(self) -> tuple[bytes, bool, bool]:
         """What the parser keeps between two feeds (a partial line, discarding a long one, a
         4-value ORI seen), for :meth:`restore_line_state` (a replay's checkpoints)."""

@@ -242,6 +242,20 @@ class Recorder:
             self.session["settings"] = _jsonable(settings)
             self._dirty = True
 
+    def set_phone(self, peer: str | None) -> None:
+        """Who streams (session.json "phone")."""
+        with self._lock:
+            self.session["phone"] = peer
+            self._dirty = True
+
+    def relabel_marker(self, marker_id: Any, label: str) -> None:
+        """A marker's new label, in the timeline."""
+        with self._lock:
+            for event in self.session["timeline"]:
+                if event.get("kind") == "marker" and event.get("id") == marker_id:
+                    event["label"] = label
+            self._dirty = True
+
     def set_calibration(self, calibration: Any) -> None:
         """The calibration profile the settings came from (session.json "calibration")."""
         with self._lock:

@@ -75,6 +75,16 @@ class FastEKF(EstimatorBase):
         check_state(EKFState, state)
         self._packed = pack_state(state)
 
+    @property
+    def packed_state(self) -> np.ndarray:
+        """The packed state (ekf.fast.layout) the compiled kernels advance: the array itself."""
+        return self._packed
+
+    @property
+    def packed_settings(self) -> np.ndarray:
+        """The packed settings (ekf.fast.layout) the compiled kernels read: the array itself."""
+        return self._cfg
+
     # ---------------------------------------------------------------------------------------
     # public state
     @property

@@ -166,10 +166,7 @@ class Pipeline:
         damaged), pending samples are released, the last row is committed."""
         parser = self.parser
         if partial_line_damaged:
-            if parser._pending or parser._discarding:
-                kind = "too_long" if parser._discarding else "damaged"
-                parser._count_bad(kind, "line cut off by the end of the connection", "cut off")
-            parser.reset_line()
+            parser.cut_off()
         else:
             self.parsed(parser.finish_arrays())
         self.feed_ordered(self.orderer.flush_arrays())
@@ -194,7 +191,7 @@ class Pipeline:
 
     def count_damaged(self, reason: str, example: str) -> None:
         """A damaged line the parser did not see (a replay's torn last line)."""
-        self.parser._count_bad("damaged", reason, example)
+        self.parser.count_damaged(reason, example)
 
     def take_output(self) -> tuple[Rows, PlotChunk]:
         """The rows committed since the last call and the plot samples as a PlotChunk in

@@ -135,9 +135,7 @@ class SessionRecording:
             recorder.set_calibration({**calibration_of(settings), "profile": profile})
 
     def set_peer(self, peer: str | None) -> None:
-        with self.recorder._lock:
-            self.recorder.session["phone"] = peer
-            self.recorder._dirty = True
+        self.recorder.set_phone(peer)
 
     def add_marker(self, marker: Marker, fed: int) -> None:
         """A marker into the timeline, its t_s counted from the recording's own start (the
@@ -151,12 +149,7 @@ class SessionRecording:
 
     def update_marker(self, marker: Marker) -> None:
         """A marker's new label."""
-        recorder = self.recorder
-        with recorder._lock:
-            for event in recorder.session["timeline"]:
-                if event.get("kind") == "marker" and event.get("id") == marker.id:
-                    event["label"] = marker.label
-            recorder._dirty = True
+        self.recorder.relabel_marker(marker.id, marker.label)
 
     # -- output --------------------------------------------------------------------------------
 

@@ -101,7 +101,7 @@ class Profile:
     def to_dict(self) -> dict[str, Any]:
         out = {"kind": KIND}
         out.update({f.name: getattr(self, f.name) for f in fields(self)})
-        return _jsonable(out)
+        return jsonable(out)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "Profile":
@@ -160,14 +160,14 @@ def _rest_changes(rest: dict[str, Any], correction: tuple[np.ndarray, np.ndarray
     return changes
 
 
-def _jsonable(value: Any) -> Any:
+def jsonable(value: Any) -> Any:
     """Plain JSON types (numpy arrays and numbers, tuples, inf as "inf")."""
     if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
+        return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
+        return [jsonable(v) for v in value]
     if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
+        return jsonable(value.tolist())
     if isinstance(value, (np.bool_, bool)):
         return bool(value)
     if isinstance(value, (np.integer,)):
