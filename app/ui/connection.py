@@ -384,11 +384,8 @@ class ConnectPhoneDialog(QtWidgets.QDialog):
             f"<b>{port}</b>.",
             "Turn on the sensors you want (accelerometer, gyroscope, magnetometer, "
             "orientation) and start streaming."]))
-        self.sensor_fusion_button = QtWidgets.QPushButton(f"Listen for it on port {port}")
-        self.sensor_fusion_button.clicked.connect(
-            lambda: self._go("sensor-fusion", str(port)))
-        box.addWidget(self.sensor_fusion_button, 0, QtCore.Qt.AlignmentFlag.AlignLeft)
-        box.addStretch(1)
+        self.sensor_fusion_button = self._listen_button(box, f"Listen for it on port {port}",
+                                                        "sensor-fusion", port)
         return tab
 
     def _phyphox_tab(self) -> QtWidgets.QWidget:
@@ -437,12 +434,18 @@ class ConnectPhoneDialog(QtWidgets.QDialog):
             "Acceleration</i>). <i>Standardise Units &amp; Frames</i> may be on or off.",
             "Press Listen here, tap <i>Tap to Test Pushing</i> in Sensor Logger, then start a "
             "recording."]))
-        self.sensor_logger_button = QtWidgets.QPushButton(f"Listen on port {port}")
-        self.sensor_logger_button.clicked.connect(
-            lambda: self._go("sensor-logger", str(port)))
-        box.addWidget(self.sensor_logger_button, 0, QtCore.Qt.AlignmentFlag.AlignLeft)
-        box.addStretch(1)
+        self.sensor_logger_button = self._listen_button(box, f"Listen on port {port}",
+                                                        "sensor-logger", port)
         return tab
+
+    def _listen_button(self, box: QtWidgets.QVBoxLayout, text: str, app: str,
+                       port: int) -> QtWidgets.QPushButton:
+        """The tab's last widget: a button that listens for `app` on `port`."""
+        button = QtWidgets.QPushButton(text)
+        button.clicked.connect(lambda: self._go(app, str(port)))
+        box.addWidget(button, 0, QtCore.Qt.AlignmentFlag.AlignLeft)
+        box.addStretch(1)
+        return button
 
     # -- actions --------------------------------------------------------------------------------
 
