@@ -5,8 +5,8 @@ For every shared recording with truth (BROAD, the Nexus 5 logs and their raw-mag
 combined estimate, the forward filter's (the filter as set, the default preset) and the
 consistency statistic. Each gate threshold then picks per row, as ``ekf.smooth_batch`` does:
 
-* ``99%``: the textbook 99 % point of the chi-square distribution (6 degrees of freedom: the
-  attitude and the gyroscope bias), the default;
+* ``99%``: the textbook 99 % point of the chi-square distribution (3 degrees of freedom: the
+  attitude), the default;
 * ``x10``, ``x100``: ten and a hundred times it;
 * ``none``: no gate (the combination everywhere).
 
