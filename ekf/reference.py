@@ -65,10 +65,15 @@ CLIP_MIN_G = 1.5
 HARD_IRON_PAIR_ANGLE = math.radians(20.0)
 HARD_IRON_PAIR_MAX_S = 2.0
 HARD_IRON_RESIDUAL = 5.0
-# HARD_IRON_RESET_COUNT pairs in a row with residuals beyond HARD_IRON_RESET_RESIDUAL [uT]: the
-# offset itself changed (a magnet was put on the phone): the fit starts again from the new pairs.
-HARD_IRON_RESET_RESIDUAL = 20.0
-HARD_IRON_RESET_COUNT = 5
+# A new offset (a magnet put on the phone) is what rotation reveals: a pair whose residual is
+# beyond HARD_IRON_RESTART_RESIDUAL [uT] opens a second fit of the recent pairs (forgotten with
+# HARD_IRON_RESTART_TAU_S [s]); the fit starts again from it once that fit knows every direction
+# (ACQUIRED_INFO), explains its pairs within HARD_IRON_RESIDUAL and the fit so far does not
+# (beyond HARD_IRON_RESTART_RESIDUAL, RMS). A disturbance (a field moving in the world, coming
+# and going) is explained by no one offset across the turns: it never restarts the fit, and the
+# second fit is dropped once the fit so far explains the recent pairs again.
+HARD_IRON_RESTART_RESIDUAL = 20.0
+HARD_IRON_RESTART_TAU_S = 10.0
 # A reading stronger than this [uT] is no Earth field (22-67 uT on the surface, up to ~100 near
 # steel): where the field learned at the start is beyond it, the magnetometer is uncalibrated
 # (a raw sensor: hard iron of hundreds of uT) and the offset is acquired before any use.
@@ -861,8 +866,9 @@ class OrientationEKF(EstimatorBase):
         field in a building is constant in the world (it fits b = 0), a magnet on the phone is
         b. Each pair (turn >= HARD_IRON_PAIR_ANGLE within HARD_IRON_PAIR_MAX_S) adds w D^T D
         and w D^T e to sums forgotten with time constant tau, w = min(1, HARD_IRON_RESIDUAL /
-        |e - D b|); b = (M + mag_hard_iron_prior I)^-1 v. Residuals that stay large
-        (HARD_IRON_RESET_*) mean a new offset: the sums start again."""
+        |e - D b|); b = (M + mag_hard_iron_prior I)^-1 v. A new offset restarts the sums only
+        when one offset explains the recent pairs across the turns (``_restart_evidence``,
+        ``_restart_due``)."""
         s, st = self.settings, self._state
         y = self._turned_to_stamp(y)
         if math.isnan(st.mag_pair_t) or t - st.mag_pair_t > HARD_IRON_PAIR_MAX_S:
@@ -878,20 +884,75 @@ class OrientationEKF(EstimatorBase):
         w = min(1.0, HARD_IRON_RESIDUAL / residual) if residual > 0.0 else 1.0
         forget = (math.exp(-(t - st.mag_offset_t) / s.mag_hard_iron_tau_s)
                   if math.isfinite(st.mag_offset_t) else 0.0)
-        st.mag_offset_outliers = st.mag_offset_outliers + 1 if (
-            residual > HARD_IRON_RESET_RESIDUAL) else 0.0
         if st.mag_acquiring:
-            w, st.mag_offset_outliers = 1.0, 0.0   # large residuals: the offset is far, not new
-        if st.mag_offset_outliers >= HARD_IRON_RESET_COUNT:
-            forget, w, st.mag_offset_outliers = 0.0, 1.0, 0.0   # a new offset: start again
+            w = 1.0                          # large residuals: the offset is far, not new
+        elif residual > HARD_IRON_RESTART_RESIDUAL or (
+                residual > HARD_IRON_RESIDUAL and math.isfinite(st.mag_restart_t)):
+            self._restart_evidence(t, D, e)
         st.mag_offset_info[:] = forget * st.mag_offset_info + w * (D.T @ D)
         st.mag_offset_rhs[:] = forget * st.mag_offset_rhs + w * (D.T @ e)
         st.mag_offset_t = t
+        if not st.mag_acquiring and self._restart_due():
+            # a new offset: the fit starts again from the pairs that revealed it
+            st.mag_offset_info[:] = st.mag_restart_info
+            st.mag_offset_rhs[:] = st.mag_restart_rhs
+            self._drop_restart()
         prior = ACQUIRING_PRIOR if st.mag_acquiring else s.mag_hard_iron_prior
         st.mag_offset_fit[:] = np.linalg.solve(st.mag_offset_info + prior * np.eye(3),
                                                st.mag_offset_rhs + prior * st.mag_offset_prior)
         self._acquisition_progress(y)
         self._open_pair(t, y)
+
+    def _restart_evidence(self, t: float, D: np.ndarray, e: np.ndarray) -> None:
+        """A pair the fit does not explain (beyond HARD_IRON_RESTART_RESIDUAL; once the second
+        fit is open, beyond HARD_IRON_RESIDUAL) is also added, unweighted, to a second fit of
+        such pairs, forgotten with HARD_IRON_RESTART_TAU_S: sums Mc = Σ Dᵀ D, vc = Σ Dᵀ e,
+        ec = Σ |e|², nc = Σ 1. The first only opens it (its older reading may be from before
+        the change). The fit keeps the pair with its weight w."""
+        st = self._state
+        if math.isnan(st.mag_restart_t):
+            st.mag_restart_t = t
+            return
+        forget = math.exp(-(t - st.mag_restart_t) / HARD_IRON_RESTART_TAU_S)
+        st.mag_restart_info[:] = forget * st.mag_restart_info + D.T @ D
+        st.mag_restart_rhs[:] = forget * st.mag_restart_rhs + D.T @ e
+        st.mag_restart_sq = forget * st.mag_restart_sq + float(e @ e)
+        st.mag_restart_n = forget * st.mag_restart_n + 1.0
+        st.mag_restart_t = t
+
+    def _restart_due(self) -> bool:
+        """The second fit's offset bc = Mc⁻¹ vc leaves the residual sum ec - bcᵀ vc, the fit's b
+        leaves ec - 2 bᵀ vc + bᵀ Mc b. A new offset (True) when Mc knows every direction (its
+        smallest eigenvalue >= ACQUIRED_INFO: the phone turned about more than one axis), bc
+        explains the pairs (RMS <= HARD_IRON_RESIDUAL) and b does not (RMS beyond
+        HARD_IRON_RESTART_RESIDUAL). Dropped when b explains them (a disturbance gone), or
+        when nothing was added for HARD_IRON_RESTART_TAU_S."""
+        st = self._state
+        if math.isnan(st.mag_restart_t):
+            return False
+        M, v, n = st.mag_restart_info, st.mag_restart_rhs, st.mag_restart_n
+        if st.mag_offset_t - st.mag_restart_t > HARD_IRON_RESTART_TAU_S:
+            self._drop_restart()
+            return False
+        if n == 0.0:
+            return False
+        b = st.mag_offset_fit
+        if (st.mag_restart_sq - 2.0 * float(b @ v) + float(b @ M @ b)) / n <= \
+                HARD_IRON_RESTART_RESIDUAL ** 2:
+            self._drop_restart()
+            return False
+        if np.linalg.eigvalsh(M)[0] < ACQUIRED_INFO:
+            return False
+        bc = np.linalg.solve(M, v)
+        return (st.mag_restart_sq - float(bc @ v)) / n <= HARD_IRON_RESIDUAL ** 2
+
+    def _drop_restart(self) -> None:
+        st = self._state
+        st.mag_restart_info[:] = 0.0
+        st.mag_restart_rhs[:] = 0.0
+        st.mag_restart_sq = 0.0
+        st.mag_restart_n = 0.0
+        st.mag_restart_t = math.nan
 
     def _explaining_offset(self, y: np.ndarray) -> None:
         """The offset applied to a reading: the fit's only where it explains what the field

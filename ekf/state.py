@@ -163,8 +163,16 @@ class EKFState:
                                       "direction of it is known", _value(False), kind=bool)
     mag_waiting: bool = state_field("the magnetometer waits for the acquisition to know the "
                                     "offset where it turns the heading", _value(False), kind=bool)
-    mag_offset_outliers: float = state_field("pairs in a row whose residual says the offset "
-                                             "changed", _value(0.0))
+    mag_restart_info: np.ndarray = state_field("the second fit's normal matrix Σ Dᵀ D over the "
+                                               "recent pairs since one the fit did not explain",
+                                               lambda settings, enabled: np.zeros((3, 3)),
+                                               shape=(3, 3))
+    mag_restart_rhs: np.ndarray = state_field("its right-hand side Σ Dᵀ e", _zeros3, unit="µT",
+                                              shape=(3,))
+    mag_restart_sq: float = state_field("its Σ |e|²", _value(0.0), unit="µT²")
+    mag_restart_n: float = state_field("its (forgotten) count of pairs; 0: none open",
+                                       _value(0.0))
+    mag_restart_t: float = state_field("time of its latest pair", _NAN, unit="s")
     mag_pair_raw: np.ndarray = state_field("the first reading of the open pair (raw)", _zeros3,
                                            unit="µT", shape=(3,))
     mag_pair_q: np.ndarray = state_field("the turn since that reading, integrated from the "
@@ -306,6 +314,13 @@ def upgrade_state(cls: type, state: Any) -> Any:
         out["mag_confirmed_time"] = math.inf if bool(out["m0_valid"]) else 0.0
     if "mag_offset" in out and "mag_offset_fit" not in out:
         out["mag_offset_fit"] = np.asarray(out["mag_offset"], float).copy()
+    out.pop("mag_offset_outliers", None)
+    if "mag_offset" in out:
+        out.setdefault("mag_restart_info", np.zeros((3, 3)))
+        out.setdefault("mag_restart_rhs", np.zeros(3))
+        out.setdefault("mag_restart_sq", 0.0)
+        out.setdefault("mag_restart_n", 0.0)
+        out.setdefault("mag_restart_t", math.nan)
     if "mag_offset" in out and "mag_waiting" not in out:
         out.setdefault("mag_offset_prior", np.zeros(3))
         out.setdefault("mag_acquiring", False)

@@ -278,10 +278,10 @@ def joseph_any_gain(s, n):
 
 # ---- the hard-iron fit's normal matrix ---------------------------------------------------------
 @jit
-def inverse_plus(s, d):
-    """(M + d I)^-1 of the fit's normal matrix M by the adjugate: its upper triangle c00, c01,
-    c02, c11, c12, c22 (to be multiplied by) 1 / det."""
-    M = S.mag_offset_info
+def inverse_plus(s, M, d):
+    """(M + d I)^-1 of a normal matrix of the hard-iron fit (the 3x3 at offset M of the state:
+    S.mag_offset_info or S.mag_restart_info) by the adjugate: its upper triangle c00, c01, c02,
+    c11, c12, c22 (to be multiplied by) 1 / det."""
     a00 = s[M] + d
     a01 = s[M + 1]
     a02 = s[M + 2]
@@ -298,10 +298,9 @@ def inverse_plus(s, d):
 
 
 @jit
-def known_everywhere(s):
-    """The normal matrix's smallest eigenvalue >= ACQUIRED_INFO: M - ACQUIRED_INFO I positive
-    semi-definite, i.e. every principal minor of it >= 0."""
-    M = S.mag_offset_info
+def known_everywhere(s, M):
+    """A normal matrix's (at offset M of the state) smallest eigenvalue >= ACQUIRED_INFO:
+    M - ACQUIRED_INFO I positive semi-definite, i.e. every principal minor of it >= 0."""
     a00 = s[M] - ACQUIRED_INFO
     a01 = s[M + 1]
     a02 = s[M + 2]

@@ -27,8 +27,8 @@ from ekf.fast.jit import CACHE_KEY, check_cache, jit
 from ekf.fast.layout import C, S
 from ekf.reference import (ACQUIRED_INFO, ACQUIRING_PRIOR, CLIP_MARGIN, CLIP_MIN_G,
                            EARTH_FIELD_MAX, HARD_IRON_PAIR_ANGLE, HARD_IRON_PAIR_MAX_S,
-                           HARD_IRON_RESET_COUNT, HARD_IRON_RESET_RESIDUAL, HARD_IRON_RESIDUAL,
-                           MAX_READING, MIN_NORM)
+                           HARD_IRON_RESIDUAL, HARD_IRON_RESTART_RESIDUAL,
+                           HARD_IRON_RESTART_TAU_S, MAX_READING, MIN_NORM)
 
 # bits of step's `present` mask
 GYR = 1
@@ -1040,17 +1040,11 @@ def _fit_hard_iron(s, c, t, y0, y1, y2):
     forget = 0.0
     if math.isfinite(s[S.mag_offset_t]):
         forget = math.exp(-(t - s[S.mag_offset_t]) / c[C.mag_hard_iron_tau_s])
-    if residual > HARD_IRON_RESET_RESIDUAL:
-        s[S.mag_offset_outliers] += 1.0
-    else:
-        s[S.mag_offset_outliers] = 0.0
     if s[S.mag_acquiring] != 0.0:
         w = 1.0                          # large residuals: the offset is far, not new
-        s[S.mag_offset_outliers] = 0.0
-    if s[S.mag_offset_outliers] >= HARD_IRON_RESET_COUNT:
-        forget = 0.0
-        w = 1.0
-        s[S.mag_offset_outliers] = 0.0
+    elif residual > HARD_IRON_RESTART_RESIDUAL or (
+            residual > HARD_IRON_RESIDUAL and math.isfinite(s[S.mag_restart_t])):
+        _restart_evidence(s, t)
     M = S.mag_offset_info
     V = S.mag_offset_rhs
     for r in range(3):
@@ -1061,9 +1055,16 @@ def _fit_hard_iron(s, c, t, y0, y1, y2):
         dte = s[D + r] * s[e] + s[D + 3 + r] * s[e + 1] + s[D + 6 + r] * s[e + 2]
         s[V + r] = forget * s[V + r] + w * dte
     s[S.mag_offset_t] = t
+    if s[S.mag_acquiring] == 0.0 and _restart_due(s):
+        # a new offset: the fit starts again from the pairs that revealed it
+        for i in range(9):
+            s[M + i] = s[S.mag_restart_info + i]
+        for i in range(3):
+            s[V + i] = s[S.mag_restart_rhs + i]
+        _drop_restart(s)
     # b = (M + prior I)^-1 (v + prior b_prior) (M symmetric positive semi-definite)
     prior = ACQUIRING_PRIOR if s[S.mag_acquiring] != 0.0 else c[C.mag_hard_iron_prior]
-    c00, c01, c02, c11, c12, c22, inv_det = inverse_plus(s, prior)
+    c00, c01, c02, c11, c12, c22, inv_det = inverse_plus(s, S.mag_offset_info, prior)
     v0 = s[V] + prior * s[S.mag_offset_prior]
     v1 = s[V + 1] + prior * s[S.mag_offset_prior + 1]
     v2 = s[V + 2] + prior * s[S.mag_offset_prior + 2]
@@ -1072,6 +1073,79 @@ def _fit_hard_iron(s, c, t, y0, y1, y2):
     s[B + 2] = (c02 * v0 + c12 * v1 + c22 * v2) * inv_det
     _acquisition_progress(s, y0, y1, y2)
     _open_pair(s, t, y0, y1, y2)
+
+
+@jit
+def _restart_evidence(s, t):
+    """reference ``_restart_evidence``: the pair (D in work_s, e in work_pht) into the second
+    fit's sums, forgotten with HARD_IRON_RESTART_TAU_S; the first pair only opens it."""
+    if math.isnan(s[S.mag_restart_t]):
+        s[S.mag_restart_t] = t
+        return
+    forget = math.exp(-(t - s[S.mag_restart_t]) / HARD_IRON_RESTART_TAU_S)
+    D = S.work_s
+    e = S.work_pht
+    M = S.mag_restart_info
+    V = S.mag_restart_rhs
+    for r in range(3):
+        for k in range(3):
+            dtd = (s[D + r] * s[D + k] + s[D + 3 + r] * s[D + 3 + k]
+                   + s[D + 6 + r] * s[D + 6 + k])
+            s[M + 3 * r + k] = forget * s[M + 3 * r + k] + dtd
+        dte = s[D + r] * s[e] + s[D + 3 + r] * s[e + 1] + s[D + 6 + r] * s[e + 2]
+        s[V + r] = forget * s[V + r] + dte
+    s[S.mag_restart_sq] = forget * s[S.mag_restart_sq] + (s[e] ** 2 + s[e + 1] ** 2
+                                                          + s[e + 2] ** 2)
+    s[S.mag_restart_n] = forget * s[S.mag_restart_n] + 1.0
+    s[S.mag_restart_t] = t
+
+
+@jit
+def _restart_due(s):
+    """reference ``_restart_due``: the second fit knows every direction, explains its pairs
+    within HARD_IRON_RESIDUAL (RMS) and the fit's offset does not (beyond
+    HARD_IRON_RESTART_RESIDUAL); dropped when the fit explains them or nothing came for
+    HARD_IRON_RESTART_TAU_S."""
+    if math.isnan(s[S.mag_restart_t]):
+        return False
+    if s[S.mag_offset_t] - s[S.mag_restart_t] > HARD_IRON_RESTART_TAU_S:
+        _drop_restart(s)
+        return False
+    n = s[S.mag_restart_n]
+    if n == 0.0:
+        return False
+    M = S.mag_restart_info
+    V = S.mag_restart_rhs
+    B = S.mag_offset_fit
+    bv = s[B] * s[V] + s[B + 1] * s[V + 1] + s[B + 2] * s[V + 2]
+    bmb = 0.0
+    for r in range(3):
+        for k in range(3):
+            bmb += s[B + r] * s[M + 3 * r + k] * s[B + k]
+    if (s[S.mag_restart_sq] - 2.0 * bv + bmb) / n <= HARD_IRON_RESTART_RESIDUAL ** 2:
+        _drop_restart(s)
+        return False
+    if not known_everywhere(s, M):
+        return False
+    c00, c01, c02, c11, c12, c22, inv_det = inverse_plus(s, M, 0.0)
+    v0 = s[V]
+    v1 = s[V + 1]
+    v2 = s[V + 2]
+    cv = (v0 * (c00 * v0 + c01 * v1 + c02 * v2) + v1 * (c01 * v0 + c11 * v1 + c12 * v2)
+          + v2 * (c02 * v0 + c12 * v1 + c22 * v2)) * inv_det
+    return (s[S.mag_restart_sq] - cv) / n <= HARD_IRON_RESIDUAL ** 2
+
+
+@jit
+def _drop_restart(s):
+    """reference ``_drop_restart``."""
+    for i in range(9):
+        s[S.mag_restart_info + i] = 0.0
+    for i in range(3):
+        s[S.mag_restart_rhs + i] = 0.0
+    s[S.mag_restart_sq] = 0.0
+    s[S.mag_restart_n] = 0.0
+    s[S.mag_restart_t] = _NAN
 
 
 @jit
@@ -1154,7 +1228,7 @@ def _check_uncalibrated(s, c):
 def _acquisition_progress(s, y0, y1, y2):
     """reference ``_acquisition_progress``."""
     B = S.mag_offset_fit
-    if s[S.mag_acquiring] != 0.0 and known_everywhere(s):
+    if s[S.mag_acquiring] != 0.0 and known_everywhere(s, S.mag_offset_info):
         s[S.mag_acquiring] = 0.0
         for i in range(3):
             s[S.mag_offset_prior + i] = s[B + i]
@@ -1164,7 +1238,7 @@ def _acquisition_progress(s, y0, y1, y2):
             > EARTH_FIELD_MAX:
         return
     # H M^-1 H^T with H the rows x, y of Q(q): the offset's uncertainty in the horizontal plane
-    c00, c01, c02, c11, c12, c22, inv_det = inverse_plus(s, ACQUIRING_PRIOR)
+    c00, c01, c02, c11, c12, c22, inv_det = inverse_plus(s, S.mag_offset_info, ACQUIRING_PRIOR)
     Q = to_matrix(s[S.x], s[S.x + 1], s[S.x + 2], s[S.x + 3])
     # rows of H times the inverse
     g0 = (Q[0] * c00 + Q[1] * c01 + Q[2] * c02) * inv_det

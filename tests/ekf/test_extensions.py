@@ -287,6 +287,66 @@ def test_an_uncalibrated_magnetometer_is_calibrated_while_the_phone_turns():
     assert max(r[3] for r in rows_without if r[0] > 40.0) > 10.0
 
 
+RAW_OFFSET = np.array([120.0, -80.0, 140.0])          # 200 uT: a raw magnetometer
+
+
+def _raw_beside(extra_world, extra_sensor=None, duration_s=60.0, hz=100.0):
+    """A raw magnetometer (RAW_OFFSET) on a phone turning about every axis; extra_world(t) is
+    a field added in the world, extra_sensor(t) one fixed to the phone. Per magnetometer
+    sample: t, the fit's offset minus the true one [uT], the angle to the truth [deg]."""
+    t = np.arange(0.0, duration_s, 1.0 / hz)
+    rates = np.column_stack([1.2 * np.sin(0.31 * t), -0.8 + np.cos(0.17 * t),
+                             1.5 * np.cos(0.23 * t)])
+    q = Q.IDENTITY.copy()
+    f = OrientationEKF("default")
+    rows = []
+    for k in range(t.size):
+        R = Q.to_matrix(q)
+        sensor = RAW_OFFSET + (extra_sensor(t[k]) if extra_sensor else 0.0)
+        f.step(t[k], gyr=rates[k], acc=R.T @ G0, mag=R.T @ (M0 + extra_world(t[k])) + sensor)
+        rows.append((t[k], *(f._state.mag_offset_fit - sensor),
+                     math.degrees(Q.angle_between(f.quat, q))))
+        q = Q.normalize(Q.multiply(q, Q.from_rotation_vector(rates[k] / hz)))
+    return np.array(rows)
+
+
+def _magnet_carried_past(t: float) -> np.ndarray:
+    """A 150 uT field for 10 s (25-35 s, ramped over 0.5 s) whose direction turns in the world
+    at 0.7 rad/s: a magnet moved about beside the phone."""
+    ramp = float(np.clip(min(t - 25.0, 35.0 - t) / 0.5, 0.0, 1.0)) if 25.0 <= t <= 35.0 else 0.0
+    a = 0.7 * (t - 25.0)
+    return ramp * 150.0 * np.array([math.cos(a), math.sin(a), 0.3]) / math.sqrt(1.09)
+
+
+def test_a_disturbance_is_no_new_offset():
+    """A raw magnetometer's offset, acquired, stays within 3.5 uT of the truth through a 10 s,
+    150 uT disturbance moving in the world: its pairs are explained by no one offset across the
+    turns, so the fit does not start again from them (it did after five pairs beyond 20 uT and
+    was 39.5 uT off). What remains is the fit's own weighted pull (w = HARD_IRON_RESIDUAL /
+    |r| per pair): the issue asked for 2 uT, which keeping such pairs out of the fit gives in
+    this simulation (0.2 uT) and the recordings held out did not support
+    (docs/decisions/hard-iron-fit.md)."""
+    rows = _raw_beside(_magnet_carried_past)
+    error = np.linalg.norm(rows[:, 1:4], axis=1)
+    after = rows[:, 0] >= 20.0
+    assert error[after].max() < 3.5, error[after].max()
+    during = (rows[:, 0] >= 25.0) & (rows[:, 0] <= 36.0)
+    assert rows[during, 4].max() < 2.0
+
+
+def test_a_magnet_fixed_to_a_raw_magnetometer_is_a_new_offset():
+    """A magnet fixed to the phone from 25 s on (80 uT more, sensor frame): one offset explains
+    the new pairs whichever way the phone turns, so the fit starts again from them and finds
+    it; the heading stays right meanwhile (the magnetometer's readings are rejected until
+    then)."""
+    magnet = np.array([60.0, 40.0, -30.0])
+    rows = _raw_beside(lambda t: np.zeros(3), lambda t: magnet if t > 25.0 else 0.0)
+    error = np.linalg.norm(rows[:, 1:4], axis=1)
+    assert error[rows[:, 0] > 25.5].max() > 50.0                  # it was new
+    assert error[rows[:, 0] > 50.0].max() < 5.0                   # and it is learned
+    assert rows[rows[:, 0] > 20.0, 4].max() < 4.0
+
+
 def test_an_earth_field_never_starts_an_acquisition():
     """A calibrated magnetometer (45 uT, turning the same way) is never taken for a raw one."""
     _, f, rows = _raw_magnetometer_run(FIXED, np.zeros(3), duration_s=20.0)
@@ -430,6 +490,31 @@ def test_a_snapshot_from_before_the_confirmed_field_restores():
     g.restore({**snap, "state": state})
     assert g.snapshot()["state"]["mag_confirmed_time"] == math.inf
     np.testing.assert_array_equal(g.quat, f.quat)
+
+
+def test_a_snapshot_from_before_the_second_fit_restores():
+    """A state saved when the fit restarted after five pairs beyond 20 uT (its count,
+    mag_offset_outliers, and no second fit) restores in both filters with no second fit open,
+    and they go on as one."""
+    from ekf.fast import FastEKF
+
+    f = OrientationEKF(FIXED)
+    for k in range(50):
+        f.step(k * 0.01, gyr=[0.5, 0, 0], acc=G0, mag=M0)
+    snap = f.snapshot()
+    state = {k: v for k, v in snap["state"].items() if not k.startswith("mag_restart_")}
+    state["mag_offset_outliers"] = 3.0
+    for g in (OrientationEKF(FIXED), FastEKF(FIXED)):
+        g.restore({**snap, "state": state})
+        restored = g.snapshot()["state"]
+        assert "mag_offset_outliers" not in restored
+        assert restored["mag_restart_n"] == 0.0 and math.isnan(restored["mag_restart_t"])
+        np.testing.assert_array_equal(restored["mag_restart_info"], np.zeros((3, 3)))
+        g.step(0.5, gyr=[0.5, 0, 0], acc=G0, mag=M0)
+        f_next = OrientationEKF(FIXED)
+        f_next.restore(snap)
+        f_next.step(0.5, gyr=[0.5, 0, 0], acc=G0, mag=M0)
+        np.testing.assert_allclose(g.quat, f_next.quat, atol=1e-12)
 
 
 def test_a_snapshot_from_before_the_acquisition_restores():
@@ -675,3 +760,26 @@ def test_a_magnet_passing_by_does_not_silence_the_magnetometer_after_it():
     unclipped, dev_unclipped = _turned_past_a_magnet(s.with_changes(mag_noise_adapt_clip=math.inf))
     assert dev_unclipped[950] > 10 * dev_sq[950]
     assert unclipped[2000] > 7.0 and unclipped[2999] > 5.5
+
+
+@pytest.mark.parametrize("trial", ["11_undisturbed_slow_translation_B",
+                                   "15_undisturbed_fast_translation_A",
+                                   "16_undisturbed_fast_translation_B",
+                                   "18_undisturbed_fast_translation_with_breaks_B"])
+def test_the_rooms_field_along_a_translation_is_no_offset(broad_dir, trial):
+    """BROAD's translation trials (a calibrated phone carried through a room's uneven field):
+    no offset is ever applied, and what the fit reads as one stays a few uT."""
+    from app.stream.logfile import read_log
+    from ekf.fast import FastEKF
+
+    a = read_log(broad_dir / f"{trial}.txt").to_arrays()
+    f = FastEKF("default")
+    applied = 0.0
+    for k in range(a.t_ms.size):
+        row = [None if np.isnan(v).any() else v for v in (a.gyr[k], a.acc[k], a.mag[k])]
+        if all(v is None for v in row):
+            continue
+        f.step(a.t_ms[k] / 1000.0, *row)
+        applied = max(applied, f.diagnostics.mag_offset_norm)
+    assert applied == 0.0
+    assert np.linalg.norm(f.snapshot()["state"]["mag_offset_fit"]) < 10.0
