@@ -16,6 +16,11 @@ truth stay real and exact, and only the sensor readings change:
   frame (hard iron).
 * ``gyro-bias``: a gyroscope whose calibration is off by 0.5°/s (constant, random direction).
 
+``magnet-N`` and ``building-N`` take any strength N [µT] (``magnet-400``: a raw magnetometer's
+hard iron beside a calibrated gyroscope, as an iPhone's raw magnetometer gives), and scenarios
+joined by ``+`` are applied in order (``building-50+magnet-400``: a raw magnetometer carried
+through a building).
+
 Every scenario is seeded by the recording's name, the scenario and a copy index, so a figure is
 reproduced exactly. Used by ``benchmarks/robustness.py`` (ours and the peers on the same
 perturbed samples) and ``benchmarks/tune_defaults.py --augment`` (more varied tuning data; the
@@ -79,9 +84,29 @@ def _unit(rng: np.random.Generator) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
+def known(scenario: str) -> bool:
+    """Whether `scenario` is one :func:`perturbed` makes: a name of SCENARIOS, ``magnet-N`` or
+    ``building-N`` with N > 0, or such scenarios joined by ``+``."""
+    for part in scenario.split("+"):
+        head, _, strength = part.rpartition("-")
+        if part in SCENARIOS:
+            continue
+        try:
+            ok = head in ("magnet", "building") and float(strength) > 0.0
+        except ValueError:
+            ok = False
+        if not ok:
+            return False
+    return True
+
+
 def perturbed(rec: Recording, scenario: str, copy_index: int = 0) -> Recording:
     """A copy of `rec` with one scenario's fault added (see the module's docstring); its name
-    says which (``NAME+building-50#0``)."""
+    says which (``NAME+building-50#0``). Scenarios joined by ``+`` are applied in order."""
+    if "+" in scenario:
+        for part in scenario.split("+"):
+            rec = perturbed(rec, part, copy_index)
+        return rec
     rng = np.random.default_rng([zlib.crc32(rec.name.encode()), zlib.crc32(scenario.encode()),
                                  copy_index])
     out = copy.copy(rec)

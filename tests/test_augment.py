@@ -85,3 +85,21 @@ def test_a_magnet_and_a_gyro_bias_are_constant_in_the_sensor_frame(recording):
     step = bias.gyr[g_rows] - recording.gyr[g_rows]
     np.testing.assert_allclose(step, np.tile(step[0], (len(step), 1)), atol=1e-12)
     assert np.degrees(np.linalg.norm(step[0])) == pytest.approx(0.5)
+
+
+def test_a_raw_magnetometer_in_a_building_is_two_scenarios_in_order(recording):
+    """``magnet-400``: any strength; ``building-50+magnet-400``: the building's field, then the
+    400 uT offset, each as on its own (the composition's name says both)."""
+    from augment import known
+
+    raw = perturbed(recording, "magnet-400", 0)
+    rows = ~np.isnan(recording.mag).any(axis=1)
+    offset = raw.mag[rows] - recording.mag[rows]
+    np.testing.assert_allclose(np.linalg.norm(offset, axis=1), 400.0)
+    both = perturbed(recording, "building-50+magnet-400", 0)
+    building = perturbed(recording, "building-50", 0)
+    step = perturbed(building, "magnet-400", 0)
+    np.testing.assert_array_equal(both.mag, step.mag)
+    assert both.name == "sim+building-50#0+magnet-400#0"
+    assert known("building-50+magnet-400") and known("magnet-400") and known("desk-start")
+    assert not known("magnet-") and not known("magnet-0") and not known("earthquake+magnet-20")
