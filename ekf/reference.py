@@ -947,6 +947,7 @@ class OrientationEKF(EstimatorBase):
         return (st.mag_restart_sq - float(bc @ v)) / n <= HARD_IRON_RESIDUAL ** 2
 
     def _drop_restart(self) -> None:
+        """The second fit closed: its sums emptied."""
         st = self._state
         st.mag_restart_info[:] = 0.0
         st.mag_restart_rhs[:] = 0.0

@@ -170,9 +170,9 @@ class EKFState:
     mag_restart_rhs: np.ndarray = state_field("its right-hand side Σ Dᵀ e", _zeros3, unit="µT",
                                               shape=(3,))
     mag_restart_sq: float = state_field("its Σ |e|²", _value(0.0), unit="µT²")
-    mag_restart_n: float = state_field("its (forgotten) count of pairs; 0: none open",
-                                       _value(0.0))
-    mag_restart_t: float = state_field("time of its latest pair", _NAN, unit="s")
+    mag_restart_n: float = state_field("its (forgotten) count of pairs", _value(0.0))
+    mag_restart_t: float = state_field("time of its latest pair (or of the one that opened it); "
+                                       "NaN: none open", _NAN, unit="s")
     mag_pair_raw: np.ndarray = state_field("the first reading of the open pair (raw)", _zeros3,
                                            unit="µT", shape=(3,))
     mag_pair_q: np.ndarray = state_field("the turn since that reading, integrated from the "
@@ -299,8 +299,9 @@ def upgrade_state(cls: type, state: Any) -> Any:
     before mag_confirmed_time existed counts a field it had learned as confirmed (it filtered
     with that field before); one saved before the raw magnetometer's acquisition existed was
     not acquiring (offset drawn to 0); one saved before the fit kept its own least-squares
-    offset has that offset as its fit. Anything else is returned as it is (and checked as
-    usual)."""
+    offset has that offset as its fit; one saved when the fit restarted after five unexplained
+    pairs in a row (``mag_offset_outliers``) has no second fit open. Anything else is returned
+    as it is (and checked as usual)."""
     if cls is not EKFState or not isinstance(state, Mapping):
         return state
     out = dict(state)

@@ -323,9 +323,7 @@ def test_a_disturbance_is_no_new_offset():
     150 uT disturbance moving in the world: its pairs are explained by no one offset across the
     turns, so the fit does not start again from them (it did after five pairs beyond 20 uT and
     was 39.5 uT off). What remains is the fit's own weighted pull (w = HARD_IRON_RESIDUAL /
-    |r| per pair): the issue asked for 2 uT, which keeping such pairs out of the fit gives in
-    this simulation (0.2 uT) and the recordings held out did not support
-    (docs/decisions/hard-iron-fit.md)."""
+    |r| per pair; keeping such pairs out of the fit: docs/decisions/hard-iron-fit.md)."""
     rows = _raw_beside(_magnet_carried_past)
     error = np.linalg.norm(rows[:, 1:4], axis=1)
     after = rows[:, 0] >= 20.0

@@ -585,25 +585,25 @@ def test_a_magnet_put_on_and_taken_off_the_phone_matches_reference():
 
 def test_the_hard_iron_fit_restarting_matches_reference():
     """A raw magnetometer (200 uT) with a field moving in the world for 10 s (the second fit
-    opened, kept apart and dropped) and then a magnet fixed to the phone (the fit started again
-    from it): compiled and readable row by row, the fit's state included; both really ran."""
+    opened and dropped) and then a magnet fixed to the phone (the fit started again from it):
+    compiled and readable row by row, the fit's state included; all three really ran."""
     hz = 50.0
-    t = np.arange(0.0, 70.0, 1.0 / hz)
+    t = np.arange(0.0, 80.0, 1.0 / hz)
     rates = np.column_stack([1.2 * np.sin(0.31 * t), -0.8 + np.cos(0.17 * t),
                              1.5 * np.cos(0.23 * t)])
     m0, g0 = np.array([0.0, 16.0, -45.0]), np.array([0.0, 0.0, 9.81])
     raw, magnet = np.array([120.0, -80.0, 140.0]), np.array([60.0, 40.0, -30.0])
     q = quat.IDENTITY.copy()
     ref, fast = OrientationEKF(PRESETS["default"]), FastEKF(PRESETS["default"])
-    opened, restarted = False, False
+    opened, dropped, restarted = False, False, False
     for k in range(t.size):
         R = quat.to_matrix(q)
         a = 0.7 * (t[k] - 20.0)
         world = m0 + (150.0 * np.array([math.cos(a), math.sin(a), 0.3]) / math.sqrt(1.09)
                       if 20.0 <= t[k] <= 30.0 else 0.0)
-        mag = R.T @ world + raw + (magnet if t[k] > 40.0 else 0.0)
+        mag = R.T @ world + raw + (magnet if t[k] > 50.0 else 0.0)
         args = (rates[k], R.T @ g0, mag)
-        before = ref._state.mag_restart_n
+        fit_before = ref._state.mag_offset_fit.copy()
         fast.step(t[k], *args)
         ref.step(t[k], *args)
         _compare(ref, fast, f"row {k} t={t[k]:.3f}")
@@ -611,9 +611,11 @@ def test_the_hard_iron_fit_restarting_matches_reference():
         for name in ("mag_offset_fit", "mag_restart_info", "mag_restart_rhs"):
             np.testing.assert_allclose(state[name], getattr(ref._state, name), rtol=1e-9,
                                        atol=1e-9, err_msg=f"row {k}: {name}")
-        opened |= 20.0 < t[k] < 31.0 and ref._state.mag_restart_n > 0.0
-        restarted |= t[k] > 40.0 and before > 0.0 and math.isnan(ref._state.mag_restart_t)
+        open_now = not math.isnan(ref._state.mag_restart_t)
+        opened |= 20.0 < t[k] < 31.0 and open_now
+        dropped |= opened and 31.0 < t[k] < 50.0 and not open_now
+        restarted |= t[k] > 50.0 and np.linalg.norm(ref._state.mag_offset_fit - fit_before) > 30
         q = quat.normalize(quat.multiply(q, quat.from_rotation_vector(rates[k] / hz)))
-    assert opened and restarted
+    assert opened and dropped and restarted
     error = np.linalg.norm(fast.snapshot()["state"]["mag_offset_fit"] - raw - magnet)
     assert error < 0.25 * np.linalg.norm(magnet)
