@@ -103,7 +103,6 @@ class SettingsPanel(QtWidgets.QWidget):
         self.table = QtWidgets.QTableWidget(len(self.lines), len(COLUMNS))
         self.table.setHorizontalHeaderLabels([c.capitalize() for c in COLUMNS])
         self.table.verticalHeader().setVisible(False)
-        self.table.horizontalHeader().setStretchLastSection(True)
         self.table.setHorizontalScrollBarPolicy(QtCore.Qt.ScrollBarPolicy.ScrollBarAsNeeded)
         self.table.itemChanged.connect(self._on_item_changed)
         # what the current row's setting means (the declaration's doc), below the table

@@ -46,18 +46,6 @@ def test_every_setting_is_listed_under_its_group_with_unit_default_course_and_do
     assert panel.table.item(panel.row_of("acc_gate"), 4).text() == "1"
 
 
-def test_the_columns_fill_the_panels_width(panel, qtbot):
-    """Wider than its columns, the table has no empty band on the right: the last column takes
-    the rest."""
-    panel.resize(900, 600)
-    panel.show()
-    qtbot.waitExposed(panel)
-    table = panel.table
-    used = sum(table.columnWidth(c) for c in range(table.columnCount()))
-    assert used >= table.viewport().width() - 1
-    assert table.columnWidth(4) > table.columnWidth(3)
-
-
 def test_a_switched_off_group_greys_its_settings_and_says_why(panel):
     def grey(name: str) -> bool:
         color = panel.table.item(panel.row_of(name), 0).foreground().color()
