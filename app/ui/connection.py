@@ -64,6 +64,15 @@ def connection_text(health: StreamHealth) -> str:
     return state
 
 
+def phyphox_url_or_say(text: str, error: QtWidgets.QLabel) -> str | None:
+    """The address typed for phyphox in its normal form, or None with the problem in `error`."""
+    try:
+        return phyphox_url(text)
+    except ConfigError as problem:
+        error.setText(str(problem).replace("--phyphox: ", ""))
+        return None
+
+
 class ConnectionPanel(QtWidgets.QWidget):
     """Stream health and who may connect. `send(command)` forwards connection commands."""
 
@@ -450,13 +459,9 @@ class ConnectPhoneDialog(QtWidgets.QDialog):
     # -- actions --------------------------------------------------------------------------------
 
     def _phyphox(self) -> None:
-        text = self.phyphox_field.text().strip()
-        try:
-            url = phyphox_url(text)
-        except ConfigError as error:
-            self.error.setText(str(error).replace("--phyphox: ", ""))
-            return
-        self._go("phyphox", url)
+        url = phyphox_url_or_say(self.phyphox_field.text(), self.error)
+        if url is not None:
+            self._go("phyphox", url)
 
     def _go(self, app: str, where: str) -> None:
         self.error.setText("")
@@ -509,12 +514,9 @@ class PhoneAppsBox(QtWidgets.QGroupBox):
         grid.setColumnStretch(0, 1)
 
     def connect_phyphox(self) -> None:
-        try:
-            url = phyphox_url(self.phyphox_field.text())
-        except ConfigError as error:
-            self.error.setText(str(error).replace("--phyphox: ", ""))
-            return
-        self._go("phyphox", url)
+        url = phyphox_url_or_say(self.phyphox_field.text(), self.error)
+        if url is not None:
+            self._go("phyphox", url)
 
     def _go(self, app: str, where: str) -> None:
         self.error.setText("")

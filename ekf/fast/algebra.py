@@ -278,6 +278,22 @@ def joseph_any_gain(s, n):
 
 # ---- the hard-iron fit's normal matrix ---------------------------------------------------------
 @jit
+def add_pair(s, M, V, forget, w):
+    """A pair of the hard-iron fit into a fit's sums (normal matrix at offset M, right-hand side
+    at V of the state), the old sums forgotten: M <- forget M + w Dᵀ D, V <- forget V + w Dᵀ e,
+    with D (3x3) in work_s and e (3) in work_pht."""
+    D = S.work_s
+    e = S.work_pht
+    for r in range(3):
+        for k in range(3):
+            dtd = (s[D + r] * s[D + k] + s[D + 3 + r] * s[D + 3 + k]
+                   + s[D + 6 + r] * s[D + 6 + k])
+            s[M + 3 * r + k] = forget * s[M + 3 * r + k] + w * dtd
+        dte = s[D + r] * s[e] + s[D + 3 + r] * s[e + 1] + s[D + 6 + r] * s[e + 2]
+        s[V + r] = forget * s[V + r] + w * dte
+
+
+@jit
 def inverse_plus(s, M, d):
     """(M + d I)^-1 of a normal matrix of the hard-iron fit (the 3x3 at offset M of the state:
     S.mag_offset_info or S.mag_restart_info) by the adjugate: its upper triangle c00, c01, c02,

@@ -18,11 +18,11 @@ import math
 
 from ekf.diagnostics import (ACC_CLIPPED, ACC_NIS_GATE, ACC_NORM_GATE, MAG_DIP_GATE, MAG_NIS_GATE,
                              MAG_SETTLING, MAG_STRENGTH_GATE, MAG_UNCALIBRATED, NOT_REJECTED)
-from ekf.fast.algebra import (add_attitude_cov, correct_state, cross, field_dip_deg, from_matrix,
-                              heading_of, inverse_plus, joseph_any_gain, joseph_optimal_gain,
-                              known_everywhere, level_m0, measurement_blocks, optimal_gain,
-                              quat_normalize, record_prediction, set_attitude_cov, to_matrix,
-                              turn_pair)
+from ekf.fast.algebra import (add_attitude_cov, add_pair, correct_state, cross, field_dip_deg,
+                              from_matrix, heading_of, inverse_plus, joseph_any_gain,
+                              joseph_optimal_gain, known_everywhere, level_m0,
+                              measurement_blocks, optimal_gain, quat_normalize,
+                              record_prediction, set_attitude_cov, to_matrix, turn_pair)
 from ekf.fast.jit import CACHE_KEY, check_cache, jit
 from ekf.fast.layout import C, S
 from ekf.reference import (ACQUIRED_INFO, ACQUIRING_PRIOR, CLIP_MARGIN, CLIP_MIN_G,
@@ -1047,13 +1047,7 @@ def _fit_hard_iron(s, c, t, y0, y1, y2):
         _restart_evidence(s, t)
     M = S.mag_offset_info
     V = S.mag_offset_rhs
-    for r in range(3):
-        for k in range(3):
-            dtd = (s[D + r] * s[D + k] + s[D + 3 + r] * s[D + 3 + k]
-                   + s[D + 6 + r] * s[D + 6 + k])
-            s[M + 3 * r + k] = forget * s[M + 3 * r + k] + w * dtd
-        dte = s[D + r] * s[e] + s[D + 3 + r] * s[e + 1] + s[D + 6 + r] * s[e + 2]
-        s[V + r] = forget * s[V + r] + w * dte
+    add_pair(s, M, V, forget, w)
     s[S.mag_offset_t] = t
     if s[S.mag_acquiring] == 0.0 and _restart_due(s):
         # a new offset: the fit starts again from the pairs that revealed it
@@ -1083,17 +1077,8 @@ def _restart_evidence(s, t):
         s[S.mag_restart_t] = t
         return
     forget = math.exp(-(t - s[S.mag_restart_t]) / HARD_IRON_RESTART_TAU_S)
-    D = S.work_s
+    add_pair(s, S.mag_restart_info, S.mag_restart_rhs, forget, 1.0)
     e = S.work_pht
-    M = S.mag_restart_info
-    V = S.mag_restart_rhs
-    for r in range(3):
-        for k in range(3):
-            dtd = (s[D + r] * s[D + k] + s[D + 3 + r] * s[D + 3 + k]
-                   + s[D + 6 + r] * s[D + 6 + k])
-            s[M + 3 * r + k] = forget * s[M + 3 * r + k] + dtd
-        dte = s[D + r] * s[e] + s[D + 3 + r] * s[e + 1] + s[D + 6 + r] * s[e + 2]
-        s[V + r] = forget * s[V + r] + dte
     s[S.mag_restart_sq] = forget * s[S.mag_restart_sq] + (s[e] ** 2 + s[e + 1] ** 2
                                                           + s[e + 2] ** 2)
     s[S.mag_restart_n] = forget * s[S.mag_restart_n] + 1.0
